@@ -1,0 +1,3 @@
+//! Composition roots: each mode wires the pure core to its edges.
+
+pub mod replay;

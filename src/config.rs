@@ -1,0 +1,553 @@
+//! Configuration profiles: `config/*.toml`, parsed with serde, overridden with `--set`,
+//! validated at load, with the data files they name (calibration, gains) loaded and checked.
+//!
+//! Every problem found is reported, one line each, naming the file and the key (or the
+//! position of a malformed number in a data file). Relative paths resolve against the folder
+//! of the configuration file.
+
+use crate::core::imu::calib::{CALIB_NUMBERS, Calibration};
+use crate::core::imu::startup::StartupParams;
+use crate::core::numfile;
+use serde::{Deserialize, Serialize};
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+/// Default configuration used when a command gets no `--config`.
+pub const DEFAULT_CONFIG: &str = "config/uquad.toml";
+
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Config {
+    pub vehicle: Vehicle,
+    pub imu: Imu,
+    pub control: Control,
+    pub gps: Gps,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Vehicle {
+    /// Take-off mass, kg.
+    pub mass_kg: f64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Imu {
+    /// `imu_calib.txt` (45 numbers, spec 2.1).
+    pub calib_file: PathBuf,
+    /// Consecutive in-range frame intervals required before calibrating.
+    pub settle_frames: u32,
+    /// Frames after which settling gives up.
+    pub settle_max_frames: u32,
+    /// Time after which settling gives up, s.
+    pub settle_timeout_s: f64,
+    /// Accepted frame interval, µs.
+    pub period_min_us: u32,
+    pub period_max_us: u32,
+    /// Frames averaged into the start-up null sample.
+    pub calib_frames: u32,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Control {
+    /// Proportional gain matrix, 4 × 12 (rows = motors).
+    pub k_prop_file: PathBuf,
+    /// Integral gain matrix, 4 × 4.
+    pub k_int_file: PathBuf,
+    /// Hover altitude set point above the start altitude, m.
+    pub hover_z_m: f64,
+    pub integral: Integrals,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Integrals {
+    pub psi: IntegralRule,
+    pub phi: IntegralRule,
+    pub z: IntegralRule,
+    pub theta: IntegralRule,
+    pub x: IntegralRule,
+    pub y: IntegralRule,
+}
+
+/// Update rule of one integrator (spec 4.4, ERRATA 7). `step_max` and `cap` are required
+/// when the rule is given, since no single default fits every state.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct IntegralRule {
+    /// Largest change per control step (error × T_s is clamped to ± this), unit·s.
+    pub step_max: f64,
+    /// The accumulator is clamped to ± this, unit·s.
+    pub cap: f64,
+    /// Errors larger than this in magnitude are not integrated; absent = no threshold.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub threshold: Option<f64>,
+    /// Initial accumulator value, unit·s.
+    #[serde(default)]
+    pub seed: f64,
+}
+
+impl IntegralRule {
+    const fn new(step_max: f64, cap: f64, threshold: Option<f64>) -> Self {
+        IntegralRule {
+            step_max,
+            cap,
+            threshold,
+            seed: 0.0,
+        }
+    }
+}
+
+/// Where the estimator's GPS samples come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum GpsMode {
+    Off,
+    FakeZero,
+    FakeRandom,
+    Gpsd,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Gps {
+    pub mode: GpsMode,
+}
+
+impl Default for Vehicle {
+    fn default() -> Self {
+        Vehicle { mass_kg: 1.55 }
+    }
+}
+
+impl Default for Imu {
+    fn default() -> Self {
+        let p = StartupParams::ORIGINAL;
+        Imu {
+            calib_file: PathBuf::from("imu_calib.txt"),
+            settle_frames: p.settle_frames,
+            settle_max_frames: p.settle_max_frames,
+            settle_timeout_s: p.settle_timeout_us as f64 / 1e6,
+            period_min_us: p.period_min_us as u32,
+            period_max_us: p.period_max_us as u32,
+            calib_frames: p.calib_frames,
+        }
+    }
+}
+
+impl Default for Control {
+    fn default() -> Self {
+        Control {
+            k_prop_file: PathBuf::from("K_prop_full_ppzt.txt"),
+            k_int_file: PathBuf::from("K_int_full_ppzt.txt"),
+            hover_z_m: 1.0,
+            integral: Integrals::default(),
+        }
+    }
+}
+
+impl Default for Integrals {
+    /// The later version's rules (spec 4.4 table), thresholds on.
+    fn default() -> Self {
+        Integrals {
+            psi: IntegralRule::new(1e-3, 1.0, Some(0.26)),
+            phi: IntegralRule::new(1e-3, 1.0, Some(0.26)),
+            z: IntegralRule::new(2.5e-3, 2.0, Some(2.0)),
+            theta: IntegralRule::new(7e-3, 2.0, Some(0.78)),
+            x: IntegralRule::new(1.0, 5.0, Some(1.0)),
+            y: IntegralRule::new(1.0, 5.0, Some(1.0)),
+        }
+    }
+}
+
+impl Default for Gps {
+    fn default() -> Self {
+        Gps {
+            mode: GpsMode::FakeZero,
+        }
+    }
+}
+
+impl Imu {
+    pub fn startup_params(&self) -> StartupParams {
+        StartupParams {
+            settle_frames: self.settle_frames,
+            settle_max_frames: self.settle_max_frames,
+            settle_timeout_us: (self.settle_timeout_s * 1e6).round() as i64,
+            period_min_us: i64::from(self.period_min_us),
+            period_max_us: i64::from(self.period_max_us),
+            calib_frames: self.calib_frames,
+        }
+    }
+}
+
+/// One problem in a configuration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Problem {
+    /// The file the problem is in (the configuration or a data file it names).
+    pub file: PathBuf,
+    /// The configuration key concerned, when there is one.
+    pub key: Option<String>,
+    pub message: String,
+}
+
+impl fmt::Display for Problem {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}: ", self.file.display())?;
+        if let Some(k) = &self.key {
+            write!(f, "{k}: ")?;
+        }
+        f.write_str(&self.message)
+    }
+}
+
+/// Every problem found while loading a configuration.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub struct ConfigError {
+    pub problems: Vec<Problem>,
+}
+
+impl fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        for (i, p) in self.problems.iter().enumerate() {
+            if i > 0 {
+                writeln!(f)?;
+            }
+            write!(f, "{p}")?;
+        }
+        Ok(())
+    }
+}
+
+/// A validated configuration with the data files it names, loaded.
+#[derive(Debug, Clone)]
+pub struct Profile {
+    /// The file it came from.
+    pub path: PathBuf,
+    /// The configuration with every path made absolute.
+    pub config: Config,
+    pub calib: Calibration,
+    /// 4 × 12, row-major (rows = motors).
+    pub k_prop: Vec<f64>,
+    /// 4 × 4, row-major.
+    pub k_int: Vec<f64>,
+}
+
+impl Profile {
+    /// The resolved configuration as TOML (what a run folder stores as `config.toml`).
+    pub fn resolved_toml(&self) -> String {
+        toml::to_string(&self.config).unwrap_or_default()
+    }
+}
+
+/// Parses a `--set KEY=VALUE` argument: a dotted key and a TOML value. A value that is not
+/// valid TOML is taken as a string, so `--set gps.mode=fake-zero` works without quotes.
+pub fn parse_set(arg: &str) -> Result<(String, toml::Value), String> {
+    let (key, value) = arg
+        .split_once('=')
+        .ok_or_else(|| format!("--set {arg:?}: expected KEY=VALUE"))?;
+    let key = key.trim();
+    if key.is_empty() || key.split('.').any(|p| p.trim().is_empty()) {
+        return Err(format!(
+            "--set {arg:?}: the key must be dotted names like vehicle.mass_kg"
+        ));
+    }
+    let value = value.trim();
+    let parsed = toml::from_str::<toml::Table>(&format!("v = {value}"))
+        .ok()
+        .and_then(|mut t| t.remove("v"))
+        .unwrap_or_else(|| toml::Value::String(value.to_string()));
+    Ok((key.to_string(), parsed))
+}
+
+fn set_dotted(table: &mut toml::Table, key: &str, value: toml::Value) -> Result<(), String> {
+    let parts: Vec<&str> = key.split('.').collect();
+    let mut cur = table;
+    for (i, part) in parts.iter().enumerate() {
+        if i + 1 == parts.len() {
+            cur.insert((*part).to_string(), value);
+            return Ok(());
+        }
+        let entry = cur
+            .entry((*part).to_string())
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        cur = entry
+            .as_table_mut()
+            .ok_or_else(|| format!("{} is not a table", parts[..=i].join(".")))?;
+    }
+    Ok(())
+}
+
+fn remove_dotted(table: &mut toml::Table, key: &str) -> bool {
+    let parts: Vec<&str> = key.split('.').collect();
+    let mut cur = table;
+    for (i, part) in parts.iter().enumerate() {
+        if i + 1 == parts.len() {
+            return cur.remove(*part).is_some();
+        }
+        match cur.get_mut(*part).and_then(|v| v.as_table_mut()) {
+            Some(t) => cur = t,
+            None => return false,
+        }
+    }
+    false
+}
+
+/// Picks the configuration file: the given one, else `config/uquad.toml` under the working
+/// directory when it exists.
+pub fn resolve_path(given: Option<&Path>) -> Result<PathBuf, String> {
+    match given {
+        Some(p) => Ok(p.to_path_buf()),
+        None if Path::new(DEFAULT_CONFIG).is_file() => Ok(PathBuf::from(DEFAULT_CONFIG)),
+        None => Err(format!(
+            "no --config given and {DEFAULT_CONFIG} does not exist under the working directory"
+        )),
+    }
+}
+
+/// Loads, overrides, validates and resolves a configuration file and its data files.
+pub fn load(path: &Path, sets: &[(String, toml::Value)]) -> Result<Profile, ConfigError> {
+    let problem = |key: Option<&str>, message: String| Problem {
+        file: path.to_path_buf(),
+        key: key.map(str::to_string),
+        message,
+    };
+    let text = std::fs::read_to_string(path).map_err(|e| ConfigError {
+        problems: vec![problem(None, format!("cannot read the configuration: {e}"))],
+    })?;
+    let mut table: toml::Table = toml::from_str(&text).map_err(|e| ConfigError {
+        problems: vec![problem(
+            None,
+            format!("not valid TOML: {}", e.to_string().trim()),
+        )],
+    })?;
+    let mut problems = Vec::new();
+    for (key, value) in sets {
+        if let Err(e) = set_dotted(&mut table, key, value.clone()) {
+            problems.push(problem(Some(key), format!("--set cannot apply: {e}")));
+        }
+    }
+    let from_set = |key: &str| sets.iter().any(|(k, _)| k == key);
+    let origin = |key: &str| {
+        if from_set(key) { " (from --set)" } else { "" }
+    };
+
+    // Deserialise; on a type error note it, drop the key (its default applies) and go on, so
+    // every bad value is reported rather than only the first.
+    let mut unknown: Vec<String> = Vec::new();
+    let config = loop {
+        unknown.clear();
+        let mut track = serde_path_to_error::Track::new();
+        let de =
+            serde_path_to_error::Deserializer::new(toml::Value::Table(table.clone()), &mut track);
+        let result: Result<Config, _> =
+            serde_ignored::deserialize(de, |p| unknown.push(p.to_string()));
+        match result {
+            Ok(c) => break c,
+            Err(e) => {
+                let key = track.path().to_string();
+                // The first line is the problem; the rest repeats the key we already name.
+                let full = e.to_string();
+                let msg = full
+                    .lines()
+                    .next()
+                    .unwrap_or("invalid value")
+                    .trim()
+                    .to_string();
+                problems.push(problem(Some(&key), format!("{msg}{}", origin(&key))));
+                if key.is_empty() || key == "." || !remove_dotted(&mut table, &key) {
+                    return Err(ConfigError { problems });
+                }
+            }
+        }
+    };
+    for key in &unknown {
+        problems.push(problem(Some(key), format!("unknown key{}", origin(key))));
+    }
+
+    let mut c = config;
+    let mut range = |key: &str, ok: bool, value: String, allowed: &str| {
+        if !ok {
+            problems.push(problem(
+                Some(key),
+                format!("{value} is out of range{}: allowed {allowed}", origin(key)),
+            ));
+        }
+    };
+    let m = c.vehicle.mass_kg;
+    range(
+        "vehicle.mass_kg",
+        m.is_finite() && (0.1..=2.3).contains(&m),
+        m.to_string(),
+        "0.1 to 2.3 kg (at 368 rad/s the motors lift at most 2.38 kg)",
+    );
+    let z = c.control.hover_z_m;
+    range(
+        "control.hover_z_m",
+        z.is_finite() && (0.0..=10.0).contains(&z),
+        z.to_string(),
+        "0 to 10 m",
+    );
+    let imu = &c.imu;
+    range(
+        "imu.settle_frames",
+        imu.settle_frames <= 10_000,
+        imu.settle_frames.to_string(),
+        "0 to 10000 frames",
+    );
+    range(
+        "imu.settle_max_frames",
+        imu.settle_max_frames >= imu.settle_frames && imu.settle_max_frames <= 100_000,
+        imu.settle_max_frames.to_string(),
+        "imu.settle_frames to 100000 frames",
+    );
+    range(
+        "imu.settle_timeout_s",
+        imu.settle_timeout_s.is_finite()
+            && imu.settle_timeout_s > 0.0
+            && imu.settle_timeout_s <= 600.0,
+        imu.settle_timeout_s.to_string(),
+        "more than 0, at most 600 s",
+    );
+    range(
+        "imu.period_min_us",
+        (1_000..=100_000).contains(&imu.period_min_us),
+        imu.period_min_us.to_string(),
+        "1000 to 100000 µs",
+    );
+    range(
+        "imu.period_max_us",
+        imu.period_max_us > imu.period_min_us && imu.period_max_us <= 100_000,
+        imu.period_max_us.to_string(),
+        "above imu.period_min_us, at most 100000 µs",
+    );
+    range(
+        "imu.calib_frames",
+        (6..=100_000).contains(&imu.calib_frames),
+        imu.calib_frames.to_string(),
+        "6 to 100000 frames (at least the FIR length)",
+    );
+    let rules = [
+        ("psi", c.control.integral.psi),
+        ("phi", c.control.integral.phi),
+        ("z", c.control.integral.z),
+        ("theta", c.control.integral.theta),
+        ("x", c.control.integral.x),
+        ("y", c.control.integral.y),
+    ];
+    for (name, r) in rules {
+        let k = |leaf: &str| format!("control.integral.{name}.{leaf}");
+        range(
+            &k("step_max"),
+            r.step_max.is_finite() && r.step_max > 0.0 && r.step_max <= 10.0,
+            r.step_max.to_string(),
+            "more than 0, at most 10",
+        );
+        range(
+            &k("cap"),
+            r.cap.is_finite() && r.cap > 0.0 && r.cap <= 100.0,
+            r.cap.to_string(),
+            "more than 0, at most 100",
+        );
+        if let Some(t) = r.threshold {
+            range(
+                &k("threshold"),
+                t.is_finite() && t > 0.0,
+                t.to_string(),
+                "more than 0 (leave the key out for no threshold)",
+            );
+        }
+        range(
+            &k("seed"),
+            r.seed.is_finite() && r.seed.abs() <= r.cap,
+            r.seed.to_string(),
+            "within ± the cap",
+        );
+    }
+
+    // Resolve and load the data files.
+    let base = path
+        .parent()
+        .map(|p| {
+            if p.as_os_str().is_empty() {
+                Path::new(".")
+            } else {
+                p
+            }
+        })
+        .unwrap_or(Path::new("."));
+    let base = std::fs::canonicalize(base).unwrap_or_else(|_| base.to_path_buf());
+    let resolve = |p: &Path| {
+        if p.is_absolute() {
+            p.to_path_buf()
+        } else {
+            base.join(p)
+        }
+    };
+    c.imu.calib_file = resolve(&c.imu.calib_file);
+    c.control.k_prop_file = resolve(&c.control.k_prop_file);
+    c.control.k_int_file = resolve(&c.control.k_int_file);
+
+    let mut load_numbers = |key: &str, file: &Path, count: usize| -> Option<Vec<f64>> {
+        let text = match std::fs::read_to_string(file) {
+            Ok(t) => t,
+            Err(e) => {
+                problems.push(problem(
+                    Some(key),
+                    format!("cannot read {}: {e}", file.display()),
+                ));
+                return None;
+            }
+        };
+        match numfile::parse_exact(&text, count) {
+            Ok(n) => Some(n),
+            Err(e) => {
+                problems.push(Problem {
+                    file: file.to_path_buf(),
+                    key: Some(key.to_string()),
+                    message: e.to_string(),
+                });
+                None
+            }
+        }
+    };
+    let calib = load_numbers("imu.calib_file", &c.imu.calib_file.clone(), CALIB_NUMBERS)
+        .map(|n| Calibration::from_numbers(&n));
+    let k_prop = load_numbers("control.k_prop_file", &c.control.k_prop_file.clone(), 48);
+    let k_int = load_numbers("control.k_int_file", &c.control.k_int_file.clone(), 16);
+
+    match (calib, k_prop, k_int) {
+        (Some(calib), Some(k_prop), Some(k_int)) if problems.is_empty() => Ok(Profile {
+            path: path.to_path_buf(),
+            config: c,
+            calib,
+            k_prop,
+            k_int,
+        }),
+        _ => Err(ConfigError { problems }),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn set_values_parse_as_toml_or_string() {
+        assert_eq!(
+            parse_set("vehicle.mass_kg=-3").unwrap(),
+            ("vehicle.mass_kg".into(), toml::Value::Integer(-3))
+        );
+        assert_eq!(
+            parse_set("gps.mode=fake-zero").unwrap().1,
+            toml::Value::String("fake-zero".into())
+        );
+        assert_eq!(
+            parse_set("gps.mode=\"off\"").unwrap().1,
+            toml::Value::String("off".into())
+        );
+        assert!(parse_set("novalue").is_err());
+        assert!(parse_set("a..b=1").is_err());
+    }
+}

@@ -1,0 +1,6 @@
+//! The pure core: everything that decides something, with no clock, no I/O and no tasks.
+//! Time and data come in as arguments; decisions come out as return values. Each file names the
+//! section of `../shared/spec/uquad-original.md` it follows.
+
+pub mod imu;
+pub mod numfile;

@@ -1,0 +1,335 @@
+//! Record types, parsers and printers of the original's log files.
+
+use crate::core::imu::calib::ImuSample;
+use crate::core::imu::frame::RawFrame;
+use std::fmt::Write as _;
+
+/// A log line that could not be read.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("line {line}: {message}")]
+pub struct LineError {
+    /// 1-based line number in the file.
+    pub line: usize,
+    pub message: String,
+}
+
+/// Splits a log's text into (1-based line number, trimmed record), accepting `\n`, `\r\n` and
+/// `\n\r` and skipping blank or whitespace-only pieces.
+pub fn records(text: &str) -> impl Iterator<Item = (usize, &str)> {
+    text.split('\n')
+        .enumerate()
+        .map(|(i, l)| {
+            (
+                i + 1,
+                l.trim_matches(|c: char| c == '\r' || c.is_whitespace()),
+            )
+        })
+        .filter(|(_, l)| !l.is_empty())
+}
+
+/// Formats a time in µs as the original's `%ld.%06ld` seconds.
+pub fn fmt_time_us(t_us: i64) -> String {
+    let mut s = String::new();
+    push_time_us(&mut s, t_us);
+    s
+}
+
+fn push_time_us(out: &mut String, t_us: i64) {
+    let sign = if t_us < 0 { "-" } else { "" };
+    let a = t_us.unsigned_abs();
+    // Writing into a String cannot fail.
+    let _ = write!(out, "{sign}{}.{:06}", a / 1_000_000, a % 1_000_000);
+}
+
+/// Parses a `seconds.micros` time exactly into µs (digits past the sixth are rounded).
+pub fn parse_time_us(s: &str) -> Option<i64> {
+    let (neg, body) = match s.strip_prefix('-') {
+        Some(rest) => (true, rest),
+        None => (false, s),
+    };
+    let (whole, frac) = body.split_once('.').unwrap_or((body, ""));
+    if whole.is_empty() && frac.is_empty() {
+        return None;
+    }
+    if !whole.chars().all(|c| c.is_ascii_digit()) || !frac.chars().all(|c| c.is_ascii_digit()) {
+        return None;
+    }
+    let secs: i64 = if whole.is_empty() {
+        0
+    } else {
+        whole.parse().ok()?
+    };
+    let mut micros: i64 = 0;
+    for (i, c) in frac.chars().take(6).enumerate() {
+        micros += i64::from(c.to_digit(10)?) * 10i64.pow(5 - i as u32);
+    }
+    if frac.len() > 6 && frac.as_bytes()[6] >= b'5' {
+        micros += 1;
+    }
+    let t = secs.checked_mul(1_000_000)?.checked_add(micros)?;
+    Some(if neg { -t } else { t })
+}
+
+fn field<T: std::str::FromStr>(fields: &[&str], i: usize, what: &str) -> Result<T, String> {
+    let text = fields
+        .get(i)
+        .ok_or_else(|| format!("missing column {} ({what})", i + 1))?;
+    text.parse()
+        .map_err(|_| format!("column {} ({what}) is malformed: {text:?}", i + 1))
+}
+
+fn time_field(fields: &[&str], i: usize, what: &str) -> Result<i64, String> {
+    let text = fields
+        .get(i)
+        .ok_or_else(|| format!("missing column {} ({what})", i + 1))?;
+    parse_time_us(text).ok_or_else(|| format!("column {} ({what}) is not a time: {text:?}", i + 1))
+}
+
+/// Parses every record of a log with `parse`, naming the line of the first bad record. A bad
+/// **last** record is dropped and reported in `truncated` instead: the original's logs can end
+/// in a partly written line when a run is cut off.
+pub fn parse_log<T>(
+    text: &str,
+    parse: impl Fn(&[&str]) -> Result<T, String>,
+) -> Result<Parsed<T>, LineError> {
+    let lines: Vec<(usize, &str)> = records(text).collect();
+    let mut rows = Vec::with_capacity(lines.len());
+    let mut truncated = None;
+    for (k, (line, body)) in lines.iter().enumerate() {
+        let fields: Vec<&str> = body.split_whitespace().collect();
+        match parse(&fields) {
+            Ok(r) => rows.push(r),
+            Err(message) if k + 1 == lines.len() && k > 0 => {
+                truncated = Some(LineError {
+                    line: *line,
+                    message,
+                })
+            }
+            Err(message) => {
+                return Err(LineError {
+                    line: *line,
+                    message,
+                });
+            }
+        }
+    }
+    Ok(Parsed { rows, truncated })
+}
+
+/// The rows of a log, and the dropped last line if it was cut off.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Parsed<T> {
+    pub rows: Vec<T>,
+    pub truncated: Option<LineError>,
+}
+
+/// One `imu_raw.log` line (spec 1.6).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImuRawRecord {
+    /// Time since the program started when the frame was used, µs.
+    pub t_main_us: i64,
+    /// Frame stamp (the original: absolute wall clock), µs.
+    pub t_frame_us: i64,
+    pub frame: RawFrame,
+}
+
+impl ImuRawRecord {
+    pub fn parse_fields(f: &[&str]) -> Result<Self, String> {
+        if f.len() != 14 {
+            return Err(format!("expected 14 columns, found {}", f.len()));
+        }
+        let i16_at = |i: usize, what: &str| field::<i16>(f, i, what);
+        // The original printed the temperature as unsigned; read either form.
+        let temp_dc = match f[12].parse::<i16>() {
+            Ok(v) => v,
+            Err(_) => field::<u16>(f, 12, "temp")? as i16,
+        };
+        Ok(ImuRawRecord {
+            t_main_us: time_field(f, 0, "t_main")?,
+            t_frame_us: time_field(f, 1, "t_frame")?,
+            frame: RawFrame {
+                t_us: field(f, 2, "T_us")?,
+                acc: [
+                    i16_at(3, "acc x")?,
+                    i16_at(4, "acc y")?,
+                    i16_at(5, "acc z")?,
+                ],
+                gyro: [
+                    i16_at(6, "gyro x")?,
+                    i16_at(7, "gyro y")?,
+                    i16_at(8, "gyro z")?,
+                ],
+                magn: [
+                    i16_at(9, "magn x")?,
+                    i16_at(10, "magn y")?,
+                    i16_at(11, "magn z")?,
+                ],
+                temp_dc,
+                pres_pa: field(f, 13, "pressure")?,
+            },
+        })
+    }
+
+    pub fn write(&self, out: &mut String) {
+        push_time_us(out, self.t_main_us);
+        out.push('\t');
+        push_time_us(out, self.t_frame_us);
+        let f = &self.frame;
+        let _ = write!(out, "\t{}", f.t_us);
+        for v in f.acc.iter().chain(&f.gyro).chain(&f.magn) {
+            let _ = write!(out, "\t{v}");
+        }
+        // Printed unsigned, as the original did.
+        let _ = writeln!(out, "\t{}\t{}", f.temp_dc as u16, f.pres_pa);
+    }
+}
+
+/// One `kalman_in.log` line: the filter's measurement input (spec 8.6).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct KalmanInRecord {
+    /// Time of the Kalman step, µs since start.
+    pub t_us: i64,
+    /// Time since the previous used IMU sample, µs (not the filter's dt).
+    pub dt_us: i64,
+    /// The T_us column (the 2012 logs hold 0 there).
+    pub t_frame_col: f64,
+    pub acc_m_s2: [f64; 3],
+    pub gyro_rad_s: [f64; 3],
+    /// ψ, φ, θ (θ unwrapped), rad.
+    pub euler_rad: [f64; 3],
+    pub temp_c: f64,
+    pub alt_m: f64,
+}
+
+impl KalmanInRecord {
+    pub fn from_sample(t_us: i64, dt_us: i64, s: &ImuSample) -> Self {
+        KalmanInRecord {
+            t_us,
+            dt_us,
+            // The original's logs carry 0 in this column; keep it.
+            t_frame_col: 0.0,
+            acc_m_s2: s.acc_m_s2,
+            gyro_rad_s: s.gyro_rad_s,
+            euler_rad: s.euler_rad,
+            temp_c: s.temp_c,
+            alt_m: s.alt_m,
+        }
+    }
+
+    /// The 11 measurement columns (4–14), in file order.
+    pub fn measurements(&self) -> [f64; 11] {
+        let (a, g, e) = (self.acc_m_s2, self.gyro_rad_s, self.euler_rad);
+        [
+            a[0],
+            a[1],
+            a[2],
+            g[0],
+            g[1],
+            g[2],
+            e[0],
+            e[1],
+            e[2],
+            self.temp_c,
+            self.alt_m,
+        ]
+    }
+
+    pub fn parse_fields(f: &[&str]) -> Result<Self, String> {
+        if f.len() != 14 {
+            return Err(format!("expected 14 columns, found {}", f.len()));
+        }
+        let mut v = [0.0; 11];
+        for (k, slot) in v.iter_mut().enumerate() {
+            *slot = field(f, 3 + k, "measurement")?;
+        }
+        Ok(KalmanInRecord {
+            t_us: time_field(f, 0, "t_kalman")?,
+            dt_us: time_field(f, 1, "dt")?,
+            t_frame_col: field(f, 2, "T_us")?,
+            acc_m_s2: [v[0], v[1], v[2]],
+            gyro_rad_s: [v[3], v[4], v[5]],
+            euler_rad: [v[6], v[7], v[8]],
+            temp_c: v[9],
+            alt_m: v[10],
+        })
+    }
+
+    pub fn write(&self, out: &mut String) {
+        push_time_us(out, self.t_us);
+        out.push('\t');
+        push_time_us(out, self.dt_us);
+        let _ = write!(out, "\t{:.8}", self.t_frame_col);
+        for v in self.measurements() {
+            let _ = write!(out, "\t{v:.8}");
+        }
+        out.push('\n');
+    }
+}
+
+/// The first column of a time-stamped log (`int.log`, `w.log`, `gps.log`, ...), µs.
+pub fn parse_time_column(f: &[&str]) -> Result<i64, String> {
+    time_field(f, 0, "time")
+}
+
+/// The first two columns of a log as times (`kalman_in.log`: step time and IMU dt), µs.
+pub fn parse_time_column_pair(f: &[&str]) -> Result<(i64, i64), String> {
+    Ok((time_field(f, 0, "time")?, time_field(f, 1, "dt")?))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn times_round_trip() {
+        assert_eq!(parse_time_us("12.126526"), Some(12_126_526));
+        assert_eq!(parse_time_us("0.5"), Some(500_000));
+        assert_eq!(parse_time_us("3"), Some(3_000_000));
+        assert_eq!(parse_time_us("1.0000005"), Some(1_000_001));
+        assert_eq!(parse_time_us("-0.000001"), Some(-1));
+        assert_eq!(parse_time_us("1.2e3"), None);
+        assert_eq!(parse_time_us(""), None);
+        assert_eq!(fmt_time_us(12_126_526), "12.126526");
+        assert_eq!(fmt_time_us(5), "0.000005");
+    }
+
+    #[test]
+    fn line_ends_all_accepted() {
+        for text in [
+            "1\t\n2\t\n",
+            "1\t\r\n2\t\r\n",
+            "1\t\n\r2\t\n\r",
+            "1\n  \n\r\n2",
+        ] {
+            let got: Vec<&str> = records(text).map(|(_, l)| l).collect();
+            assert_eq!(got, vec!["1", "2"], "{text:?}");
+        }
+    }
+
+    #[test]
+    fn imu_raw_round_trip_and_errors() {
+        let line = "7.039246\t1327662538.476410\t9996\t0\t7\t193\t-54\t17\t-22\t-141\t-268\t119\t386\t101443\n";
+        let p = parse_log(line, ImuRawRecord::parse_fields).unwrap();
+        let mut out = String::new();
+        p.rows[0].write(&mut out);
+        assert_eq!(out, line);
+        let bad = format!("{line}{}", line.replace("193", "1x3")).repeat(2);
+        let e = parse_log(&bad, ImuRawRecord::parse_fields).unwrap_err();
+        assert_eq!(e.line, 2);
+        assert!(e.message.contains("column 6"), "{e}");
+        // A cut-off last line is dropped and reported.
+        let cut = format!("{line}{}", &line[..20]);
+        let p = parse_log(&cut, ImuRawRecord::parse_fields).unwrap();
+        assert_eq!(p.rows.len(), 1);
+        assert_eq!(p.truncated.unwrap().line, 2);
+    }
+
+    #[test]
+    fn kalman_in_round_trip() {
+        let line = "12.136963\t0.010529\t0.00000000\t-0.19719096\t-0.09051753\t9.84725062\t-0.00002714\t0.01392673\t0.00301638\t-0.00919190\t0.02002145\t2.02196493\t38.30000000\t-0.49892002\n";
+        let p = parse_log(line, KalmanInRecord::parse_fields).unwrap();
+        let mut out = String::new();
+        p.rows[0].write(&mut out);
+        assert_eq!(out, line);
+    }
+}

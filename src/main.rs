@@ -1,0 +1,145 @@
+//! The `uquad` command: parses the command line, sets up tracing, loads the configuration and
+//! dispatches to the modes in `uquad::app`.
+
+use anyhow::Context;
+use clap::{Parser, Subcommand};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use uquad::config;
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "uquad",
+    version,
+    about = "Flight software for the uQuad quadcopter",
+    long_about = "Flight software for the uQuad quadcopter: IMU measurement path, 15-state EKF, \
+hover controller and motor drivers, with a replay mode that reruns a recorded flight.\n\n\
+Logging goes to stderr; set RUST_LOG (e.g. RUST_LOG=debug) to change its level.",
+    after_help = "Examples:\n  \
+uquad check-config config/flight-2012-05.toml --set vehicle.mass_kg=1.6\n  \
+uquad replay tests/data/flight-2012-05-25 --config config/flight-2012-05.toml --out /tmp/replay"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Validate a configuration and the files it names; print every problem found.
+    #[command(
+        long_about = "Validate a configuration file and the calibration and gain files it names.\n\n\
+Exits 0 when everything is valid. Otherwise prints one line per problem, naming the file, the key \
+(or the position of a malformed number in a data file) and the problem, and exits 1."
+    )]
+    CheckConfig {
+        /// The configuration file (TOML), e.g. config/uquad.toml.
+        file: PathBuf,
+        #[command(flatten)]
+        sets: SetArgs,
+    },
+    /// Rerun a recorded flight through the measurement path and write its logs.
+    #[command(
+        long_about = "Rerun a recorded flight through the core and write its logs.\n\n\
+RUN_DIR is a run folder as the original program wrote it: imu_raw.log (required) and, when \
+present, kalman_in.log, whose time columns are that run's recorded clock. The replay writes \
+OUT_DIR/kalman_in.log in the original's format (OUT_DIR is created if missing; logs in it are \
+overwritten). Without --config, RUN_DIR/config.toml is used."
+    )]
+    Replay {
+        /// The run folder to replay (e.g. tests/data/flight-2012-05-25).
+        run_dir: PathBuf,
+        /// Configuration profile (default: RUN_DIR/config.toml).
+        #[arg(long, value_name = "FILE")]
+        config: Option<PathBuf>,
+        #[command(flatten)]
+        sets: SetArgs,
+        /// Folder for the output logs.
+        #[arg(long, value_name = "OUT_DIR")]
+        out: PathBuf,
+    },
+}
+
+#[derive(clap::Args, Debug)]
+struct SetArgs {
+    /// Override a configuration key: dotted key, TOML value (e.g. vehicle.mass_kg=1.6,
+    /// gps.mode=off). Repeatable.
+    #[arg(long = "set", value_name = "KEY=VALUE", value_parser = config::parse_set)]
+    sets: Vec<(String, toml::Value)>,
+}
+
+fn init_tracing() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .init();
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    init_tracing();
+    match run(cli) {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn load_profile(path: &std::path::Path, sets: &SetArgs) -> anyhow::Result<config::Profile> {
+    config::load(path, &sets.sets).map_err(|e| anyhow::anyhow!("invalid configuration:\n{e}"))
+}
+
+fn run(cli: Cli) -> anyhow::Result<ExitCode> {
+    match cli.command {
+        Command::CheckConfig { file, sets } => match config::load(&file, &sets.sets) {
+            Ok(profile) => {
+                println!("{}: valid", profile.path.display());
+                Ok(ExitCode::SUCCESS)
+            }
+            Err(e) => {
+                for p in &e.problems {
+                    eprintln!("{p}");
+                }
+                eprintln!("{} problem(s) found", e.problems.len());
+                Ok(ExitCode::FAILURE)
+            }
+        },
+        Command::Replay {
+            run_dir,
+            config,
+            sets,
+            out,
+        } => {
+            let path = match config {
+                Some(p) => p,
+                None => {
+                    let p = run_dir.join("config.toml");
+                    if !p.is_file() {
+                        anyhow::bail!(
+                            "{} has no config.toml; pass --config FILE (config/flight-2012-05.toml for the 2012 runs)",
+                            run_dir.display()
+                        );
+                    }
+                    p
+                }
+            };
+            let profile = load_profile(&path, &sets)?;
+            let summary = uquad::app::replay::run(&run_dir, &profile, &out)
+                .with_context(|| format!("replay of {} failed", run_dir.display()))?;
+            tracing::info!(
+                raw_frames = summary.raw_frames,
+                kalman_rows = summary.kalman_rows,
+                "replay finished"
+            );
+            for o in &summary.outputs {
+                println!("{}", o.display());
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+    }
+}

@@ -1,0 +1,49 @@
+//! Helpers shared by the integration tests.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+pub fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+pub fn flight_dir() -> PathBuf {
+    root().join("tests/data/flight-2012-05-25")
+}
+
+pub fn profile_2012() -> PathBuf {
+    root().join("config/flight-2012-05.toml")
+}
+
+/// Runs the `uquad` binary with `args` in `cwd`.
+pub fn uquad(cwd: &Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_uquad"))
+        .args(args)
+        .current_dir(cwd)
+        .env("RUST_LOG", "warn")
+        .output()
+        .expect("the uquad binary runs")
+}
+
+/// Reads a whitespace-separated numeric log, accepting every line-end style.
+pub fn read_table(path: &Path) -> Vec<Vec<String>> {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    text.split(['\n', '\r'])
+        .filter(|l| !l.trim().is_empty())
+        .map(|l| l.split_whitespace().map(str::to_string).collect())
+        .collect()
+}
+
+/// Copies the two 2012 profile files and the data files they name into `dir`.
+pub fn copy_profile(dir: &Path) -> PathBuf {
+    for f in [
+        "flight-2012-05.toml",
+        "imu_calib.txt",
+        "K_prop_full_ppzt.txt",
+        "K_int_full_ppzt.txt",
+    ] {
+        std::fs::copy(root().join("config").join(f), dir.join(f)).expect("copy profile");
+    }
+    dir.join("flight-2012-05.toml")
+}

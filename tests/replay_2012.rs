@@ -1,0 +1,161 @@
+//! Replay of the real 2012-05-25 flight reproduces the original program's `kalman_in.log`.
+
+mod common;
+use common::*;
+
+#[test]
+fn replay_reproduces_original_kalman_in() {
+    let out = tempfile::tempdir().unwrap();
+    let out_dir = out.path().join("new/sub"); // created by the replay
+    let o = uquad(
+        &root(),
+        &[
+            "replay",
+            flight_dir().to_str().unwrap(),
+            "--config",
+            profile_2012().to_str().unwrap(),
+            "--out",
+            out_dir.to_str().unwrap(),
+        ],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let ours = read_table(&out_dir.join("kalman_in.log"));
+    let theirs = read_table(&flight_dir().join("kalman_in.log"));
+    assert_eq!(ours.len(), theirs.len(), "row count");
+    assert_eq!(ours.len(), 1120);
+    let mut worst = 0.0f64;
+    for (k, (a, b)) in ours.iter().zip(&theirs).enumerate() {
+        assert_eq!(a.len(), 14, "row {}", k + 1);
+        assert_eq!(a[0], b[0], "time of row {}", k + 1);
+        assert_eq!(a[1], b[1], "dt of row {}", k + 1);
+        for col in 3..14 {
+            let x: f64 = a[col].parse().unwrap();
+            let y: f64 = b[col].parse().unwrap();
+            worst = worst.max((x - y).abs());
+            assert!(
+                (x - y).abs() <= 1e-6,
+                "row {} column {}: ours {x}, original {y}",
+                k + 1,
+                col + 1
+            );
+        }
+    }
+    // The port reproduces the printed values exactly.
+    assert!(worst < 1e-8, "largest difference {worst}");
+}
+
+#[test]
+fn replay_is_deterministic_and_overwrites() {
+    let out = tempfile::tempdir().unwrap();
+    std::fs::write(out.path().join("kalman_in.log"), "stale\n").unwrap();
+    let run = || {
+        let o = uquad(
+            &root(),
+            &[
+                "replay",
+                flight_dir().to_str().unwrap(),
+                "--config",
+                profile_2012().to_str().unwrap(),
+                "--out",
+                out.path().to_str().unwrap(),
+            ],
+        );
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        std::fs::read(out.path().join("kalman_in.log")).unwrap()
+    };
+    let first = run();
+    assert!(!first.starts_with(b"stale"));
+    assert_eq!(first, run());
+}
+
+#[test]
+fn replay_without_recorded_clock_uses_frame_times() {
+    // A run folder with only imu_raw.log: times come from the raw frames.
+    let run = tempfile::tempdir().unwrap();
+    let raw = std::fs::read_to_string(flight_dir().join("imu_raw.log")).unwrap();
+    // Convert to \n\r line ends as some of the original's logs have.
+    std::fs::write(run.path().join("imu_raw.log"), raw.replace('\n', "\n\r")).unwrap();
+    let out = tempfile::tempdir().unwrap();
+    let o = uquad(
+        &root(),
+        &[
+            "replay",
+            run.path().to_str().unwrap(),
+            "--config",
+            profile_2012().to_str().unwrap(),
+            "--out",
+            out.path().to_str().unwrap(),
+        ],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let ours = read_table(&out.path().join("kalman_in.log"));
+    let raw = read_table(&flight_dir().join("imu_raw.log"));
+    assert_eq!(ours.len(), 1120);
+    // Row 2 comes from raw row 513: its time and the frame interval since raw row 512.
+    assert_eq!(ours[1][0], raw[512][0]);
+    assert_eq!(ours[1][1], "0.011383");
+    // The measurements do not depend on the clock.
+    let theirs = read_table(&flight_dir().join("kalman_in.log"));
+    assert_eq!(ours[500][3..], theirs[500][3..]);
+}
+
+#[test]
+fn replay_refuses_a_short_log_and_a_missing_config() {
+    let run = tempfile::tempdir().unwrap();
+    let raw = std::fs::read_to_string(flight_dir().join("imu_raw.log")).unwrap();
+    let head: String = raw.lines().take(100).map(|l| format!("{l}\n")).collect();
+    std::fs::write(run.path().join("imu_raw.log"), head).unwrap();
+    let out = tempfile::tempdir().unwrap();
+    let args = |cfg: bool| {
+        let mut a = vec![
+            "replay".to_string(),
+            run.path().to_str().unwrap().to_string(),
+            "--out".into(),
+            out.path().to_str().unwrap().to_string(),
+        ];
+        if cfg {
+            a.extend([
+                "--config".into(),
+                profile_2012().to_str().unwrap().to_string(),
+            ]);
+        }
+        a
+    };
+    let a = args(true);
+    let o = uquad(&root(), &a.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("100 frames are not enough"), "{err}");
+    let a = args(false);
+    let o = uquad(&root(), &a.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("config.toml"), "{err}");
+}
+
+#[test]
+fn replay_names_the_line_of_a_corrupt_record() {
+    let run = tempfile::tempdir().unwrap();
+    let raw = std::fs::read_to_string(flight_dir().join("imu_raw.log")).unwrap();
+    let mut lines: Vec<String> = raw.lines().map(str::to_string).collect();
+    lines[599] = lines[599].replacen('\t', "\tnot-a-time", 1);
+    std::fs::write(run.path().join("imu_raw.log"), lines.join("\n") + "\n").unwrap();
+    let out = tempfile::tempdir().unwrap();
+    let o = uquad(
+        &root(),
+        &[
+            "replay",
+            run.path().to_str().unwrap(),
+            "--config",
+            profile_2012().to_str().unwrap(),
+            "--out",
+            out.path().to_str().unwrap(),
+        ],
+    );
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("imu_raw.log") && err.contains("line 600"),
+        "{err}"
+    );
+}
