@@ -20,8 +20,70 @@ pub const DEFAULT_CONFIG: &str = "config/uquad.toml";
 pub struct Config {
     pub vehicle: Vehicle,
     pub imu: Imu,
+    pub ekf: Ekf,
     pub control: Control,
+    pub motor: Motor,
     pub gps: Gps,
+}
+
+/// The estimator (spec 3). Diagonals of the noise matrices, in state / measurement order.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Ekf {
+    /// Keep the original's model quirks its logs depend on (the cψ·cψ term of 3.3).
+    pub original_model: bool,
+    /// Process noise Q, 15 values.
+    pub q: [f64; 15],
+    /// IMU measurement noise R, 10 values: ψ φ θ ax ay az ωx ωy ωz alt.
+    pub r_imu: [f64; 10],
+    /// IMU + GPS measurement noise, 12 values: the first nine of r_imu, then GPS x y z.
+    pub r_gps: [f64; 12],
+    /// Initial covariance P₀, 15 values.
+    pub p0: [f64; 15],
+}
+
+impl Default for Ekf {
+    fn default() -> Self {
+        let p = crate::core::ekf::EkfParams::flight_2012();
+        Ekf {
+            original_model: false,
+            q: p.q_diag,
+            r_imu: p.r_imu_diag,
+            r_gps: p.r_gps_diag,
+            p0: p.p0_diag,
+        }
+    }
+}
+
+impl Ekf {
+    /// The filter parameters; the dt clamp is the accepted IMU period (spec 3.9).
+    pub fn params(&self, imu: &Imu) -> crate::core::ekf::EkfParams {
+        crate::core::ekf::EkfParams {
+            original_model: self.original_model,
+            q_diag: self.q,
+            r_imu_diag: self.r_imu,
+            r_gps_diag: self.r_gps,
+            p0_diag: self.p0,
+            dt_min_us: i64::from(imu.period_min_us),
+            dt_max_us: i64::from(imu.period_max_us),
+        }
+    }
+}
+
+/// Motors (spec 4.2, 6).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Motor {
+    /// Highest motor speed, rad/s; also sets w_min = 2·w_hover − w_max.
+    pub w_max_rad_s: f64,
+}
+
+impl Default for Motor {
+    fn default() -> Self {
+        Motor {
+            w_max_rad_s: crate::core::model::W_MAX_2012_RAD_S,
+        }
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -113,6 +175,10 @@ pub enum GpsMode {
 #[serde(default)]
 pub struct Gps {
     pub mode: GpsMode,
+    /// Seed of the fake-random positions.
+    pub seed: u64,
+    /// Span of the fake-random positions (`GPS_RAND_PP`), m.
+    pub fake_span_m: f64,
 }
 
 impl Default for Vehicle {
@@ -165,6 +231,8 @@ impl Default for Gps {
     fn default() -> Self {
         Gps {
             mode: GpsMode::FakeZero,
+            seed: 1,
+            fake_span_m: 1.0,
         }
     }
 }
@@ -428,6 +496,43 @@ pub fn load(path: &Path, sets: &[(String, toml::Value)]) -> Result<Profile, Conf
         imu.calib_frames.to_string(),
         "6 to 100000 frames (at least the FIR length)",
     );
+    let w_max = c.motor.w_max_rad_s;
+    range(
+        "motor.w_max_rad_s",
+        w_max.is_finite() && (100.0..=1000.0).contains(&w_max),
+        w_max.to_string(),
+        "100 to 1000 rad/s",
+    );
+    let w_hover = crate::core::model::w_hover_rad_s(m);
+    range(
+        "vehicle.mass_kg",
+        !(0.1..=2.3).contains(&m) || !w_max.is_finite() || w_hover < w_max,
+        format!("{m} (hover needs {w_hover:.1} rad/s)"),
+        "a mass that hovers below motor.w_max_rad_s",
+    );
+    let span = c.gps.fake_span_m;
+    range(
+        "gps.fake_span_m",
+        span.is_finite() && (0.0..=100.0).contains(&span),
+        span.to_string(),
+        "0 to 100 m",
+    );
+    let diag_lists: [(&str, &[f64]); 4] = [
+        ("ekf.q", &c.ekf.q),
+        ("ekf.r_imu", &c.ekf.r_imu),
+        ("ekf.r_gps", &c.ekf.r_gps),
+        ("ekf.p0", &c.ekf.p0),
+    ];
+    for (key, values) in diag_lists {
+        for (i, v) in values.iter().enumerate() {
+            range(
+                &format!("{key}[{i}]"),
+                v.is_finite() && *v > 0.0 && *v <= 1e12,
+                v.to_string(),
+                "more than 0, at most 1e12 (a variance)",
+            );
+        }
+    }
     let rules = [
         ("psi", c.control.integral.psi),
         ("phi", c.control.integral.phi),

@@ -133,7 +133,10 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 .with_context(|| format!("replay of {} failed", run_dir.display()))?;
             tracing::info!(
                 raw_frames = summary.raw_frames,
-                kalman_rows = summary.kalman_rows,
+                kalman_steps = summary.kalman_steps,
+                gps_updates = summary.gps_updates,
+                dt_clamped = summary.dt_clamped,
+                ekf_errors = summary.ekf_errors,
                 "replay finished"
             );
             for o in &summary.outputs {

@@ -2,5 +2,9 @@
 //! Time and data come in as arguments; decisions come out as return values. Each file names the
 //! section of `../shared/spec/uquad-original.md` it follows.
 
+pub mod ekf;
+pub mod gps;
 pub mod imu;
+pub mod model;
+pub mod motor;
 pub mod numfile;

@@ -276,6 +276,86 @@ pub fn parse_time_column_pair(f: &[&str]) -> Result<(i64, i64), String> {
     Ok((time_field(f, 0, "time")?, time_field(f, 1, "dt")?))
 }
 
+/// Writes a row of `%.15f` values, each followed by a tab, as the original's matrix dumps
+/// (`x_hat.log`); `t_us` first when given (`w.log`, `int.log`).
+pub fn write_values_row(out: &mut String, t_us: Option<i64>, values: &[f64]) {
+    if let Some(t) = t_us {
+        push_time_us(out, t);
+        out.push('\t');
+    }
+    for v in values {
+        let _ = write!(out, "{v:.15}\t");
+    }
+    out.push('\n');
+}
+
+/// A time-stamped row of four values (`w.log`: motor speeds m0..m3; `int.log`: integrators).
+pub fn parse_time_and_4(f: &[&str]) -> Result<(i64, [f64; 4]), String> {
+    if f.len() != 5 {
+        return Err(format!("expected 5 columns, found {}", f.len()));
+    }
+    let t = time_field(f, 0, "time")?;
+    let mut v = [0.0; 4];
+    for (i, slot) in v.iter_mut().enumerate() {
+        *slot = field(f, i + 1, "value")?;
+    }
+    Ok((t, v))
+}
+
+/// A row of `x_hat.log`: the 15 states.
+pub fn parse_x_hat(f: &[&str]) -> Result<[f64; 15], String> {
+    if f.len() != 15 {
+        return Err(format!("expected 15 columns, found {}", f.len()));
+    }
+    let mut v = [0.0; 15];
+    for (i, slot) in v.iter_mut().enumerate() {
+        *slot = field(f, i, "state")?;
+    }
+    Ok(v)
+}
+
+/// One `gps.log` line in either of the original's formats.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum GpsLogRecord {
+    /// Fake GPS (spec 7.4): only the time of the sample; the position was (0, 0, 0).
+    TimeOnly { t_us: i64 },
+    /// The gpsd client's 15 columns (spec 7.1): t_main, gps time, fix, x, y, z, vx, vy, vz, lat,
+    /// lon, speed, climb, track, vel_ok. Only the fields the filter needs are kept.
+    Gpsd {
+        t_us: i64,
+        fix_mode: i32,
+        lat_deg: f64,
+        lon_deg: f64,
+        alt_m: f64,
+    },
+}
+
+impl GpsLogRecord {
+    pub fn t_us(&self) -> i64 {
+        match *self {
+            GpsLogRecord::TimeOnly { t_us } | GpsLogRecord::Gpsd { t_us, .. } => t_us,
+        }
+    }
+
+    pub fn parse_fields(f: &[&str]) -> Result<Self, String> {
+        match f.len() {
+            1 => Ok(GpsLogRecord::TimeOnly {
+                t_us: time_field(f, 0, "t_main")?,
+            }),
+            15 => Ok(GpsLogRecord::Gpsd {
+                t_us: time_field(f, 0, "t_main")?,
+                fix_mode: field(f, 2, "fix")?,
+                alt_m: field(f, 5, "z")?,
+                lat_deg: field(f, 9, "lat")?,
+                lon_deg: field(f, 10, "lon")?,
+            }),
+            n => Err(format!(
+                "expected 1 column (fake GPS time) or 15 (gpsd format), found {n}"
+            )),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -322,6 +402,37 @@ mod tests {
         let p = parse_log(&cut, ImuRawRecord::parse_fields).unwrap();
         assert_eq!(p.rows.len(), 1);
         assert_eq!(p.truncated.unwrap().line, 2);
+    }
+
+    #[test]
+    fn gps_log_formats() {
+        let p = parse_log("12.135285\t\n\r13.137391\t\n", GpsLogRecord::parse_fields).unwrap();
+        assert_eq!(p.rows[1], GpsLogRecord::TimeOnly { t_us: 13_137_391 });
+        let line = "174.962037 1327671477.494110 3 576155.5929 6135556.1144 27.7 -0 -0 -0.1 -34.919588333 -56.166258333 0 -0.1 5.3075 1";
+        let p = parse_log(line, GpsLogRecord::parse_fields).unwrap();
+        assert_eq!(
+            p.rows[0],
+            GpsLogRecord::Gpsd {
+                t_us: 174_962_037,
+                fix_mode: 3,
+                lat_deg: -34.919588333,
+                lon_deg: -56.166258333,
+                alt_m: 27.7
+            }
+        );
+        assert!(parse_log("1 2 3\n", GpsLogRecord::parse_fields).is_err());
+    }
+
+    #[test]
+    fn values_rows() {
+        let mut out = String::new();
+        write_values_row(&mut out, Some(12_134_736), &[248.5, -0.25, 0.0, 1.0]);
+        assert_eq!(
+            out,
+            "12.134736\t248.500000000000000\t-0.250000000000000\t0.000000000000000\t1.000000000000000\t\n"
+        );
+        let p = parse_log(&out, parse_time_and_4).unwrap();
+        assert_eq!(p.rows[0], (12_134_736, [248.5, -0.25, 0.0, 1.0]));
     }
 
     #[test]

@@ -1,0 +1,540 @@
+//! The 15-state extended Kalman filter of the original.
+//!
+//! Spec section 3 with ERRATA 2–4: states (3.1), process model (3.3), Jacobian (3.4, without
+//! the `F[3][12] = T` term the flown program did not have), observation models (3.5), noise
+//! (3.6), step (3.7), θ unwrapping (3.8). Units: m, rad, m/s, rad/s, m/s²; dt in µs.
+//!
+//! Fixed-size nalgebra matrices: a step allocates nothing. The observation matrices are pure
+//! selections (each row reads one state), so H·P·Hᵀ and P·Hᵀ are index gathers, not products.
+
+use crate::core::imu::calib::{ImuSample, unwrap_theta};
+use crate::core::model::{
+    ARM_LENGTH_M, GRAVITY_M_S2, IXX_KG_M2, IYY_KG_M2, IZZ_KG_M2, IZZM_KG_M2, drag_nm, thrust_n,
+};
+use nalgebra::{SMatrix, SVector};
+
+pub const N_STATES: usize = 15;
+pub type State = SVector<f64, N_STATES>;
+pub type StateMatrix = SMatrix<f64, N_STATES, N_STATES>;
+/// Motor speeds m0..m3, rad/s.
+pub type Input = [f64; 4];
+
+/// State indices (spec 3.1).
+pub mod idx {
+    pub const X: usize = 0;
+    pub const Y: usize = 1;
+    pub const Z: usize = 2;
+    pub const PSI: usize = 3;
+    pub const PHI: usize = 4;
+    pub const THETA: usize = 5;
+    pub const VQX: usize = 6;
+    pub const VQY: usize = 7;
+    pub const VQZ: usize = 8;
+    pub const WQX: usize = 9;
+    pub const WQY: usize = 10;
+    pub const WQZ: usize = 11;
+    pub const BAX: usize = 12;
+    pub const BAY: usize = 13;
+    pub const BAZ: usize = 14;
+}
+
+/// Rows of the IMU-only update: ψ, φ, θ, ax, ay, az, ωx, ωy, ωz, baro altitude.
+pub const IMU_ROWS: usize = 10;
+/// Rows of the IMU + GPS update: the nine IMU rows, then GPS x, y, z.
+pub const GPS_ROWS: usize = 12;
+/// The state each IMU row observes (the az row observes baz plus the thrust term).
+const IMU_OBS: [usize; IMU_ROWS] = [3, 4, 5, 12, 13, 14, 9, 10, 11, 2];
+const GPS_OBS: [usize; GPS_ROWS] = [3, 4, 5, 12, 13, 14, 9, 10, 11, 0, 1, 2];
+
+/// Filter parameters (from the `ekf.*` configuration keys).
+#[derive(Debug, Clone, PartialEq)]
+pub struct EkfParams {
+    /// Keep the original's model quirks its logs depend on: the `cψ·cψ` term of the z row of
+    /// the process model (and its Jacobian). `false` uses the corrected `cφ·cψ`.
+    pub original_model: bool,
+    /// Process noise, diagonal (added unscaled each step).
+    pub q_diag: [f64; N_STATES],
+    /// IMU measurement noise, diagonal, rows as `IMU_ROWS`.
+    pub r_imu_diag: [f64; IMU_ROWS],
+    /// IMU + GPS measurement noise, diagonal, rows as `GPS_ROWS`.
+    pub r_gps_diag: [f64; GPS_ROWS],
+    /// Initial covariance, diagonal.
+    pub p0_diag: [f64; N_STATES],
+    /// Accepted step interval; outside it dt is clamped (spec 3.9), µs.
+    pub dt_min_us: i64,
+    pub dt_max_us: i64,
+}
+
+impl EkfParams {
+    /// The values the 2012 flights printed to err.log (spec 3.6).
+    pub fn flight_2012() -> Self {
+        EkfParams {
+            original_model: true,
+            q_diag: [
+                100.0, 100.0, 100.0, 0.01, 0.01, 1e-5, 100.0, 100.0, 100.0, 0.1, 0.1, 0.1, 1.0,
+                1.0, 1.0,
+            ],
+            r_imu_diag: [100.0, 100.0, 1e5, 1e4, 1e4, 1e4, 1e-3, 1e-3, 1e-3, 1e5],
+            r_gps_diag: [
+                100.0, 100.0, 1e5, 1e4, 1e4, 1e4, 1e-3, 1e-3, 1e-3, 100.0, 100.0, 1e5,
+            ],
+            p0_diag: [1.0; N_STATES],
+            dt_min_us: 8_000,
+            dt_max_us: 12_000,
+        }
+    }
+}
+
+/// Why a step did not apply its measurement update.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum EkfError {
+    #[error("measurement is not finite; prediction only")]
+    NonFiniteMeasurement,
+    #[error("innovation covariance is not positive definite; prediction only")]
+    SingularInnovation,
+}
+
+/// Per-step inputs besides the IMU sample.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepInput {
+    /// Motor speeds used as the model input u, rad/s.
+    pub u_rad_s: Input,
+    /// Vehicle mass, kg.
+    pub mass_kg: f64,
+    /// Filter dt before clamping, µs.
+    pub dt_us: i64,
+    /// A GPS position (local frame, m) to fuse in this step.
+    pub gps_m: Option<[f64; 3]>,
+}
+
+/// What a step did, for counters and logs.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepReport {
+    /// The dt actually used, µs.
+    pub dt_used_us: i64,
+    /// dt was outside the accepted interval and was clamped.
+    pub dt_clamped: bool,
+    /// The measured θ after unwrapping against the previous estimate (what kalman_in logs).
+    pub theta_unwrapped_rad: f64,
+}
+
+/// The filter: estimate and covariance.
+#[derive(Debug, Clone)]
+pub struct Ekf {
+    pub params: EkfParams,
+    pub x: State,
+    pub p: StateMatrix,
+}
+
+struct Trig {
+    s_psi: f64,
+    c_psi: f64,
+    s_phi: f64,
+    c_phi: f64,
+    t_phi: f64,
+    s_th: f64,
+    c_th: f64,
+}
+
+impl Trig {
+    fn of(x: &State) -> Self {
+        let (s_psi, c_psi) = x[idx::PSI].sin_cos();
+        let (s_phi, c_phi) = x[idx::PHI].sin_cos();
+        let (s_th, c_th) = x[idx::THETA].sin_cos();
+        Trig {
+            s_psi,
+            c_psi,
+            s_phi,
+            c_phi,
+            t_phi: x[idx::PHI].tan(),
+            s_th,
+            c_th,
+        }
+    }
+}
+
+/// Sum of the four thrusts, N.
+fn total_thrust_n(u: &Input) -> f64 {
+    thrust_n(u[0]) + thrust_n(u[1]) + thrust_n(u[2]) + thrust_n(u[3])
+}
+
+/// The process model x⁻ = f(x, u, T) (spec 3.3, explicit Euler).
+pub fn process(x: &State, u: &Input, t_s: f64, mass_kg: f64, original_model: bool) -> State {
+    let Trig {
+        s_psi,
+        c_psi,
+        s_phi,
+        c_phi,
+        t_phi,
+        s_th,
+        c_th,
+    } = Trig::of(x);
+    let [vqx, vqy, vqz] = [x[idx::VQX], x[idx::VQY], x[idx::VQZ]];
+    let [wqx, wqy, wqz] = [x[idx::WQX], x[idx::WQY], x[idx::WQZ]];
+    let [bias_x, bias_y, bias_z] = [x[idx::BAX], x[idx::BAY], x[idx::BAZ]];
+    let g = GRAVITY_M_S2;
+    let tm: [f64; 4] = std::array::from_fn(|i| thrust_n(u[i]));
+    let d: [f64; 4] = std::array::from_fn(|i| drag_nm(u[i]));
+    let w_sum = u[0] - u[1] + u[2] - u[3];
+    let sum_tm = total_thrust_n(u);
+    // The original multiplied vqz by cψ·cψ where the kinematics have cφ·cψ (spec 3.3).
+    let z_vqz = if original_model {
+        c_psi * c_psi
+    } else {
+        c_phi * c_psi
+    };
+    let mut n = *x;
+    n[idx::X] = x[idx::X]
+        + t_s
+            * (vqx * c_phi * c_th
+                + vqy * (c_th * s_phi * s_psi - c_phi * s_th)
+                + vqz * (s_psi * s_th + c_psi * c_th * s_phi));
+    n[idx::Y] = x[idx::Y]
+        + t_s
+            * (vqx * c_phi * s_th
+                + vqy * (s_th * s_phi * s_psi + c_psi * c_th)
+                + vqz * (c_psi * s_th * s_phi - c_th * s_psi));
+    n[idx::Z] = x[idx::Z] + t_s * (-vqx * s_phi + vqy * c_phi * s_psi + vqz * z_vqz);
+    n[idx::PSI] = x[idx::PSI] + t_s * (wqx + wqz * t_phi * c_psi + wqy * t_phi * s_psi);
+    n[idx::PHI] = x[idx::PHI] + t_s * (wqy * c_psi - wqz * s_psi);
+    n[idx::THETA] = x[idx::THETA] + t_s * (wqz * c_psi / c_phi + wqy * s_psi / c_phi);
+    n[idx::VQX] = vqx + t_s * (vqy * wqz - vqz * wqy + g * s_phi + bias_x);
+    n[idx::VQY] = vqy + t_s * (vqz * wqx - vqx * wqz - g * c_phi * s_psi + bias_y);
+    n[idx::VQZ] =
+        vqz + t_s * (vqx * wqy - vqy * wqx - g * c_phi * c_psi + sum_tm / mass_kg + bias_z);
+    n[idx::WQX] = wqx
+        + t_s
+            * (wqy * wqz * (IYY_KG_M2 - IZZ_KG_M2)
+                + wqy * IZZM_KG_M2 * w_sum
+                + ARM_LENGTH_M * (tm[1] - tm[3]))
+            / IXX_KG_M2;
+    n[idx::WQY] = wqy
+        + t_s
+            * (wqx * wqz * (IZZ_KG_M2 - IXX_KG_M2)
+                + wqx * IZZM_KG_M2 * w_sum
+                + ARM_LENGTH_M * (tm[2] - tm[0]))
+            / IYY_KG_M2;
+    n[idx::WQZ] = wqz - t_s * (d[0] - d[1] + d[2] - d[3]) / IZZ_KG_M2;
+    n
+}
+
+/// The Jacobian F = ∂f/∂x at `x` (spec 3.4, ERRATA 2).
+pub fn jacobian(x: &State, u: &Input, t_s: f64, original_model: bool) -> StateMatrix {
+    let Trig {
+        s_psi,
+        c_psi,
+        s_phi,
+        c_phi,
+        t_phi,
+        s_th,
+        c_th,
+    } = Trig::of(x);
+    let [vqx, vqy, vqz] = [x[idx::VQX], x[idx::VQY], x[idx::VQZ]];
+    let [wqx, wqy, wqz] = [x[idx::WQX], x[idx::WQY], x[idx::WQZ]];
+    let g = GRAVITY_M_S2;
+    let t = t_s;
+    let w_sum = u[0] - u[1] + u[2] - u[3];
+    let mut f = StateMatrix::identity();
+    f[(0, 3)] = t * (vqz * (c_psi * s_th - c_th * s_phi * s_psi) + vqy * c_psi * c_th * s_phi);
+    f[(0, 4)] = t
+        * (vqy * (s_phi * s_th + c_phi * c_th * s_psi) - vqx * c_th * s_phi
+            + vqz * c_phi * c_psi * c_th);
+    f[(0, 5)] = -t
+        * (vqy * (c_phi * c_th + s_phi * s_psi * s_th)
+            - vqz * (c_th * s_psi - c_psi * s_phi * s_th)
+            + vqx * c_phi * s_th);
+    f[(0, 6)] = t * c_phi * c_th;
+    f[(0, 7)] = -t * (c_phi * s_th - c_th * s_phi * s_psi);
+    f[(0, 8)] = t * (s_psi * s_th + c_psi * c_th * s_phi);
+
+    f[(1, 3)] = -t
+        * (vqy * (c_th * s_psi - c_psi * s_phi * s_th)
+            + vqz * (c_psi * c_th + s_phi * s_psi * s_th));
+    f[(1, 4)] = t * (vqz * c_phi * c_psi * s_th - vqx * s_phi * s_th + vqy * c_phi * s_psi * s_th);
+    f[(1, 5)] = t
+        * (vqz * (s_psi * s_th + c_psi * c_th * s_phi)
+            - vqy * (c_psi * s_th - c_th * s_phi * s_psi)
+            + vqx * c_phi * c_th);
+    f[(1, 6)] = t * c_phi * s_th;
+    f[(1, 7)] = t * (c_psi * c_th + s_phi * s_psi * s_th);
+    f[(1, 8)] = -t * (c_th * s_psi - c_psi * s_phi * s_th);
+
+    if original_model {
+        f[(2, 3)] = t * (vqy * c_phi * c_psi - 2.0 * vqz * c_psi * s_psi);
+        f[(2, 4)] = -t * (vqx * c_phi + vqy * s_phi * s_psi);
+        f[(2, 8)] = t * c_psi * c_psi;
+    } else {
+        f[(2, 3)] = t * (vqy * c_phi * c_psi - vqz * c_phi * s_psi);
+        f[(2, 4)] = -t * (vqx * c_phi + vqy * s_phi * s_psi + vqz * s_phi * c_psi);
+        f[(2, 8)] = t * c_phi * c_psi;
+    }
+    f[(2, 6)] = -t * s_phi;
+    f[(2, 7)] = t * c_phi * s_psi;
+
+    f[(3, 3)] = 1.0 + t * (wqy * c_psi * t_phi - wqz * s_psi * t_phi);
+    f[(3, 4)] = t * (wqz * c_psi + wqy * s_psi) * (1.0 + t_phi * t_phi);
+    f[(3, 9)] = t;
+    f[(3, 10)] = t * s_psi * t_phi;
+    f[(3, 11)] = t * c_psi * t_phi;
+
+    f[(4, 3)] = -t * (wqz * c_psi + wqy * s_psi);
+    f[(4, 10)] = t * c_psi;
+    f[(4, 11)] = -t * s_psi;
+
+    f[(5, 3)] = t * (wqy * c_psi - wqz * s_psi) / c_phi;
+    f[(5, 4)] = t * (wqz * c_psi * s_phi + wqy * s_phi * s_psi) / (c_phi * c_phi);
+    f[(5, 10)] = t * s_psi / c_phi;
+    f[(5, 11)] = t * c_psi / c_phi;
+
+    f[(6, 4)] = t * g * c_phi;
+    f[(6, 7)] = t * wqz;
+    f[(6, 8)] = -t * wqy;
+    f[(6, 10)] = -t * vqz;
+    f[(6, 11)] = t * vqy;
+    f[(6, 12)] = t;
+
+    f[(7, 3)] = -t * g * c_phi * c_psi;
+    f[(7, 4)] = t * g * s_phi * s_psi;
+    f[(7, 6)] = -t * wqz;
+    f[(7, 8)] = t * wqx;
+    f[(7, 9)] = t * vqz;
+    f[(7, 11)] = -t * vqx;
+    f[(7, 13)] = t;
+
+    f[(8, 3)] = t * g * c_phi * s_psi;
+    f[(8, 4)] = t * g * c_psi * s_phi;
+    f[(8, 6)] = t * wqy;
+    f[(8, 7)] = -t * wqx;
+    f[(8, 9)] = -t * vqy;
+    f[(8, 10)] = t * vqx;
+    f[(8, 14)] = t;
+
+    f[(9, 10)] = t * (wqz * (IYY_KG_M2 - IZZ_KG_M2) + IZZM_KG_M2 * w_sum) / IXX_KG_M2;
+    f[(9, 11)] = t * wqy * (IYY_KG_M2 - IZZ_KG_M2) / IXX_KG_M2;
+
+    f[(10, 9)] = -t * (wqz * (IXX_KG_M2 - IZZ_KG_M2) - IZZM_KG_M2 * w_sum) / IYY_KG_M2;
+    f[(10, 11)] = -t * wqx * (IXX_KG_M2 - IZZ_KG_M2) / IYY_KG_M2;
+    f
+}
+
+impl Ekf {
+    /// The initial state from the calibration null sample (spec 3.7): attitude from its Euler
+    /// angles, accelerometer bias = its acceleration minus gravity, everything else 0; P = P₀.
+    pub fn new(params: EkfParams, null_sample: &ImuSample) -> Self {
+        let mut x = State::zeros();
+        x[idx::PSI] = null_sample.euler_rad[0];
+        x[idx::PHI] = null_sample.euler_rad[1];
+        x[idx::THETA] = null_sample.euler_rad[2];
+        x[idx::BAX] = null_sample.acc_m_s2[0];
+        x[idx::BAY] = null_sample.acc_m_s2[1];
+        x[idx::BAZ] = null_sample.acc_m_s2[2] - GRAVITY_M_S2;
+        let p = StateMatrix::from_diagonal(&State::from(params.p0_diag));
+        Ekf { params, x, p }
+    }
+
+    /// Clamps a step interval to the accepted range (spec 3.9).
+    pub fn clamp_dt_us(&self, dt_us: i64) -> (i64, bool) {
+        let c = dt_us.clamp(self.params.dt_min_us, self.params.dt_max_us);
+        (c, c != dt_us)
+    }
+
+    /// One filter step (spec 3.7): unwrap θ, predict, update with the IMU rows (and the GPS rows
+    /// when `input.gps_m` is given). On a bad measurement the prediction stands and the error
+    /// says why; the estimate never becomes non-finite from the measurement.
+    pub fn step(
+        &mut self,
+        sample: &ImuSample,
+        input: &StepInput,
+    ) -> (StepReport, Result<(), EkfError>) {
+        let theta_m = unwrap_theta(sample.euler_rad[2], self.x[idx::THETA]);
+        let (dt_used_us, dt_clamped) = self.clamp_dt_us(input.dt_us);
+        let t_s = dt_used_us as f64 / 1e6;
+        let report = StepReport {
+            dt_used_us,
+            dt_clamped,
+            theta_unwrapped_rad: theta_m,
+        };
+        let u = &input.u_rad_s;
+        let orig = self.params.original_model;
+
+        // Predict, with F at the previous estimate.
+        let f = jacobian(&self.x, u, t_s, orig);
+        let x_pred = process(&self.x, u, t_s, input.mass_kg, orig);
+        let mut p_pred = f * self.p * f.transpose();
+        for i in 0..N_STATES {
+            p_pred[(i, i)] += self.params.q_diag[i];
+        }
+        self.x = x_pred;
+        self.p = p_pred;
+
+        let a = sample.acc_m_s2;
+        let w = sample.gyro_rad_s;
+        let e = sample.euler_rad;
+        let az_pred = total_thrust_n(u) / input.mass_kg + x_pred[idx::BAZ];
+        let imu9 = [e[0], e[1], theta_m, a[0], a[1], a[2], w[0], w[1], w[2]];
+        let result = match input.gps_m {
+            None => {
+                let z: [f64; IMU_ROWS] =
+                    std::array::from_fn(|i| if i < 9 { imu9[i] } else { sample.alt_m });
+                let r = self.params.r_imu_diag;
+                self.update::<IMU_ROWS>(&z, &IMU_OBS, az_pred, &r)
+            }
+            Some(g) => {
+                let z: [f64; GPS_ROWS] =
+                    std::array::from_fn(|i| if i < 9 { imu9[i] } else { g[i - 9] });
+                let r = self.params.r_gps_diag;
+                self.update::<GPS_ROWS>(&z, &GPS_OBS, az_pred, &r)
+            }
+        };
+        (report, result)
+    }
+
+    /// Measurement update for a selection observation: row i reads state `obs[i]`, except the
+    /// az row (index 5), whose prediction is `az_pred` (thrust/mass + baz) with the same H row.
+    fn update<const M: usize>(
+        &mut self,
+        z: &[f64; M],
+        obs: &[usize; M],
+        az_pred: f64,
+        r_diag: &[f64; M],
+    ) -> Result<(), EkfError> {
+        if z.iter().any(|v| !v.is_finite()) {
+            return Err(EkfError::NonFiniteMeasurement);
+        }
+        let x = &self.x;
+        let p = &self.p;
+        let innovation = SVector::<f64, M>::from_fn(|i, _| {
+            let h = if i == 5 { az_pred } else { x[obs[i]] };
+            z[i] - h
+        });
+        // P·Hᵀ: the observed columns of P. S = H·P·Hᵀ + R: the observed rows of those.
+        let pht = SMatrix::<f64, N_STATES, M>::from_fn(|r, c| p[(r, obs[c])]);
+        let mut s = SMatrix::<f64, M, M>::from_fn(|r, c| pht[(obs[r], c)]);
+        for i in 0..M {
+            s[(i, i)] += r_diag[i];
+        }
+        let s_inv = s
+            .cholesky()
+            .map(|c| c.inverse())
+            .ok_or(EkfError::SingularInnovation)?;
+        let k = pht * s_inv;
+        self.x += k * innovation;
+        // P = (I − K·H)·P⁻ = P⁻ − K·(H·P⁻); H·P⁻ is the observed rows of P⁻ = (P⁻·Hᵀ)ᵀ.
+        self.p -= k * pht.transpose();
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::core::model::w_hover_rad_s;
+
+    fn some_state() -> State {
+        State::from([
+            0.3, -0.2, 1.1, 0.05, -0.08, 1.9, 0.4, -0.3, 0.2, 0.1, -0.15, 0.07, 0.02, -0.01, 0.03,
+        ])
+    }
+
+    #[test]
+    fn hover_is_an_equilibrium_of_the_model() {
+        let m = 1.55;
+        let w = w_hover_rad_s(m);
+        let x = State::zeros();
+        for orig in [true, false] {
+            let n = process(&x, &[w; 4], 0.01, m, orig);
+            assert!(n.norm() < 1e-12, "{n}");
+        }
+    }
+
+    #[test]
+    fn jacobian_matches_finite_differences() {
+        let u = [300.0, 310.0, 295.0, 305.0];
+        let t = 0.01;
+        for orig in [true, false] {
+            let x = some_state();
+            let f = jacobian(&x, &u, t, orig);
+            let h = 1e-6;
+            for j in 0..N_STATES {
+                let mut xp = x;
+                let mut xm = x;
+                xp[j] += h;
+                xm[j] -= h;
+                let col =
+                    (process(&xp, &u, t, 1.55, orig) - process(&xm, &u, t, 1.55, orig)) / (2.0 * h);
+                for i in 0..N_STATES {
+                    assert!(
+                        (f[(i, j)] - col[i]).abs() < 1e-8,
+                        "orig {orig}: F[{i}][{j}] = {} but finite difference {}",
+                        f[(i, j)],
+                        col[i]
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn original_and_corrected_models_differ_only_in_the_z_row() {
+        let x = some_state();
+        let u = [300.0; 4];
+        let a = process(&x, &u, 0.01, 1.55, true);
+        let b = process(&x, &u, 0.01, 1.55, false);
+        for i in 0..N_STATES {
+            if i == idx::Z {
+                let c = x[idx::PSI].cos();
+                let expected = 0.01 * x[idx::VQZ] * (c * c - x[idx::PHI].cos() * c);
+                assert!((a[i] - b[i] - expected).abs() < 1e-15);
+                assert!((a[i] - b[i]).abs() > 1e-6);
+            } else {
+                assert_eq!(a[i], b[i], "row {i}");
+            }
+        }
+    }
+
+    #[test]
+    fn update_pulls_towards_measurement_and_shrinks_covariance() {
+        let mut params = EkfParams::flight_2012();
+        params.original_model = false;
+        let null = ImuSample {
+            acc_m_s2: [0.0, 0.0, GRAVITY_M_S2],
+            ..ImuSample::default()
+        };
+        let mut ekf = Ekf::new(params, &null);
+        let m = 1.55;
+        let w = w_hover_rad_s(m);
+        let mut s = null;
+        s.euler_rad = [0.1, 0.0, 0.0];
+        s.alt_m = 2.0;
+        let p_before = ekf.p;
+        let (rep, res) = ekf.step(
+            &s,
+            &StepInput {
+                u_rad_s: [w; 4],
+                mass_kg: m,
+                dt_us: 20_000,
+                gps_m: Some([1.0, -1.0, 0.0]),
+            },
+        );
+        res.unwrap();
+        assert!(rep.dt_clamped && rep.dt_used_us == 12_000);
+        assert!(ekf.x[idx::PSI] > 0.0 && ekf.x[idx::PSI] < 0.1);
+        assert!(ekf.x[idx::X] > 0.5 && ekf.x[idx::Y] < -0.5, "{}", ekf.x);
+        // Rates are trusted (R = 1e-3): the estimate follows the gyro closely.
+        assert!(ekf.p[(idx::WQX, idx::WQX)] < 1e-2);
+        assert!(ekf.p[(idx::X, idx::X)] < p_before[(idx::X, idx::X)] + 100.0);
+        // A NaN measurement leaves a finite prediction and says why.
+        s.acc_m_s2[0] = f64::NAN;
+        let (_, res) = ekf.step(
+            &s,
+            &StepInput {
+                u_rad_s: [w; 4],
+                mass_kg: m,
+                dt_us: 10_000,
+                gps_m: None,
+            },
+        );
+        assert_eq!(res, Err(EkfError::NonFiniteMeasurement));
+        assert!(ekf.x.iter().all(|v| v.is_finite()));
+    }
+}

@@ -1,0 +1,247 @@
+//! GPS samples for the filter: the fake-GPS generators of the 2012 flights, latitude/longitude
+//! to the local frame, and the schedule that applies a sample to the next Kalman step.
+//!
+//! Spec sections 7.3 (lat/lon → UTM), 7.4 (fake GPS) with ERRATA 5 and 10. The local frame has
+//! x north, y west, z up, in m, with its origin at the first fix (the original's absolute-UTM
+//! state and its UTM integer-fraction bug are not reproduced).
+
+/// One GPS sample for the filter: position in the local frame, m.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GpsSample {
+    pub pos_m: [f64; 3],
+}
+
+/// Small deterministic generator (SplitMix64) for the seeded fake-random GPS mode: the same
+/// seed gives the same positions on every machine.
+#[derive(Debug, Clone)]
+pub struct SplitMix64(u64);
+
+impl SplitMix64 {
+    pub fn new(seed: u64) -> Self {
+        SplitMix64(seed)
+    }
+
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in [0, 1).
+    pub fn next_f64(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+/// Positions of fake samples: all zero (the 2012 flights) or seeded noise around zero
+/// (`GPS_RAND`: x, y ∈ U[−½, ½)·span, z ∈ U[−1, 1)·span).
+#[derive(Debug, Clone)]
+pub enum FakePositions {
+    Zero,
+    Random { rng: SplitMix64, span_m: f64 },
+}
+
+impl FakePositions {
+    pub fn next_sample(&mut self) -> GpsSample {
+        match self {
+            FakePositions::Zero => GpsSample { pos_m: [0.0; 3] },
+            FakePositions::Random { rng, span_m } => {
+                let x = (rng.next_f64() - 0.5) * *span_m;
+                let y = (rng.next_f64() - 0.5) * *span_m;
+                let z = (rng.next_f64() * 2.0 - 1.0) * *span_m;
+                GpsSample { pos_m: [x, y, z] }
+            }
+        }
+    }
+}
+
+/// The original's fake-GPS timing (ERRATA 10): a check once per control cycle, right after the
+/// motor command. The first command yields a sample; each later sample comes with the first
+/// command at least 1 s after the command that produced the previous one.
+#[derive(Debug, Clone, Default)]
+pub struct FakeGpsClock {
+    last_sample_cmd_us: Option<i64>,
+}
+
+/// Period of the fake samples, µs.
+pub const FAKE_GPS_PERIOD_US: i64 = 1_000_000;
+
+impl FakeGpsClock {
+    /// Called after each motor command at `t_cmd_us`; `true` when a sample is due now.
+    pub fn on_motor_command(&mut self, t_cmd_us: i64) -> bool {
+        let due = match self.last_sample_cmd_us {
+            None => true,
+            Some(last) => t_cmd_us - last >= FAKE_GPS_PERIOD_US,
+        };
+        if due {
+            self.last_sample_cmd_us = Some(t_cmd_us);
+        }
+        due
+    }
+}
+
+/// Recorded samples applied by time (ERRATA 5): a sample stamped t is fused by the first
+/// Kalman step whose time is later than t.
+#[derive(Debug, Clone, Default)]
+pub struct RecordedGps {
+    samples: Vec<(i64, GpsSample)>,
+    next: usize,
+}
+
+impl RecordedGps {
+    /// `samples` must be in time order (as a log is).
+    pub fn new(samples: Vec<(i64, GpsSample)>) -> Self {
+        RecordedGps { samples, next: 0 }
+    }
+
+    /// The newest sample stamped before `t_step_us` not yet used, if any. Older pending
+    /// samples are superseded (a step fuses one position).
+    pub fn take_before(&mut self, t_step_us: i64) -> Option<GpsSample> {
+        let mut out = None;
+        while let Some(&(t, s)) = self.samples.get(self.next) {
+            if t >= t_step_us {
+                break;
+            }
+            out = Some(s);
+            self.next += 1;
+        }
+        out
+    }
+}
+
+/// UTM coordinates on WGS84 (spec 7.3, after deg2utm.m).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Utm {
+    pub easting_m: f64,
+    pub northing_m: f64,
+    pub zone: i32,
+}
+
+/// Latitude/longitude (degrees) to UTM, with the fractions 3/4, 5/3 and 35/27 evaluated as
+/// real numbers (the gpsd-era copy of the original truncated them to integers).
+pub fn deg_to_utm(lat_deg: f64, lon_deg: f64) -> Utm {
+    let ee = 0.006_739_496_742_333_46;
+    let c = 6_399_593.625_758_67;
+    let lat = lat_deg.to_radians();
+    let lon = lon_deg.to_radians();
+    let zone = (lon_deg / 6.0 + 31.0).floor() as i32;
+    let s = f64::from(6 * zone - 183);
+    let d_lambda = lon - s.to_radians();
+    let cos_lat = lat.cos();
+    let a = cos_lat * d_lambda.sin();
+    let epsilon = 0.5 * ((1.0 + a) / (1.0 - a)).ln();
+    let nu = (lat.tan() / d_lambda.cos()).atan() - lat;
+    let v = 0.9996 * c / (1.0 + ee * cos_lat * cos_lat).sqrt();
+    let ta = ee / 2.0 * epsilon * epsilon * cos_lat * cos_lat;
+    let a1 = (2.0 * lat).sin();
+    let a2 = a1 * cos_lat * cos_lat;
+    let j2 = lat + a1 / 2.0;
+    let j4 = (3.0 * j2 + a2) / 4.0;
+    let j6 = (5.0 * j4 + a2 * cos_lat * cos_lat) / 3.0;
+    let alpha = 0.75 * ee;
+    let beta = 5.0 / 3.0 * alpha * alpha;
+    let gamma = 35.0 / 27.0 * alpha * alpha * alpha;
+    let bm = 0.9996 * c * (lat - alpha * j2 + beta * j4 - gamma * j6);
+    let easting_m = epsilon * v * (1.0 + ta / 3.0) + 500_000.0;
+    let mut northing_m = nu * v * (1.0 + ta) + bm;
+    if northing_m < 0.0 {
+        northing_m += 9_999_999.0;
+    }
+    Utm {
+        easting_m,
+        northing_m,
+        zone,
+    }
+}
+
+/// The local frame (x north, y west, z up) anchored at the first fix it sees.
+#[derive(Debug, Clone, Default)]
+pub struct LocalFrame {
+    origin: Option<(Utm, f64)>,
+}
+
+impl LocalFrame {
+    /// Position of a fix in the local frame, m. The first fix becomes the origin.
+    pub fn to_local(&mut self, lat_deg: f64, lon_deg: f64, alt_m: f64) -> [f64; 3] {
+        let utm = deg_to_utm(lat_deg, lon_deg);
+        let (o, o_alt) = *self.origin.get_or_insert((utm, alt_m));
+        [
+            utm.northing_m - o.northing_m,
+            -(utm.easting_m - o.easting_m),
+            alt_m - o_alt,
+        ]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn utm_matches_an_independent_projection() {
+        // Reference: PROJ (pyproj, WGS84, UTM zone 21 south) gives easting 576155.59369 m and
+        // northing 6135557.03531 m for this 2012 fix; deg2utm's series is within 2 cm and uses
+        // a false northing of 9 999 999 m instead of 10 000 000 m.
+        let u = deg_to_utm(-34.919588333, -56.166258333);
+        assert_eq!(u.zone, 21);
+        assert!((u.easting_m - 576_155.593_69).abs() < 1e-3, "{u:?}");
+        assert!(
+            (u.northing_m + 1.0 - 6_135_557.035_31).abs() < 0.02,
+            "{u:?}"
+        );
+    }
+
+    #[test]
+    fn local_frame_is_north_west_up() {
+        // Offsets from PROJ for the same points: 0.001° north moves +110.8985 m in northing and
+        // +0.9303 m in easting (grid convergence); 0.001° east moves +91.3660 m in easting.
+        let mut f = LocalFrame::default();
+        assert_eq!(f.to_local(-34.9, -56.16, 30.0), [0.0, 0.0, 0.0]);
+        let p = f.to_local(-34.899, -56.16, 31.0);
+        assert!((p[0] - 110.8985).abs() < 0.01, "{p:?}");
+        assert!((p[1] + 0.9303).abs() < 0.01, "{p:?}");
+        assert_eq!(p[2], 1.0);
+        let p = f.to_local(-34.9, -56.159, 30.0);
+        assert!((p[1] + 91.3660).abs() < 0.01, "{p:?}");
+    }
+
+    #[test]
+    fn fake_clock_follows_errata_10() {
+        let mut c = FakeGpsClock::default();
+        assert!(c.on_motor_command(12_134_736));
+        assert!(!c.on_motor_command(12_145_295));
+        assert!(!c.on_motor_command(13_134_000));
+        assert!(c.on_motor_command(13_134_736));
+        assert!(!c.on_motor_command(14_134_735));
+        assert!(c.on_motor_command(14_140_000));
+    }
+
+    #[test]
+    fn recorded_samples_apply_to_the_next_step() {
+        let s = GpsSample {
+            pos_m: [1.0, 2.0, 3.0],
+        };
+        let mut r = RecordedGps::new(vec![(100, s), (250, s)]);
+        assert_eq!(r.take_before(100), None);
+        assert_eq!(r.take_before(101), Some(s));
+        assert_eq!(r.take_before(200), None);
+        assert_eq!(r.take_before(300), Some(s));
+        assert_eq!(r.take_before(400), None);
+    }
+
+    #[test]
+    fn random_positions_are_seeded_and_bounded() {
+        let mk = || FakePositions::Random {
+            rng: SplitMix64::new(7),
+            span_m: 1.0,
+        };
+        let (mut a, mut b) = (mk(), mk());
+        for _ in 0..1000 {
+            let (p, q) = (a.next_sample(), b.next_sample());
+            assert_eq!(p, q);
+            assert!(p.pos_m[0].abs() <= 0.5 && p.pos_m[1].abs() <= 0.5 && p.pos_m[2].abs() <= 1.0);
+        }
+    }
+}
