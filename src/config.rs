@@ -5,6 +5,7 @@
 //! position of a malformed number in a data file). Relative paths resolve against the folder
 //! of the configuration file.
 
+use crate::core::control::{IntegralRule, Integrators, ManualBounds};
 use crate::core::imu::calib::{CALIB_NUMBERS, Calibration};
 use crate::core::imu::startup::StartupParams;
 use crate::core::numfile;
@@ -114,13 +115,52 @@ pub struct Imu {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct Control {
-    /// Proportional gain matrix, 4 × 12 (rows = motors).
+    /// Controlled states: 12 (full) or 8 (z, ψ, φ, θ, vqz, wqx, wqy, wqz).
+    pub states: u32,
+    /// Integrated states, in gain-file column order: "psi,phi,z,theta" or "x,y,z,theta"
+    /// (12 states), "z,theta" (8 states).
+    pub integrators: String,
+    /// The first control step's T_s is the microseconds part of its time since start (the
+    /// original's quirk, ERRATA 8); false uses the nominal 10 ms.
+    pub original_timing: bool,
+    /// Clamp the errors as the later version did (|e_x|, |e_y| ≤ 18 m, |e_z| ≤ 4 m,
+    /// |e_θ| ≤ 1.05 rad).
+    pub error_limits: bool,
+    /// Proportional gain matrix, 4 × states (rows = motors).
     pub k_prop_file: PathBuf,
-    /// Integral gain matrix, 4 × 4.
+    /// Integral gain matrix, 4 × integrators.
     pub k_int_file: PathBuf,
     /// Hover altitude set point above the start altitude, m.
     pub hover_z_m: f64,
     pub integral: Integrals,
+    /// Bounds on how far manual commands may move the set point (spec 5.2).
+    pub manual: ManualBounds,
+}
+
+impl Control {
+    /// The integrator set named by `integrators` (validated at load).
+    pub fn integrator_set(&self) -> Option<crate::core::control::Integrators> {
+        crate::core::control::Integrators::parse(&self.integrators)
+    }
+
+    /// The rule of each integrated state, in gain-file column order.
+    pub fn integral_rules(&self) -> Vec<IntegralRule> {
+        let i = &self.integral;
+        let by_state = |state: usize| match state {
+            0 => i.x,
+            1 => i.y,
+            2 => i.z,
+            3 => i.psi,
+            4 => i.phi,
+            _ => i.theta,
+        };
+        self.integrator_set()
+            .map(|set| set.states())
+            .unwrap_or(&[])
+            .iter()
+            .map(|&s| by_state(s))
+            .collect()
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -132,33 +172,6 @@ pub struct Integrals {
     pub theta: IntegralRule,
     pub x: IntegralRule,
     pub y: IntegralRule,
-}
-
-/// Update rule of one integrator (spec 4.4, ERRATA 7). `step_max` and `cap` are required
-/// when the rule is given, since no single default fits every state.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct IntegralRule {
-    /// Largest change per control step (error × T_s is clamped to ± this), unit·s.
-    pub step_max: f64,
-    /// The accumulator is clamped to ± this, unit·s.
-    pub cap: f64,
-    /// Errors larger than this in magnitude are not integrated; absent = no threshold.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub threshold: Option<f64>,
-    /// Initial accumulator value, unit·s.
-    #[serde(default)]
-    pub seed: f64,
-}
-
-impl IntegralRule {
-    const fn new(step_max: f64, cap: f64, threshold: Option<f64>) -> Self {
-        IntegralRule {
-            step_max,
-            cap,
-            threshold,
-            seed: 0.0,
-        }
-    }
 }
 
 /// Where the estimator's GPS samples come from.
@@ -205,6 +218,11 @@ impl Default for Imu {
 impl Default for Control {
     fn default() -> Self {
         Control {
+            states: 12,
+            integrators: "psi,phi,z,theta".to_string(),
+            error_limits: true,
+            original_timing: false,
+            manual: ManualBounds::default(),
             k_prop_file: PathBuf::from("K_prop_full_ppzt.txt"),
             k_int_file: PathBuf::from("K_int_full_ppzt.txt"),
             hover_z_m: 1.0,
@@ -296,10 +314,43 @@ pub struct Profile {
     /// The configuration with every path made absolute.
     pub config: Config,
     pub calib: Calibration,
-    /// 4 × 12, row-major (rows = motors).
+    /// 4 × `control.states`, row-major (rows = motors).
     pub k_prop: Vec<f64>,
-    /// 4 × 4, row-major.
+    /// 4 × the integrator count, row-major.
     pub k_int: Vec<f64>,
+}
+
+impl Profile {
+    /// The controller this profile describes, with its integrators seeded.
+    pub fn controller(&self) -> crate::core::control::Controller {
+        let c = &self.config.control;
+        let set = c
+            .integrator_set()
+            .unwrap_or(crate::core::control::Integrators::PsiPhiZTheta);
+        // Shapes were checked at load, so this cannot fail for a loaded profile.
+        crate::core::control::Controller::new(
+            &self.k_prop,
+            &self.k_int,
+            c.states == 8,
+            set,
+            &c.integral_rules(),
+            c.error_limits,
+        )
+        .unwrap_or_else(|e| unreachable!("gain shapes are validated at load: {e}"))
+    }
+
+    /// The hover planner for a run whose calibration measured yaw `theta_cal_rad`.
+    pub fn planner(&self, theta_cal_rad: f64) -> crate::core::control::HoverPlanner {
+        let c = &self.config;
+        crate::core::control::HoverPlanner::new(
+            c.control.hover_z_m,
+            theta_cal_rad,
+            [0.0, 0.0],
+            c.vehicle.mass_kg,
+            c.motor.w_max_rad_s,
+            c.control.manual,
+        )
+    }
 }
 
 impl Profile {
@@ -457,6 +508,10 @@ pub fn load(path: &Path, sets: &[(String, toml::Value)]) -> Result<Profile, Conf
         z.to_string(),
         "0 to 10 m",
     );
+    // Bounds relative to another key are checked only when that key is itself valid, so one
+    // bad value is reported once.
+    let m_ok = m.is_finite() && (0.1..=2.3).contains(&m);
+    let z_ok = z.is_finite() && (0.0..=10.0).contains(&z);
     let imu = &c.imu;
     range(
         "imu.settle_frames",
@@ -506,7 +561,7 @@ pub fn load(path: &Path, sets: &[(String, toml::Value)]) -> Result<Profile, Conf
     let w_hover = crate::core::model::w_hover_rad_s(m);
     range(
         "vehicle.mass_kg",
-        !(0.1..=2.3).contains(&m) || !w_max.is_finite() || w_hover < w_max,
+        !m_ok || !w_max.is_finite() || w_hover < w_max,
         format!("{m} (hover needs {w_hover:.1} rad/s)"),
         "a mass that hovers below motor.w_max_rad_s",
     );
@@ -533,6 +588,68 @@ pub fn load(path: &Path, sets: &[(String, toml::Value)]) -> Result<Profile, Conf
             );
         }
     }
+    let set = c.control.integrator_set();
+    let states_ok = matches!(
+        (c.control.states, set),
+        (12, Some(Integrators::PsiPhiZTheta | Integrators::XYZTheta))
+            | (8, Some(Integrators::ZTheta))
+    );
+    if !matches!(c.control.states, 8 | 12) {
+        range(
+            "control.states",
+            false,
+            c.control.states.to_string(),
+            "12 (full) or 8 (reduced)",
+        );
+    } else if !states_ok {
+        range(
+            "control.integrators",
+            false,
+            format!("{:?}", c.control.integrators),
+            if c.control.states == 12 {
+                "\"psi,phi,z,theta\" or \"x,y,z,theta\" with control.states = 12"
+            } else {
+                "\"z,theta\" with control.states = 8"
+            },
+        );
+    }
+    let man = &c.control.manual;
+    range(
+        "control.manual.max_tilt_rad",
+        man.max_tilt_rad.is_finite() && (0.0..=1.0).contains(&man.max_tilt_rad),
+        man.max_tilt_rad.to_string(),
+        "0 to 1 rad (the sanity check trips at 1 rad)",
+    );
+    range(
+        "control.manual.max_yaw_offset_rad",
+        man.max_yaw_offset_rad.is_finite() && (0.0..=6.3).contains(&man.max_yaw_offset_rad),
+        man.max_yaw_offset_rad.to_string(),
+        "0 to 6.3 rad",
+    );
+    range(
+        "control.manual.z_min_m",
+        man.z_min_m.is_finite() && man.z_min_m >= 0.0 && (!z_ok || man.z_min_m <= z),
+        man.z_min_m.to_string(),
+        "0 up to control.hover_z_m",
+    );
+    range(
+        "control.manual.z_max_m",
+        man.z_max_m.is_finite() && (!z_ok || man.z_max_m >= z) && man.z_max_m <= 20.0,
+        man.z_max_m.to_string(),
+        "control.hover_z_m up to 20 m",
+    );
+    range(
+        "control.manual.mass_min_kg",
+        man.mass_min_kg.is_finite() && man.mass_min_kg >= 0.1 && (!m_ok || man.mass_min_kg <= m),
+        man.mass_min_kg.to_string(),
+        "0.1 kg up to vehicle.mass_kg",
+    );
+    range(
+        "control.manual.mass_max_kg",
+        man.mass_max_kg.is_finite() && (!m_ok || man.mass_max_kg >= m) && man.mass_max_kg <= 2.3,
+        man.mass_max_kg.to_string(),
+        "vehicle.mass_kg up to 2.3 kg",
+    );
     let rules = [
         ("psi", c.control.integral.psi),
         ("phi", c.control.integral.phi),
@@ -619,8 +736,19 @@ pub fn load(path: &Path, sets: &[(String, toml::Value)]) -> Result<Profile, Conf
     };
     let calib = load_numbers("imu.calib_file", &c.imu.calib_file.clone(), CALIB_NUMBERS)
         .map(|n| Calibration::from_numbers(&n));
-    let k_prop = load_numbers("control.k_prop_file", &c.control.k_prop_file.clone(), 48);
-    let k_int = load_numbers("control.k_int_file", &c.control.k_int_file.clone(), 16);
+    // The original read exactly rows × cols numbers and ignored the rest (spec 4.3).
+    let n_states = if c.control.states == 8 { 8 } else { 12 };
+    let n_int = set.map_or(4, |s| s.states().len());
+    let k_prop = load_numbers(
+        "control.k_prop_file",
+        &c.control.k_prop_file.clone(),
+        4 * n_states,
+    );
+    let k_int = load_numbers(
+        "control.k_int_file",
+        &c.control.k_int_file.clone(),
+        4 * n_int,
+    );
 
     match (calib, k_prop, k_int) {
         (Some(calib), Some(k_prop), Some(k_int)) if problems.is_empty() => Ok(Profile {

@@ -4,30 +4,6 @@ mod common;
 use common::*;
 use std::path::Path;
 
-fn replay(run: &Path, extra: &[&str]) -> tempfile::TempDir {
-    let out = tempfile::tempdir().unwrap();
-    let profile = profile_2012();
-    let mut args = vec![
-        "replay",
-        run.to_str().unwrap(),
-        "--config",
-        profile.to_str().unwrap(),
-        "--out",
-        out.path().to_str().unwrap(),
-    ];
-    args.extend_from_slice(extra);
-    let o = uquad(&root(), &args);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    out
-}
-
-fn numbers(path: &Path) -> Vec<Vec<f64>> {
-    read_table(path)
-        .into_iter()
-        .map(|r| r.iter().map(|v| v.parse().unwrap()).collect())
-        .collect()
-}
-
 /// Largest difference between our x_hat.log and the original's, over every row we wrote.
 fn x_hat_error(out: &Path) -> f64 {
     let ours = numbers(&out.join("x_hat.log"));
@@ -48,7 +24,7 @@ fn x_hat_error(out: &Path) -> f64 {
 
 #[test]
 fn x_hat_matches_the_original_with_recorded_gps_times() {
-    let out = replay(&flight_dir(), &[]);
+    let out = replay_ok(&flight_dir(), &[]);
     let e = x_hat_error(out.path());
     assert!(e <= 1e-6, "largest state difference {e}");
     // A faithful port is at rounding level.
@@ -59,10 +35,10 @@ fn x_hat_matches_the_original_with_recorded_gps_times() {
 fn x_hat_matches_the_original_with_generated_fake_gps() {
     // Without gps.log the fake-GPS steps come from the rule of ERRATA 10 on the w.log clock.
     let run = tempfile::tempdir().unwrap();
-    for f in ["imu_raw.log", "kalman_in.log", "w.log"] {
+    for f in ["imu_raw.log", "kalman_in.log", "w.log", "int.log"] {
         std::fs::copy(flight_dir().join(f), run.path().join(f)).unwrap();
     }
-    let out = replay(run.path(), &[]);
+    let out = replay_ok(run.path(), &[]);
     let e = x_hat_error(out.path());
     assert!(e < 1e-12, "largest state difference {e}");
 }
@@ -70,7 +46,7 @@ fn x_hat_matches_the_original_with_generated_fake_gps() {
 #[test]
 fn gps_updates_matter() {
     // Sanity of the comparison: without GPS updates the estimate leaves the original's.
-    let out = replay(&flight_dir(), &["--set", "gps.mode=off"]);
+    let out = replay_ok(&flight_dir(), &["--set", "gps.mode=off"]);
     let e = x_hat_error(out.path());
     assert!(e > 1e-3, "GPS off should change x and y: {e}");
 }
@@ -78,7 +54,7 @@ fn gps_updates_matter() {
 #[test]
 fn original_model_switch() {
     // The corrected model (cos(phi)cos(psi) in the z row) no longer reproduces the log.
-    let out = replay(&flight_dir(), &["--set", "ekf.original_model=false"]);
+    let out = replay_ok(&flight_dir(), &["--set", "ekf.original_model=false"]);
     let e = x_hat_error(out.path());
     assert!(e > 1e-6, "corrected model should differ: {e}");
     assert!(e < 1.0, "but only slightly: {e}");
@@ -117,15 +93,15 @@ fn covariance_stays_symmetric_positive_definite() {
 
 #[test]
 fn fake_random_is_seeded() {
-    let a = replay(
+    let a = replay_ok(
         &flight_dir(),
         &["--set", "gps.mode=fake-random", "--set", "gps.seed=3"],
     );
-    let b = replay(
+    let b = replay_ok(
         &flight_dir(),
         &["--set", "gps.mode=fake-random", "--set", "gps.seed=3"],
     );
-    let c = replay(
+    let c = replay_ok(
         &flight_dir(),
         &["--set", "gps.mode=fake-random", "--set", "gps.seed=4"],
     );
@@ -139,7 +115,7 @@ fn recorded_gpsd_fixes_pull_the_position() {
     // A run folder whose gps.log is in the gpsd client's 15-column format: fixes 20 m north
     // (after the first, which sets the origin) pull the estimate north, not west.
     let run = tempfile::tempdir().unwrap();
-    for f in ["imu_raw.log", "kalman_in.log", "w.log"] {
+    for f in ["imu_raw.log", "kalman_in.log", "w.log", "int.log"] {
         std::fs::copy(flight_dir().join(f), run.path().join(f)).unwrap();
     }
     let mut gps = String::new();
@@ -152,11 +128,11 @@ fn recorded_gpsd_fixes_pull_the_position() {
         ));
     }
     std::fs::write(run.path().join("gps.log"), gps).unwrap();
-    let out = replay(run.path(), &["--set", "gps.mode=gpsd"]);
+    let out = replay_ok(run.path(), &["--set", "gps.mode=gpsd"]);
     let x = numbers(&out.path().join("x_hat.log"));
     let last = x.last().unwrap();
     // Against the same flight with its fixes all at the origin (fake-zero at the same times).
-    let base = replay(&flight_dir(), &[]);
+    let base = replay_ok(&flight_dir(), &[]);
     let base = numbers(&base.path().join("x_hat.log"));
     let base = base.last().unwrap();
     let (dx, dy) = (last[0] - base[0], last[1] - base[1]);
@@ -165,19 +141,7 @@ fn recorded_gpsd_fixes_pull_the_position() {
     assert!(dy.abs() < 0.2 * dx, "y (west) moved {dy} for {dx} north");
     // And a time-only gps.log is refused in gpsd mode with a clear message.
     std::fs::copy(flight_dir().join("gps.log"), run.path().join("gps.log")).unwrap();
-    let o = uquad(
-        &root(),
-        &[
-            "replay",
-            run.path().to_str().unwrap(),
-            "--config",
-            profile_2012().to_str().unwrap(),
-            "--set",
-            "gps.mode=gpsd",
-            "--out",
-            out.path().to_str().unwrap(),
-        ],
-    );
+    let (o, _) = replay_2012(run.path(), &["--set", "gps.mode=gpsd"]);
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("gps.mode=fake-zero"));
 }

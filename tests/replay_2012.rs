@@ -75,19 +75,7 @@ fn replay_without_recorded_clock_uses_frame_times() {
     let raw = std::fs::read_to_string(flight_dir().join("imu_raw.log")).unwrap();
     // Convert to \n\r line ends as some of the original's logs have.
     std::fs::write(run.path().join("imu_raw.log"), raw.replace('\n', "\n\r")).unwrap();
-    let out = tempfile::tempdir().unwrap();
-    let o = uquad(
-        &root(),
-        &[
-            "replay",
-            run.path().to_str().unwrap(),
-            "--config",
-            profile_2012().to_str().unwrap(),
-            "--out",
-            out.path().to_str().unwrap(),
-        ],
-    );
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let out = replay_ok(run.path(), &[]);
     let ours = read_table(&out.path().join("kalman_in.log"));
     let raw = read_table(&flight_dir().join("imu_raw.log"));
     assert_eq!(ours.len(), 1120);
@@ -105,29 +93,19 @@ fn replay_refuses_a_short_log_and_a_missing_config() {
     let raw = std::fs::read_to_string(flight_dir().join("imu_raw.log")).unwrap();
     let head: String = raw.lines().take(100).map(|l| format!("{l}\n")).collect();
     std::fs::write(run.path().join("imu_raw.log"), head).unwrap();
-    let out = tempfile::tempdir().unwrap();
-    let args = |cfg: bool| {
-        let mut a = vec![
-            "replay".to_string(),
-            run.path().to_str().unwrap().to_string(),
-            "--out".into(),
-            out.path().to_str().unwrap().to_string(),
-        ];
-        if cfg {
-            a.extend([
-                "--config".into(),
-                profile_2012().to_str().unwrap().to_string(),
-            ]);
-        }
-        a
-    };
-    let a = args(true);
-    let o = uquad(&root(), &a.iter().map(String::as_str).collect::<Vec<_>>());
+    let (o, out) = replay_2012(run.path(), &[]);
     assert!(!o.status.success());
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("100 frames are not enough"), "{err}");
-    let a = args(false);
-    let o = uquad(&root(), &a.iter().map(String::as_str).collect::<Vec<_>>());
+    let o = uquad(
+        &root(),
+        &[
+            "replay",
+            run.path().to_str().unwrap(),
+            "--out",
+            out.path().to_str().unwrap(),
+        ],
+    );
     assert!(!o.status.success());
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("config.toml"), "{err}");
@@ -140,18 +118,7 @@ fn replay_names_the_line_of_a_corrupt_record() {
     let mut lines: Vec<String> = raw.lines().map(str::to_string).collect();
     lines[599] = lines[599].replacen('\t', "\tnot-a-time", 1);
     std::fs::write(run.path().join("imu_raw.log"), lines.join("\n") + "\n").unwrap();
-    let out = tempfile::tempdir().unwrap();
-    let o = uquad(
-        &root(),
-        &[
-            "replay",
-            run.path().to_str().unwrap(),
-            "--config",
-            profile_2012().to_str().unwrap(),
-            "--out",
-            out.path().to_str().unwrap(),
-        ],
-    );
+    let (o, _out) = replay_2012(run.path(), &[]);
     assert!(!o.status.success());
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(

@@ -47,3 +47,34 @@ pub fn copy_profile(dir: &Path) -> PathBuf {
     }
     dir.join("flight-2012-05.toml")
 }
+
+/// Runs `uquad replay RUN --config <2012 profile> --out <fresh folder> EXTRA...`.
+pub fn replay_2012(run: &Path, extra: &[&str]) -> (Output, tempfile::TempDir) {
+    let out = tempfile::tempdir().expect("temp dir");
+    let profile = profile_2012();
+    let mut args = vec![
+        "replay",
+        run.to_str().expect("utf-8 path"),
+        "--config",
+        profile.to_str().expect("utf-8 path"),
+        "--out",
+        out.path().to_str().expect("utf-8 path"),
+    ];
+    args.extend_from_slice(extra);
+    (uquad(&root(), &args), out)
+}
+
+/// [`replay_2012`], which must succeed; returns the output folder.
+pub fn replay_ok(run: &Path, extra: &[&str]) -> tempfile::TempDir {
+    let (o, out) = replay_2012(run, extra);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    out
+}
+
+/// A numeric log as rows of numbers.
+pub fn numbers(path: &Path) -> Vec<Vec<f64>> {
+    read_table(path)
+        .into_iter()
+        .map(|r| r.iter().map(|v| v.parse().expect("a number")).collect())
+        .collect()
+}

@@ -1,0 +1,610 @@
+//! Hover path planner, manual set-point commands and the proportional + integral controller.
+//!
+//! Spec sections 4.3 (gain files and variants), 4.4 (control law, integral rules) with ERRATA
+//! 7, 5.1 (hover planner) and 5.2 (manual mode). Units: m, rad, m/s, rad/s; motor speeds rad/s;
+//! the control period T_s in µs.
+
+use crate::core::ekf::State;
+use crate::core::model::MotorLimits;
+
+/// States the controller works on: the first 12 of the filter's (no accelerometer bias).
+pub const N_CONTROLLED: usize = 12;
+/// State indices of the 8-state variant: z, ψ, φ, θ, vqz, wqx, wqy, wqz.
+pub const REDUCED_STATES: [usize; 8] = [2, 3, 4, 5, 8, 9, 10, 11];
+
+/// Which integrators a controller variant runs, in gain-file column order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Integrators {
+    /// ψ, φ, z, θ (the 2012 flights; CTRL_INTEGRAL_ANG).
+    PsiPhiZTheta,
+    /// x, y, z, θ.
+    XYZTheta,
+    /// z, θ (the 8-state variant).
+    ZTheta,
+}
+
+impl Integrators {
+    /// State indices of the integrated states, in gain-file column order.
+    pub fn states(self) -> &'static [usize] {
+        match self {
+            Integrators::PsiPhiZTheta => &[3, 4, 2, 5],
+            Integrators::XYZTheta => &[0, 1, 2, 5],
+            Integrators::ZTheta => &[2, 5],
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Integrators::PsiPhiZTheta => "psi,phi,z,theta",
+            Integrators::XYZTheta => "x,y,z,theta",
+            Integrators::ZTheta => "z,theta",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<Integrators> {
+        let norm: String = s.chars().filter(|c| !c.is_whitespace()).collect();
+        [
+            Integrators::PsiPhiZTheta,
+            Integrators::XYZTheta,
+            Integrators::ZTheta,
+        ]
+        .into_iter()
+        .find(|i| i.name() == norm)
+    }
+}
+
+/// Update rule of one integrator (ERRATA 7): the step e·T_s is clamped to ±`step_max`, the
+/// accumulator to ±`cap`; errors above `threshold` (when set) are not integrated. Also the
+/// `control.integral.<state>` configuration table, where `step_max` and `cap` are required
+/// (no single default fits every state).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct IntegralRule {
+    /// Largest change per control step, state unit·s.
+    pub step_max: f64,
+    /// The accumulator is clamped to ± this, state unit·s.
+    pub cap: f64,
+    /// Errors larger than this in magnitude are not integrated; absent = no threshold.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub threshold: Option<f64>,
+    /// Initial accumulator value, state unit·s.
+    #[serde(default)]
+    pub seed: f64,
+}
+
+impl IntegralRule {
+    pub const fn new(step_max: f64, cap: f64, threshold: Option<f64>) -> Self {
+        IntegralRule {
+            step_max,
+            cap,
+            threshold,
+            seed: 0.0,
+        }
+    }
+}
+
+impl IntegralRule {
+    /// One update of accumulator `acc` with error `e` over `t_s` seconds (`ctrl_int`).
+    pub fn update(&self, acc: f64, e: f64, t_s: f64) -> f64 {
+        if self.threshold.is_some_and(|th| e.abs() > th) {
+            return acc;
+        }
+        let step = (e * t_s).clamp(-self.step_max, self.step_max);
+        (acc + step).clamp(-self.cap, self.cap)
+    }
+}
+
+/// The later version's error limits (`control_limit`): |e_x|, |e_y| ≤ 18 m, |e_z| ≤ 4 m,
+/// |e_θ| ≤ 1.05 rad.
+pub const ERROR_LIMITS: [(usize, f64); 4] = [(0, 18.0), (1, 18.0), (2, 4.0), (5, 1.05)];
+
+/// The set point: 12 states and the motor speeds around which the controller acts.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SetPoint {
+    pub x: [f64; N_CONTROLLED],
+    pub w_rad_s: [f64; 4],
+}
+
+/// The controller: gains, integrator rules and state.
+#[derive(Debug, Clone)]
+pub struct Controller {
+    /// 4 × 12, rows = motors (the 8-state gains are placed in their state columns).
+    k: [[f64; N_CONTROLLED]; 4],
+    /// 4 × n_int, rows = motors, columns in `integrators` order.
+    k_int: [[f64; 4]; 4],
+    integrators: Integrators,
+    rules: [IntegralRule; 4],
+    x_int: [f64; 4],
+    error_limits: bool,
+}
+
+/// Why gains were refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum GainError {
+    #[error("the proportional gains need {expected} numbers (4 × {cols}), got {got}")]
+    KProp {
+        expected: usize,
+        cols: usize,
+        got: usize,
+    },
+    #[error("the integral gains need {expected} numbers (4 × {cols}), got {got}")]
+    KInt {
+        expected: usize,
+        cols: usize,
+        got: usize,
+    },
+}
+
+impl Controller {
+    /// Builds the controller from row-major gain numbers: 4 × 12 (or 4 × 8 with
+    /// `reduced = true`) proportional, 4 × n integral with n = the integrator count.
+    /// `rules` are per integrator, in the same order. With ψ, φ integrators the x, y, vqx and
+    /// vqy columns are forced to zero, as the original did at load time.
+    pub fn new(
+        k_prop: &[f64],
+        k_int: &[f64],
+        reduced: bool,
+        integrators: Integrators,
+        rules: &[IntegralRule],
+        error_limits: bool,
+    ) -> Result<Controller, GainError> {
+        let cols: Vec<usize> = if reduced {
+            REDUCED_STATES.to_vec()
+        } else {
+            (0..N_CONTROLLED).collect()
+        };
+        if k_prop.len() != 4 * cols.len() {
+            return Err(GainError::KProp {
+                expected: 4 * cols.len(),
+                cols: cols.len(),
+                got: k_prop.len(),
+            });
+        }
+        let n_int = integrators.states().len();
+        if k_int.len() != 4 * n_int || rules.len() != n_int {
+            return Err(GainError::KInt {
+                expected: 4 * n_int,
+                cols: n_int,
+                got: k_int.len(),
+            });
+        }
+        let mut k = [[0.0; N_CONTROLLED]; 4];
+        for (m, row) in k.iter_mut().enumerate() {
+            for (j, &state) in cols.iter().enumerate() {
+                row[state] = k_prop[m * cols.len() + j];
+            }
+            if integrators == Integrators::PsiPhiZTheta {
+                for state in [0, 1, 6, 7] {
+                    row[state] = 0.0;
+                }
+            }
+        }
+        let mut ki = [[0.0; 4]; 4];
+        for (m, row) in ki.iter_mut().enumerate() {
+            row[..n_int].copy_from_slice(&k_int[m * n_int..(m + 1) * n_int]);
+        }
+        let mut r = [IntegralRule::new(0.0, 0.0, None); 4];
+        r[..n_int].copy_from_slice(rules);
+        let mut x_int = [0.0; 4];
+        for (x, rule) in x_int.iter_mut().zip(&r) {
+            *x = rule.seed;
+        }
+        Ok(Controller {
+            k,
+            k_int: ki,
+            integrators,
+            rules: r,
+            x_int,
+            error_limits,
+        })
+    }
+
+    /// Integrator states, in gain-file column order.
+    pub fn x_int(&self) -> &[f64] {
+        &self.x_int[..self.integrators.states().len()]
+    }
+
+    pub fn integrators(&self) -> Integrators {
+        self.integrators
+    }
+
+    /// One control step (spec 4.4): e = sp − x̂; w = sp.w + K·e; integrators updated with
+    /// T_s; w += K_int·x_int. Returns the raw controller output (before ramp and saturation).
+    pub fn step(&mut self, x_hat: &State, sp: &SetPoint, t_s: f64) -> [f64; 4] {
+        let mut e = [0.0; N_CONTROLLED];
+        for (i, ei) in e.iter_mut().enumerate() {
+            *ei = sp.x[i] - x_hat[i];
+        }
+        if self.error_limits {
+            for (i, lim) in ERROR_LIMITS {
+                e[i] = e[i].clamp(-lim, lim);
+            }
+        }
+        let mut w = [0.0; 4];
+        for (m, wm) in w.iter_mut().enumerate() {
+            let mut acc = 0.0;
+            for (kj, ej) in self.k[m].iter().zip(&e) {
+                acc += kj * ej;
+            }
+            *wm = sp.w_rad_s[m] + acc;
+        }
+        // The original updated θ first, then z, then φ/ψ (y/x); each update depends only on
+        // its own error, so the order does not change the result.
+        let states = self.integrators.states();
+        for (k, &state) in states.iter().enumerate().rev() {
+            self.x_int[k] = self.rules[k].update(self.x_int[k], e[state], t_s);
+        }
+        for (m, wm) in w.iter_mut().enumerate() {
+            let mut acc = 0.0;
+            for (kj, xj) in self.k_int[m].iter().zip(&self.x_int).take(states.len()) {
+                acc += kj * xj;
+            }
+            *wm += acc;
+        }
+        w
+    }
+}
+
+/// Manual-mode commands (spec 5.2) as typed values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ManualCommand {
+    /// ψ set point ± one angle step.
+    Roll(Dir),
+    /// φ set point ± one angle step.
+    Pitch(Dir),
+    /// θ set point ± one angle step.
+    Yaw(Dir),
+    /// z set point ± one altitude step.
+    Altitude(Dir),
+    /// Mass ± one mass step (then w_hover and w_min follow).
+    Weight(Dir),
+    /// Mass back to the configured value.
+    ResetWeight,
+    /// Stop: motors off.
+    Quit,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Dir {
+    Up,
+    Down,
+}
+
+impl Dir {
+    fn sign(self) -> f64 {
+        match self {
+            Dir::Up => 1.0,
+            Dir::Down => -1.0,
+        }
+    }
+}
+
+impl ManualCommand {
+    /// The original's keys (spec 5.2): j/g ψ, y/h φ, q/w θ, e/d z, i/k weight, 0 reset, ESC quit.
+    pub fn from_key(key: u8) -> Option<ManualCommand> {
+        use ManualCommand::*;
+        Some(match key {
+            b'j' => Roll(Dir::Up),
+            b'g' => Roll(Dir::Down),
+            b'y' => Pitch(Dir::Up),
+            b'h' => Pitch(Dir::Down),
+            b'q' => Yaw(Dir::Up),
+            b'w' => Yaw(Dir::Down),
+            b'e' => Altitude(Dir::Up),
+            b'd' => Altitude(Dir::Down),
+            b'i' => Weight(Dir::Up),
+            b'k' => Weight(Dir::Down),
+            b'0' => ResetWeight,
+            27 => Quit,
+            _ => return None,
+        })
+    }
+}
+
+/// Steps of the manual commands (spec 5.2).
+pub const MANUAL_ANGLE_STEP_RAD: f64 = 0.045;
+pub const MANUAL_Z_STEP_M: f64 = 0.2;
+pub const MANUAL_MASS_STEP_KG: f64 = 0.05;
+
+/// How far manual commands may move the set point (the `control.manual` configuration table).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
+pub struct ManualBounds {
+    /// |ψ_sp|, |φ_sp| at most this, rad.
+    pub max_tilt_rad: f64,
+    /// |θ_sp − θ at calibration| at most this, rad.
+    pub max_yaw_offset_rad: f64,
+    pub z_min_m: f64,
+    pub z_max_m: f64,
+    pub mass_min_kg: f64,
+    pub mass_max_kg: f64,
+}
+
+impl Default for ManualBounds {
+    fn default() -> Self {
+        ManualBounds {
+            max_tilt_rad: 0.27,
+            max_yaw_offset_rad: 3.2,
+            z_min_m: 0.2,
+            z_max_m: 3.0,
+            mass_min_kg: 0.5,
+            mass_max_kg: 2.2,
+        }
+    }
+}
+
+/// What a manual command did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ManualOutcome {
+    /// The set point (or mass) changed.
+    Applied,
+    /// The command would leave the bounds; nothing changed.
+    OutOfBounds,
+    /// Stop requested.
+    Quit,
+}
+
+/// The hover path planner (spec 5.1): a fixed set point, the motor set point from the mass.
+#[derive(Debug, Clone)]
+pub struct HoverPlanner {
+    pub sp: SetPoint,
+    theta_home_rad: f64,
+    mass_kg: f64,
+    default_mass_kg: f64,
+    w_max_rad_s: f64,
+    bounds: ManualBounds,
+}
+
+impl HoverPlanner {
+    /// Set point x, y = the GPS start position (0 without GPS), z = `hover_z_m`, θ = θ at
+    /// calibration, everything else 0; motors at w_hover(mass).
+    pub fn new(
+        hover_z_m: f64,
+        theta_cal_rad: f64,
+        xy_start_m: [f64; 2],
+        mass_kg: f64,
+        w_max_rad_s: f64,
+        bounds: ManualBounds,
+    ) -> Self {
+        let mut x = [0.0; N_CONTROLLED];
+        x[0] = xy_start_m[0];
+        x[1] = xy_start_m[1];
+        x[2] = hover_z_m;
+        x[5] = theta_cal_rad;
+        let mut p = HoverPlanner {
+            sp: SetPoint {
+                x,
+                w_rad_s: [0.0; 4],
+            },
+            theta_home_rad: theta_cal_rad,
+            mass_kg,
+            default_mass_kg: mass_kg,
+            w_max_rad_s,
+            bounds,
+        };
+        p.update_setpoint();
+        p
+    }
+
+    pub fn mass_kg(&self) -> f64 {
+        self.mass_kg
+    }
+
+    pub fn limits(&self) -> MotorLimits {
+        MotorLimits::new(self.mass_kg, self.w_max_rad_s)
+    }
+
+    /// `pp_update_setpoint`: the motor set point follows the current mass.
+    pub fn update_setpoint(&mut self) {
+        self.sp.w_rad_s = [self.limits().w_hover_rad_s; 4];
+    }
+
+    /// Applies a manual command within the bounds.
+    pub fn apply(&mut self, cmd: ManualCommand) -> ManualOutcome {
+        let b = self.bounds;
+        let within = |v: f64, lo: f64, hi: f64| v >= lo - 1e-12 && v <= hi + 1e-12;
+        let (slot, value, ok) = match cmd {
+            ManualCommand::Quit => return ManualOutcome::Quit,
+            ManualCommand::Roll(d) | ManualCommand::Pitch(d) => {
+                let i = if matches!(cmd, ManualCommand::Roll(_)) {
+                    3
+                } else {
+                    4
+                };
+                let v = self.sp.x[i] + d.sign() * MANUAL_ANGLE_STEP_RAD;
+                (Some(i), v, within(v, -b.max_tilt_rad, b.max_tilt_rad))
+            }
+            ManualCommand::Yaw(d) => {
+                let v = self.sp.x[5] + d.sign() * MANUAL_ANGLE_STEP_RAD;
+                let off = v - self.theta_home_rad;
+                (
+                    Some(5),
+                    v,
+                    within(off, -b.max_yaw_offset_rad, b.max_yaw_offset_rad),
+                )
+            }
+            ManualCommand::Altitude(d) => {
+                let v = self.sp.x[2] + d.sign() * MANUAL_Z_STEP_M;
+                (Some(2), v, within(v, b.z_min_m, b.z_max_m))
+            }
+            ManualCommand::Weight(d) => {
+                let v = self.mass_kg + d.sign() * MANUAL_MASS_STEP_KG;
+                (None, v, within(v, b.mass_min_kg, b.mass_max_kg))
+            }
+            ManualCommand::ResetWeight => (None, self.default_mass_kg, true),
+        };
+        if !ok {
+            return ManualOutcome::OutOfBounds;
+        }
+        match slot {
+            Some(i) => self.sp.x[i] = value,
+            None => {
+                self.mass_kg = value;
+                self.update_setpoint();
+            }
+        }
+        ManualOutcome::Applied
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rules4() -> [IntegralRule; 4] {
+        let r = |step_max, cap, seed| IntegralRule {
+            step_max,
+            cap,
+            threshold: None,
+            seed,
+        };
+        [
+            r(1e-3, 1.0, -0.2),
+            r(1e-3, 1.0, -0.15),
+            r(5e-3, 1.0, 0.0),
+            r(7e-3, 2.0, 0.0),
+        ]
+    }
+
+    #[test]
+    fn integral_rule_clamps_and_thresholds() {
+        let r = IntegralRule {
+            step_max: 1e-3,
+            cap: 0.0105,
+            threshold: Some(0.26),
+            seed: 0.0,
+        };
+        assert_eq!(r.update(0.0, 0.05, 0.01), 0.0005);
+        assert_eq!(r.update(0.0, 0.2, 0.01), 1e-3);
+        assert_eq!(r.update(0.0, -0.2, 0.01), -1e-3);
+        assert_eq!(r.update(0.01, 0.2, 0.01), 0.0105);
+        assert_eq!(r.update(0.004, 0.3, 0.01), 0.004, "above the threshold");
+    }
+
+    #[test]
+    fn controller_law_on_a_known_error() {
+        // K: only z (column 2) with gain 10, K_int: only z (column 2) with gain 2.
+        let mut k = vec![0.0; 48];
+        let mut ki = vec![0.0; 16];
+        for m in 0..4 {
+            k[m * 12 + 2] = 10.0;
+            k[m * 12] = 99.0; // x column: zeroed for the psi,phi,z,theta variant
+            ki[m * 4 + 2] = 2.0;
+        }
+        let mut c =
+            Controller::new(&k, &ki, false, Integrators::PsiPhiZTheta, &rules4(), false).unwrap();
+        assert_eq!(c.x_int(), &[-0.2, -0.15, 0.0, 0.0]);
+        let sp = SetPoint {
+            x: {
+                let mut x = [0.0; 12];
+                x[2] = 1.5;
+                x
+            },
+            w_rad_s: [300.0; 4],
+        };
+        let w = c.step(&State::zeros(), &sp, 0.01);
+        // z integrator: e·T = 0.015, clamped to 5e-3.
+        assert_eq!(c.x_int()[2], 5e-3);
+        assert!((w[0] - (300.0 + 15.0 + 2.0 * 5e-3)).abs() < 1e-12, "{w:?}");
+        // The 8-state variant reads 4 × 8 and 4 × 2 numbers.
+        let c8 = Controller::new(
+            &[1.0; 32],
+            &[1.0; 8],
+            true,
+            Integrators::ZTheta,
+            &rules4()[2..],
+            false,
+        );
+        assert!(c8.is_ok());
+        assert!(matches!(
+            Controller::new(
+                &[1.0; 32],
+                &[1.0; 16],
+                false,
+                Integrators::XYZTheta,
+                &rules4(),
+                false
+            ),
+            Err(GainError::KProp { expected: 48, .. })
+        ));
+    }
+
+    #[test]
+    fn error_limits_clamp_e() {
+        let mut k = vec![0.0; 48];
+        for m in 0..4 {
+            k[m * 12 + 2] = 1.0;
+        }
+        let mut c = Controller::new(
+            &k,
+            &[0.0; 16],
+            false,
+            Integrators::XYZTheta,
+            &rules4(),
+            true,
+        )
+        .unwrap();
+        let mut sp = SetPoint {
+            x: [0.0; 12],
+            w_rad_s: [0.0; 4],
+        };
+        sp.x[2] = 10.0;
+        let w = c.step(&State::zeros(), &sp, 0.01);
+        assert_eq!(w[0], 4.0);
+    }
+
+    #[test]
+    fn manual_commands_move_within_bounds() {
+        let bounds = ManualBounds {
+            max_tilt_rad: 0.1,
+            max_yaw_offset_rad: 0.5,
+            z_min_m: 0.5,
+            z_max_m: 1.9,
+            mass_min_kg: 1.5,
+            mass_max_kg: 1.6,
+        };
+        let mut p = HoverPlanner::new(1.5, 2.0, [0.0, 0.0], 1.55, 368.0, bounds);
+        assert_eq!(
+            p.apply(ManualCommand::from_key(b'j').unwrap()),
+            ManualOutcome::Applied
+        );
+        assert_eq!(
+            p.apply(ManualCommand::Roll(Dir::Up)),
+            ManualOutcome::Applied
+        );
+        assert!((p.sp.x[3] - 0.09).abs() < 1e-12);
+        assert_eq!(
+            p.apply(ManualCommand::Roll(Dir::Up)),
+            ManualOutcome::OutOfBounds
+        );
+        assert_eq!(
+            p.apply(ManualCommand::Altitude(Dir::Up)),
+            ManualOutcome::Applied
+        );
+        assert!((p.sp.x[2] - 1.7).abs() < 1e-12);
+        assert_eq!(
+            p.apply(ManualCommand::Altitude(Dir::Up)),
+            ManualOutcome::Applied
+        );
+        assert_eq!(
+            p.apply(ManualCommand::Altitude(Dir::Up)),
+            ManualOutcome::OutOfBounds
+        );
+        let w0 = p.sp.w_rad_s[0];
+        assert_eq!(
+            p.apply(ManualCommand::Weight(Dir::Up)),
+            ManualOutcome::Applied
+        );
+        assert!(p.sp.w_rad_s[0] > w0);
+        assert_eq!(
+            p.apply(ManualCommand::Weight(Dir::Up)),
+            ManualOutcome::OutOfBounds
+        );
+        assert_eq!(p.apply(ManualCommand::ResetWeight), ManualOutcome::Applied);
+        assert_eq!(p.sp.w_rad_s[0], w0);
+        assert_eq!(
+            p.apply(ManualCommand::from_key(27).unwrap()),
+            ManualOutcome::Quit
+        );
+        assert_eq!(ManualCommand::from_key(b'x'), None);
+    }
+}
