@@ -130,6 +130,10 @@ pub struct Control {
     pub k_prop_file: PathBuf,
     /// Integral gain matrix, 4 × integrators.
     pub k_int_file: PathBuf,
+    /// LQR state weights, 16 × 16 (12 states, then the 4 integrators), for `uquad lqr`.
+    pub lqr_q_file: PathBuf,
+    /// LQR input weights, 4 × 4.
+    pub lqr_r_file: PathBuf,
     /// Hover altitude set point above the start altitude, m.
     pub hover_z_m: f64,
     pub integral: Integrals,
@@ -225,6 +229,8 @@ impl Default for Control {
             manual: ManualBounds::default(),
             k_prop_file: PathBuf::from("K_prop_full_ppzt.txt"),
             k_int_file: PathBuf::from("K_int_full_ppzt.txt"),
+            lqr_q_file: PathBuf::from("lqr-Q.txt"),
+            lqr_r_file: PathBuf::from("lqr-R.txt"),
             hover_z_m: 1.0,
             integral: Integrals::default(),
         }
@@ -318,6 +324,9 @@ pub struct Profile {
     pub k_prop: Vec<f64>,
     /// 4 × the integrator count, row-major.
     pub k_int: Vec<f64>,
+    /// LQR weights: 16 × 16 and 4 × 4, row-major.
+    pub lqr_q: Vec<f64>,
+    pub lqr_r: Vec<f64>,
 }
 
 impl Profile {
@@ -710,6 +719,8 @@ pub fn load(path: &Path, sets: &[(String, toml::Value)]) -> Result<Profile, Conf
     c.imu.calib_file = resolve(&c.imu.calib_file);
     c.control.k_prop_file = resolve(&c.control.k_prop_file);
     c.control.k_int_file = resolve(&c.control.k_int_file);
+    c.control.lqr_q_file = resolve(&c.control.lqr_q_file);
+    c.control.lqr_r_file = resolve(&c.control.lqr_r_file);
 
     let mut load_numbers = |key: &str, file: &Path, count: usize| -> Option<Vec<f64>> {
         let text = match std::fs::read_to_string(file) {
@@ -749,15 +760,23 @@ pub fn load(path: &Path, sets: &[(String, toml::Value)]) -> Result<Profile, Conf
         &c.control.k_int_file.clone(),
         4 * n_int,
     );
+    let lqr_q = load_numbers("control.lqr_q_file", &c.control.lqr_q_file.clone(), 256);
+    let lqr_r = load_numbers("control.lqr_r_file", &c.control.lqr_r_file.clone(), 16);
 
-    match (calib, k_prop, k_int) {
-        (Some(calib), Some(k_prop), Some(k_int)) if problems.is_empty() => Ok(Profile {
-            path: path.to_path_buf(),
-            config: c,
-            calib,
-            k_prop,
-            k_int,
-        }),
+    match (calib, k_prop, k_int, lqr_q, lqr_r) {
+        (Some(calib), Some(k_prop), Some(k_int), Some(lqr_q), Some(lqr_r))
+            if problems.is_empty() =>
+        {
+            Ok(Profile {
+                path: path.to_path_buf(),
+                config: c,
+                calib,
+                k_prop,
+                k_int,
+                lqr_q,
+                lqr_r,
+            })
+        }
         _ => Err(ConfigError { problems }),
     }
 }

@@ -38,6 +38,30 @@ Exits 0 when everything is valid. Otherwise prints one line per problem, naming 
         #[command(flatten)]
         sets: SetArgs,
     },
+    /// Design hover gains by LQR from the vehicle model and write them as gain files.
+    #[command(
+        long_about = "Design hover gains by LQR from the vehicle model (spec 4.5) and write them as gain files.\n\n\
+The 12-state model is linearised at hover (w = w_hover(vehicle.mass_kg) on all motors), extended \
+with four integrators, discretised at 10 ms and the discrete Riccati equation solved to a relative \
+residual below 1e-9, with the weights of control.lqr_q_file (16 x 16) and control.lqr_r_file \
+(4 x 4). Writes OUT/K_prop.txt (4 x 12) and OUT/K_int.txt (4 x 4), rows = motors, in the \
+convention w = w_hover + K·e + K_int·x_int, and prints the closed-loop spectral radius.\n\n\
+Integrating psi and phi cannot work at hover (velocity - g·∫angle is conserved): that design is \
+refused with an explanation and nothing is written."
+    )]
+    Lqr {
+        /// Configuration profile (default: config/uquad.toml under the working directory).
+        #[arg(long, value_name = "FILE")]
+        config: Option<PathBuf>,
+        #[command(flatten)]
+        sets: SetArgs,
+        /// Integrated states: psi,phi,z,theta or x,y,z,theta.
+        #[arg(long, value_name = "LIST", default_value = "psi,phi,z,theta")]
+        integrators: String,
+        /// Folder for K_prop.txt and K_int.txt (created if missing).
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+    },
     /// Rerun a recorded flight through the measurement path and write its logs.
     #[command(
         long_about = "Rerun a recorded flight through the core and write its logs.\n\n\
@@ -109,6 +133,30 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 Ok(ExitCode::FAILURE)
             }
         },
+        Command::Lqr {
+            config,
+            sets,
+            integrators,
+            out,
+        } => {
+            let set = uquad::core::control::Integrators::parse(&integrators)
+                .filter(|s| *s != uquad::core::control::Integrators::ZTheta)
+                .with_context(|| {
+                    format!(
+                        "--integrators {integrators:?}: expected psi,phi,z,theta or x,y,z,theta"
+                    )
+                })?;
+            let path = config::resolve_path(config.as_deref()).map_err(anyhow::Error::msg)?;
+            let profile = load_profile(&path, &sets)?;
+            let outcome = uquad::app::lqr::run(&profile, set, &out)?;
+            println!(
+                "closed-loop spectral radius {:.9} (relative Riccati residual {:.2e})",
+                outcome.design.spectral_radius, outcome.design.residual_rel
+            );
+            println!("{}", outcome.k_prop_path.display());
+            println!("{}", outcome.k_int_path.display());
+            Ok(ExitCode::SUCCESS)
+        }
         Command::Replay {
             run_dir,
             config,

@@ -1,3 +1,4 @@
 //! Composition roots: each mode wires the pure core to its edges.
 
+pub mod lqr;
 pub mod replay;

@@ -6,6 +6,7 @@ pub mod control;
 pub mod ekf;
 pub mod gps;
 pub mod imu;
+pub mod lqr;
 pub mod model;
 pub mod motor;
 pub mod numfile;

@@ -1,0 +1,127 @@
+//! `uquad lqr`: hover gains by LQR, checked against an independent solution.
+
+mod common;
+use common::*;
+
+fn matrix(path: &std::path::Path) -> Vec<Vec<f64>> {
+    numbers(path)
+}
+
+#[test]
+fn xyzt_design_matches_an_independent_solution() {
+    let out = tempfile::tempdir().unwrap();
+    let o = uquad(
+        &root(),
+        &[
+            "lqr",
+            "--config",
+            "config/flight-2012-05.toml",
+            "--integrators",
+            "x,y,z,theta",
+            "--out",
+            out.path().to_str().unwrap(),
+        ],
+    );
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // "closed-loop spectral radius R (relative Riccati residual E)"
+    let words: Vec<&str> = stdout.split_whitespace().collect();
+    let rho: f64 = words[3].parse().unwrap();
+    let residual: f64 = words[7].trim_end_matches(')').parse().unwrap();
+    assert!(rho < 1.0 && rho > 0.9, "{stdout}");
+    assert!(residual < 1e-9, "{stdout}");
+
+    // SciPy's Schur-method DARE solver on the same model (tests/data/lqr/reference.py).
+    for (ours, theirs, rows, cols) in [
+        ("K_prop.txt", "K_prop_xyzt.txt", 4, 12),
+        ("K_int.txt", "K_int_xyzt.txt", 4, 4),
+    ] {
+        let a = matrix(&out.path().join(ours));
+        let b = matrix(&root().join("tests/data/lqr").join(theirs));
+        assert_eq!(a.len(), rows);
+        let scale = b.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
+        for (ra, rb) in a.iter().zip(&b) {
+            assert_eq!(ra.len(), cols);
+            for (x, y) in ra.iter().zip(rb) {
+                assert!((x - y).abs() <= 1e-9 * scale, "{ours}: {x} vs {y}");
+            }
+        }
+    }
+
+    // The gains load as the controller's gain files.
+    let o = uquad(
+        &root(),
+        &[
+            "check-config",
+            "config/flight-2012-05.toml",
+            "--set",
+            &format!(
+                "control.k_prop_file=\"{}\"",
+                out.path().join("K_prop.txt").display()
+            ),
+            "--set",
+            &format!(
+                "control.k_int_file=\"{}\"",
+                out.path().join("K_int.txt").display()
+            ),
+            "--set",
+            "control.integrators=x,y,z,theta",
+        ],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+#[test]
+fn library_design_residual_and_stability() {
+    let profile = uquad::config::load(&profile_2012(), &[]).unwrap();
+    let q = uquad::core::lqr::Mat16::from_row_slice(&profile.lqr_q);
+    let r = uquad::core::lqr::Mat4::from_row_slice(&profile.lqr_r);
+    let d = uquad::core::lqr::design(1.55, uquad::core::control::Integrators::XYZTheta, &q, &r)
+        .unwrap();
+    let (phi, gamma) = &d.discrete;
+    let residual = uquad::core::lqr::dare_residual(phi, gamma, &q, &r, &d.p);
+    assert!(residual < 1e-9, "{residual}");
+    let rho = (phi - gamma * d.k_lqr)
+        .complex_eigenvalues()
+        .iter()
+        .map(|c| c.norm())
+        .fold(0.0, f64::max);
+    assert!(rho < 1.0, "{rho}");
+}
+
+#[test]
+fn psi_phi_design_is_refused_with_the_reason() {
+    let out = tempfile::tempdir().unwrap();
+    let dir = out.path().join("gains");
+    // The default integrators are psi,phi,z,theta.
+    let o = uquad(
+        &root(),
+        &[
+            "lqr",
+            "--config",
+            "config/flight-2012-05.toml",
+            "--out",
+            dir.to_str().unwrap(),
+        ],
+    );
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("not stabilisable"), "{err}");
+    assert!(err.contains("unit circle"), "{err}");
+    assert!(err.contains("vqx − g·∫φ"), "{err}");
+    assert!(err.contains("--integrators x,y,z,theta"), "{err}");
+    assert!(!dir.exists(), "nothing is written");
+    // A list it does not know is refused too.
+    let o = uquad(
+        &root(),
+        &[
+            "lqr",
+            "--integrators",
+            "z,theta",
+            "--out",
+            dir.to_str().unwrap(),
+        ],
+    );
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--integrators"));
+}
