@@ -42,6 +42,8 @@ pub fn copy_profile(dir: &Path) -> PathBuf {
         "imu_calib.txt",
         "K_prop_full_ppzt.txt",
         "K_int_full_ppzt.txt",
+        "lqr-Q.txt",
+        "lqr-R.txt",
     ] {
         std::fs::copy(root().join("config").join(f), dir.join(f)).expect("copy profile");
     }
