@@ -348,17 +348,42 @@ impl Profile {
         .unwrap_or_else(|e| unreachable!("gain shapes are validated at load: {e}"))
     }
 
-    /// The hover planner for a run whose calibration measured yaw `theta_cal_rad`.
-    pub fn planner(&self, theta_cal_rad: f64) -> crate::core::control::HoverPlanner {
+    /// The estimator half of the flight loop.
+    pub fn estimator_core(&self, skip_settle: bool) -> crate::core::flight::EstimatorCore {
         let c = &self.config;
-        crate::core::control::HoverPlanner::new(
-            c.control.hover_z_m,
-            theta_cal_rad,
-            [0.0, 0.0],
-            c.vehicle.mass_kg,
-            c.motor.w_max_rad_s,
-            c.control.manual,
+        crate::core::flight::EstimatorCore::new(
+            c.imu.startup_params(),
+            self.calib.clone(),
+            c.ekf.params(&c.imu),
+            skip_settle,
         )
+    }
+
+    /// The controller half of the flight loop.
+    pub fn controller_core(&self) -> crate::core::flight::ControllerCore {
+        let c = &self.config;
+        crate::core::flight::ControllerCore::new(
+            self.controller(),
+            crate::core::flight::PlannerSpec {
+                hover_z_m: c.control.hover_z_m,
+                mass_kg: c.vehicle.mass_kg,
+                w_max_rad_s: c.motor.w_max_rad_s,
+                bounds: c.control.manual,
+            },
+            c.control.original_timing,
+        )
+    }
+
+    /// Positions of fake GPS samples for this profile's mode.
+    pub fn fake_positions(&self) -> crate::core::gps::FakePositions {
+        let g = &self.config.gps;
+        match g.mode {
+            GpsMode::FakeRandom => crate::core::gps::FakePositions::Random {
+                rng: crate::core::gps::SplitMix64::new(g.seed),
+                span_m: g.fake_span_m,
+            },
+            _ => crate::core::gps::FakePositions::Zero,
+        }
     }
 }
 

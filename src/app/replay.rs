@@ -12,18 +12,13 @@
 //! Replay is deterministic: the same inputs give byte-identical outputs.
 
 use crate::config::{GpsMode, Profile};
-use crate::core::ekf::{Ekf, StepInput};
-use crate::core::gps::{
-    FakeGpsClock, FakePositions, GpsSample, LocalFrame, RecordedGps, SplitMix64,
-};
-use crate::core::imu::startup::{FrontEndEvent, ImuFrontEnd};
-use crate::core::motor::{FLIGHT_RAMP_STEPS, command_for_step};
+use crate::core::ekf::Ekf;
+use crate::core::flight::GpsFeed;
+use crate::core::gps::{GpsSample, LocalFrame, RecordedGps};
+use crate::core::imu::startup::FrontEndEvent;
 use crate::logs::{self, GpsLogRecord, ImuRawRecord, KalmanInRecord, Parsed};
 use anyhow::{Context, bail};
 use std::path::{Path, PathBuf};
-
-/// The first Kalman step has no previous step time: it uses the nominal period (ERRATA 3).
-const FIRST_STEP_DT_US: i64 = 10_000;
 
 /// What a replay produced.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -141,43 +136,20 @@ fn joined<T>(r: std::thread::Result<anyhow::Result<T>>) -> anyhow::Result<T> {
     r.unwrap_or_else(|_| Err(anyhow::anyhow!("a log reader thread panicked")))
 }
 
-/// Where the filter's GPS samples come from during a replay.
-enum GpsSource {
-    Off,
-    /// Samples stamped in the run's gps.log, fused by the first later Kalman step (ERRATA 5).
-    Recorded(RecordedGps),
-    /// The fake-GPS rule run on the motor-command clock (ERRATA 10); a sample produced after
-    /// command k is fused by Kalman step k + 1.
-    Clock {
-        clock: FakeGpsClock,
-        positions: FakePositions,
-        pending: Option<GpsSample>,
-    },
-}
-
-fn gps_source(profile: &Profile, recorded: Option<Vec<GpsLogRecord>>) -> anyhow::Result<GpsSource> {
+/// The GPS feed of a replay: the run's gps.log when it has one, else the fake-GPS rule.
+fn gps_source(profile: &Profile, recorded: Option<Vec<GpsLogRecord>>) -> anyhow::Result<GpsFeed> {
     let g = &profile.config.gps;
-    let mut positions = match g.mode {
-        GpsMode::FakeRandom => FakePositions::Random {
-            rng: SplitMix64::new(g.seed),
-            span_m: g.fake_span_m,
-        },
-        _ => FakePositions::Zero,
-    };
+    let mut positions = profile.fake_positions();
     Ok(match (g.mode, recorded) {
-        (GpsMode::Off, _) => GpsSource::Off,
+        (GpsMode::Off, _) => GpsFeed::Off,
         (GpsMode::FakeZero | GpsMode::FakeRandom, Some(rows)) => {
-            GpsSource::Recorded(RecordedGps::new(
+            GpsFeed::Recorded(RecordedGps::new(
                 rows.iter()
                     .map(|r| (r.t_us(), positions.next_sample()))
                     .collect(),
             ))
         }
-        (GpsMode::FakeZero | GpsMode::FakeRandom, None) => GpsSource::Clock {
-            clock: FakeGpsClock::default(),
-            positions,
-            pending: None,
-        },
+        (GpsMode::FakeZero | GpsMode::FakeRandom, None) => GpsFeed::fake(positions),
         (GpsMode::Gpsd, Some(rows)) => {
             let mut frame = LocalFrame::default();
             let mut samples = Vec::new();
@@ -201,11 +173,11 @@ fn gps_source(profile: &Profile, recorded: Option<Vec<GpsLogRecord>>) -> anyhow:
                     ),
                 }
             }
-            GpsSource::Recorded(RecordedGps::new(samples))
+            GpsFeed::Recorded(RecordedGps::new(samples))
         }
         (GpsMode::Gpsd, None) => {
             tracing::warn!("gps.mode is gpsd but the run has no gps.log: replaying without GPS");
-            GpsSource::Off
+            GpsFeed::Off
         }
     })
 }
@@ -252,43 +224,25 @@ pub fn run_observed(
     let cfg = &profile.config;
     let mut gps = gps_source(profile, recorded_gps)?;
     // The original's imu_raw.log holds no settling frames (spec 1.6): start with calibration.
-    let mut front = ImuFrontEnd::new(cfg.imu.startup_params(), profile.calib.clone(), true);
-    let mut ekf: Option<Ekf> = None;
-    let mut controller = profile.controller();
-    let mut planner = None;
-    let mut out = Records {
-        n_int: controller.x_int().len(),
-        ..Records::default()
-    };
+    let mut estimator = profile.estimator_core(true);
+    let mut control = profile.controller_core();
+    let mut out = Records::default();
     let mut summary = ReplaySummary {
         raw_frames: raw.len(),
         ..ReplaySummary::default()
     };
     let mut prev_frame_us: Option<i64> = None;
-    let mut prev_step_us: Option<i64> = None;
-    // What the previous step produced: the raw controller output, the command sent and its time.
-    let mut prev: Option<([f64; 4], [f64; 4], i64)> = None;
     for rec in &raw {
-        let (mut sample, filter) = match front.on_frame(&rec.frame, rec.t_frame_us) {
-            FrontEndEvent::Settling { .. } | FrontEndEvent::Calibrating { .. } => continue,
+        let sample = match estimator.on_frame(&rec.frame, rec.t_frame_us) {
+            FrontEndEvent::Settling { .. }
+            | FrontEndEvent::Holding
+            | FrontEndEvent::Calibrating { .. } => continue,
             FrontEndEvent::Failed(e) => bail!("start-up failed: {e}"),
-            FrontEndEvent::Calibrated(null) => {
-                planner = Some(profile.planner(null.sample.euler_rad[2]));
-                (
-                    null.sample,
-                    ekf.insert(Ekf::new(cfg.ekf.params(&cfg.imu), &null.sample)),
-                )
-            }
-            FrontEndEvent::Sample(s) => match ekf.as_mut() {
-                Some(f) => (s, f),
-                None => continue,
-            },
+            FrontEndEvent::Calibrated(null) => null.sample,
+            FrontEndEvent::Sample(s) => s,
         };
-        let Some(planner) = planner.as_mut() else {
-            continue;
-        };
-        let row = summary.kalman_steps; // 0-based Kalman step
-        let step = row as u32 + 1; // 1-based, as the spec counts
+        let row = estimator.steps() as usize; // 0-based Kalman step
+        let step = estimator.steps() + 1;
         // The recorded clock when the run has one, else the frames' own times.
         let (t_us, dt_col_us) = match recorded_times.get(row) {
             Some(&(t, dt)) => (t, dt),
@@ -298,77 +252,34 @@ pub fn run_observed(
             ),
         };
         prev_frame_us = Some(rec.t_frame_us);
-        let dt_us = prev_step_us.map_or(FIRST_STEP_DT_US, |p| t_us - p);
-        prev_step_us = Some(t_us);
         let t_cmd_us = cmd_times.get(row).copied().unwrap_or(t_us);
         let t_ctrl_us = ctrl_times.get(row).copied().unwrap_or(t_cmd_us);
 
-        // The filter input u (ERRATA 6): w_hover on step 1; while ramping the previous raw
-        // controller output; once running the previous command actually sent.
-        let limits = planner.limits();
-        let u_rad_s = match prev {
-            None => [limits.w_hover_rad_s; 4],
-            Some((w_ctrl, _, _)) if step <= FLIGHT_RAMP_STEPS => w_ctrl,
-            Some((_, w_sent, _)) => w_sent,
+        let u_rad_s = control.input_for_step(step);
+        let gps_sample = gps.for_step(t_us);
+        let Some(est) = estimator.step(sample, t_us, u_rad_s, control.mass_kg(), gps_sample) else {
+            continue;
         };
-        let gps_sample = match &mut gps {
-            GpsSource::Off => None,
-            GpsSource::Recorded(r) => r.take_before(t_us),
-            GpsSource::Clock { pending, .. } => pending.take(),
-        };
-        let (report, result) = filter.step(
-            &sample,
-            &StepInput {
-                u_rad_s,
-                mass_kg: planner.mass_kg(),
-                dt_us,
-                gps_m: gps_sample.map(|g| g.pos_m),
-            },
-        );
-        if let Err(e) = result {
+        if let Some(e) = est.ekf_error {
             summary.ekf_errors += 1;
             tracing::warn!(step, "{e}");
         }
-        summary.gps_updates += usize::from(gps_sample.is_some());
-        summary.dt_clamped += usize::from(report.dt_clamped);
-        sample.euler_rad[2] = report.theta_unwrapped_rad;
+        summary.gps_updates += usize::from(est.gps_used);
+        summary.dt_clamped += usize::from(est.dt_clamped);
         out.kalman_in
-            .push(KalmanInRecord::from_sample(t_us, dt_col_us, &sample));
-        out.x_hat.push(filter.x.into());
-        on_step(filter);
-
-        // Control (spec 4.4): T_s = this control step's time − the previous command's time
-        // (ERRATA 8). The first step has no previous command: the original measured from the
-        // program's start and kept only the microseconds part.
-        planner.update_setpoint();
-        let t_s_us = match prev {
-            Some((_, _, t_prev_cmd)) => t_ctrl_us - t_prev_cmd,
-            None if cfg.control.original_timing => t_ctrl_us.rem_euclid(1_000_000),
-            None => FIRST_STEP_DT_US,
-        };
-        let w_ctrl = controller.step(&filter.x, &planner.sp, t_s_us as f64 / 1e6);
-        let mut x_int = [0.0; 4];
-        x_int[..out.n_int].copy_from_slice(controller.x_int());
-        out.int.push((t_ctrl_us, x_int));
-        let w_sent = command_for_step(&w_ctrl, step, &limits);
-        summary.saturated_commands += usize::from(
-            w_sent
-                .iter()
-                .any(|&w| w == limits.w_min_rad_s || w == limits.w_max_rad_s),
-        );
-        out.w.push((t_cmd_us, w_sent));
-        prev = Some((w_ctrl, w_sent, t_cmd_us));
-
-        // After the motor command, the fake-GPS check (ERRATA 10).
-        if let GpsSource::Clock {
-            clock,
-            positions,
-            pending,
-        } = &mut gps
-            && clock.on_motor_command(t_cmd_us)
-        {
-            *pending = Some(positions.next_sample());
+            .push(KalmanInRecord::from_sample(t_us, dt_col_us, &est.sample));
+        out.x_hat.push(est.x.into());
+        if let Some(ekf) = estimator.ekf() {
+            on_step(ekf);
         }
+
+        let c = control.control(&est, t_ctrl_us, t_cmd_us);
+        summary.saturated_commands += usize::from(c.saturated);
+        out.n_int = c.n_int;
+        out.int.push((c.t_ctrl_us, c.x_int));
+        out.w.push((c.t_cmd_us, c.w_sent));
+        // After the motor command, the fake-GPS check (ERRATA 10).
+        gps.after_command(t_cmd_us);
         summary.kalman_steps += 1;
     }
     if summary.kalman_steps == 0 {

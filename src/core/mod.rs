@@ -4,6 +4,7 @@
 
 pub mod control;
 pub mod ekf;
+pub mod flight;
 pub mod gps;
 pub mod imu;
 pub mod lqr;

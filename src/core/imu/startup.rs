@@ -56,6 +56,8 @@ pub enum FrontEndEvent {
     Calibrating { frames: u32 },
     /// The null estimate is complete (this frame was its last).
     Calibrated(NullEstimate),
+    /// Settled and holding until calibration is started.
+    Holding,
     /// A filtered, converted sample for the estimator.
     Sample(ImuSample),
     /// Start-up failed; motors must stay off.
@@ -69,6 +71,8 @@ enum Phase {
         frames: u32,
         good: u32,
     },
+    /// Settled; waiting for `begin_calibration` (frames still fill the FIR).
+    Holding,
     Calibrating(NullAccumulator),
     Running(NullEstimate),
     Failed(StartupError),
@@ -82,6 +86,7 @@ pub struct ImuFrontEnd {
     fir: Fir,
     phase: Option<Phase>,
     last_stamp_us: Option<i64>,
+    hold_after_settle: bool,
 }
 
 impl ImuFrontEnd {
@@ -99,6 +104,21 @@ impl ImuFrontEnd {
             fir: Fir::new(),
             phase,
             last_stamp_us: None,
+            hold_after_settle: false,
+        }
+    }
+
+    /// After settling, hold until [`ImuFrontEnd::begin_calibration`] instead of calibrating.
+    pub fn hold_after_settle(mut self) -> Self {
+        self.hold_after_settle = true;
+        self
+    }
+
+    /// Starts the calibration when holding (and lets it start at once if still settling).
+    pub fn begin_calibration(&mut self) {
+        self.hold_after_settle = false;
+        if matches!(self.phase, Some(Phase::Holding)) {
+            self.phase = Some(Phase::Calibrating(NullAccumulator::default()));
         }
     }
 
@@ -137,10 +157,12 @@ impl ImuFrontEnd {
                     _ => 0,
                 };
                 if good >= p.settle_frames {
-                    (
-                        Phase::Calibrating(NullAccumulator::default()),
-                        FrontEndEvent::Settling { good },
-                    )
+                    let next = if self.hold_after_settle {
+                        Phase::Holding
+                    } else {
+                        Phase::Calibrating(NullAccumulator::default())
+                    };
+                    (next, FrontEndEvent::Settling { good })
                 } else if frames > p.settle_max_frames {
                     let e = StartupError::TooManyFrames {
                         frames,
@@ -164,6 +186,7 @@ impl ImuFrontEnd {
                     )
                 }
             }
+            Phase::Holding => (Phase::Holding, FrontEndEvent::Holding),
             Phase::Calibrating(mut acc) => {
                 acc.push(frame);
                 let frames = acc.frames();
@@ -263,6 +286,25 @@ mod tests {
         };
         // 0.2 of the new frame's extra 100 counts at 0.01 rad/s per count.
         assert!((s.gyro_rad_s[0] - 0.2).abs() < 1e-12, "{s:?}");
+    }
+
+    #[test]
+    fn holds_after_settling_until_told() {
+        let mut fe = ImuFrontEnd::new(params(), calib(), false).hold_after_settle();
+        let mut t = 0;
+        for _ in 0..4 {
+            fe.on_frame(&frame(5), t);
+            t += 10_000;
+        }
+        for _ in 0..20 {
+            assert_eq!(fe.on_frame(&frame(5), t), FrontEndEvent::Holding);
+            t += 10_000;
+        }
+        fe.begin_calibration();
+        assert_eq!(
+            fe.on_frame(&frame(5), t),
+            FrontEndEvent::Calibrating { frames: 1 }
+        );
     }
 
     #[test]

@@ -1,0 +1,312 @@
+//! The flight loop's two halves as pure state machines, shared by `fly`, `sim` and `replay`:
+//! the estimator (measurement front end + EKF) and the controller (hover planner + P + I
+//! controller + flight ramp and saturation), and the GPS feed between them.
+//!
+//! Spec section 8.3 steps 6–11 with ERRATA 3–8 and 10: one Kalman step per filtered frame; the
+//! EKF input u is w_hover on step 1, the previous raw controller output while the flight ramp
+//! runs (steps 2–100), then the previous command actually sent; the control period is the
+//! control step's time minus the previous command's time. Replay is byte-identical because
+//! every mode makes these same calls in the same order with the same inputs.
+
+use crate::core::control::{Controller, HoverPlanner, ManualCommand, ManualOutcome};
+use crate::core::ekf::{Ekf, EkfError, EkfParams, Input, State, StepInput};
+use crate::core::gps::{FakeGpsClock, FakePositions, GpsSample, RecordedGps};
+use crate::core::imu::calib::{Calibration, ImuSample};
+use crate::core::imu::frame::RawFrame;
+use crate::core::imu::startup::{FrontEndEvent, ImuFrontEnd, StartupParams};
+use crate::core::model::MotorLimits;
+use crate::core::motor::{FLIGHT_RAMP_STEPS, command_for_step};
+
+/// The first Kalman and control steps have no predecessor: they use the nominal period.
+pub const NOMINAL_PERIOD_US: i64 = 10_000;
+
+/// One Kalman step's result.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Estimate {
+    /// 1-based Kalman step.
+    pub step: u32,
+    /// Time of the step, µs since start.
+    pub t_us: i64,
+    /// The measurement the filter used (θ unwrapped), for kalman_in.log.
+    pub sample: ImuSample,
+    /// The state after the step.
+    pub x: State,
+    /// Yaw measured at calibration (the hover set point's θ).
+    pub theta_cal_rad: f64,
+    pub gps_used: bool,
+    pub dt_clamped: bool,
+    pub ekf_error: Option<EkfError>,
+}
+
+/// The estimator half: front end (settle, calibrate, FIR, conversion) and EKF.
+#[derive(Debug, Clone)]
+pub struct EstimatorCore {
+    front: ImuFrontEnd,
+    params: EkfParams,
+    ekf: Option<Ekf>,
+    theta_cal_rad: f64,
+    steps: u32,
+    prev_step_us: Option<i64>,
+}
+
+impl EstimatorCore {
+    pub fn new(
+        startup: StartupParams,
+        calib: Calibration,
+        params: EkfParams,
+        skip_settle: bool,
+    ) -> Self {
+        EstimatorCore {
+            front: ImuFrontEnd::new(startup, calib, skip_settle),
+            params,
+            ekf: None,
+            theta_cal_rad: 0.0,
+            steps: 0,
+            prev_step_us: None,
+        }
+    }
+
+    /// Stop after settling until [`EstimatorCore::begin_calibration`] (the ESC start-up ramp
+    /// runs in between, so the null estimate sees the motors idling as in flight).
+    pub fn hold_after_settle(mut self) -> Self {
+        self.front = self.front.hold_after_settle();
+        self
+    }
+
+    pub fn begin_calibration(&mut self) {
+        self.front.begin_calibration();
+    }
+
+    /// Kalman steps done so far.
+    pub fn steps(&self) -> u32 {
+        self.steps
+    }
+
+    pub fn ekf(&self) -> Option<&Ekf> {
+        self.ekf.as_ref()
+    }
+
+    /// Feeds a frame stamped at `stamp_us`. `Calibrated` and `Sample` events carry the sample
+    /// for the next Kalman step ([`EstimatorCore::step`]); on `Calibrated` the filter has just
+    /// been initialised from the null sample.
+    pub fn on_frame(&mut self, frame: &RawFrame, stamp_us: i64) -> FrontEndEvent {
+        let event = self.front.on_frame(frame, stamp_us);
+        if let FrontEndEvent::Calibrated(null) = &event {
+            self.ekf = Some(Ekf::new(self.params.clone(), &null.sample));
+            self.theta_cal_rad = null.sample.euler_rad[2];
+        }
+        event
+    }
+
+    /// One Kalman step on `sample` at `t_us` with input `u_rad_s`, mass `mass_kg` and an
+    /// optional GPS sample. `None` before calibration finished.
+    pub fn step(
+        &mut self,
+        mut sample: ImuSample,
+        t_us: i64,
+        u_rad_s: Input,
+        mass_kg: f64,
+        gps: Option<GpsSample>,
+    ) -> Option<Estimate> {
+        let ekf = self.ekf.as_mut()?;
+        let dt_us = self.prev_step_us.map_or(NOMINAL_PERIOD_US, |p| t_us - p);
+        self.prev_step_us = Some(t_us);
+        let (report, result) = ekf.step(
+            &sample,
+            &StepInput {
+                u_rad_s,
+                mass_kg,
+                dt_us,
+                gps_m: gps.map(|g| g.pos_m),
+            },
+        );
+        sample.euler_rad[2] = report.theta_unwrapped_rad;
+        self.steps += 1;
+        Some(Estimate {
+            step: self.steps,
+            t_us,
+            sample,
+            x: ekf.x,
+            theta_cal_rad: self.theta_cal_rad,
+            gps_used: gps.is_some(),
+            dt_clamped: report.dt_clamped,
+            ekf_error: result.err(),
+        })
+    }
+}
+
+/// One control step's result.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ControlOut {
+    pub step: u32,
+    /// Control step time and command time, µs since start.
+    pub t_ctrl_us: i64,
+    pub t_cmd_us: i64,
+    /// Raw controller output, rad/s.
+    pub w_ctrl: [f64; 4],
+    /// The command to send: flight ramp and saturation applied, rad/s.
+    pub w_sent: [f64; 4],
+    /// Integrators (the first `n_int` are meaningful).
+    pub x_int: [f64; 4],
+    pub n_int: usize,
+    /// At least one speed was clamped to w_min or w_max.
+    pub saturated: bool,
+}
+
+/// The controller half: planner, controller, flight ramp and saturation, and the EKF input.
+#[derive(Debug, Clone)]
+pub struct ControllerCore {
+    controller: Controller,
+    make_planner: PlannerSpec,
+    planner: Option<HoverPlanner>,
+    original_timing: bool,
+    /// The previous step's raw output, command sent and command time.
+    prev: Option<([f64; 4], [f64; 4], i64)>,
+}
+
+/// What the hover planner is built from once the calibration yaw is known.
+#[derive(Debug, Clone, Copy)]
+pub struct PlannerSpec {
+    pub hover_z_m: f64,
+    pub mass_kg: f64,
+    pub w_max_rad_s: f64,
+    pub bounds: crate::core::control::ManualBounds,
+}
+
+impl ControllerCore {
+    pub fn new(controller: Controller, spec: PlannerSpec, original_timing: bool) -> Self {
+        ControllerCore {
+            controller,
+            make_planner: spec,
+            planner: None,
+            original_timing,
+            prev: None,
+        }
+    }
+
+    /// Motor limits for the current mass.
+    pub fn limits(&self) -> MotorLimits {
+        match &self.planner {
+            Some(p) => p.limits(),
+            None => MotorLimits::new(self.make_planner.mass_kg, self.make_planner.w_max_rad_s),
+        }
+    }
+
+    pub fn mass_kg(&self) -> f64 {
+        self.planner
+            .as_ref()
+            .map_or(self.make_planner.mass_kg, HoverPlanner::mass_kg)
+    }
+
+    pub fn planner(&self) -> Option<&HoverPlanner> {
+        self.planner.as_ref()
+    }
+
+    /// The EKF input for Kalman step `step` (ERRATA 6).
+    pub fn input_for_step(&self, step: u32) -> Input {
+        match self.prev {
+            None => [self.limits().w_hover_rad_s; 4],
+            Some((w_ctrl, _, _)) if step <= FLIGHT_RAMP_STEPS => w_ctrl,
+            Some((_, w_sent, _)) => w_sent,
+        }
+    }
+
+    /// A manual set-point command (spec 5.2); ignored before the planner exists.
+    pub fn apply_manual(&mut self, cmd: ManualCommand) -> Option<ManualOutcome> {
+        self.planner.as_mut().map(|p| p.apply(cmd))
+    }
+
+    /// One control step on `est` (spec 4.4, 8.3 steps 10–11).
+    pub fn control(&mut self, est: &Estimate, t_ctrl_us: i64, t_cmd_us: i64) -> ControlOut {
+        let spec = self.make_planner;
+        let planner = self.planner.get_or_insert_with(|| {
+            HoverPlanner::new(
+                spec.hover_z_m,
+                est.theta_cal_rad,
+                [0.0, 0.0],
+                spec.mass_kg,
+                spec.w_max_rad_s,
+                spec.bounds,
+            )
+        });
+        planner.update_setpoint();
+        let limits = planner.limits();
+        // T_s = this control step's time − the previous command's (ERRATA 8). The original's
+        // first step measured from the program's start and kept only the microseconds.
+        let t_s_us = match self.prev {
+            Some((_, _, t_prev_cmd)) => t_ctrl_us - t_prev_cmd,
+            None if self.original_timing => t_ctrl_us.rem_euclid(1_000_000),
+            None => NOMINAL_PERIOD_US,
+        };
+        let w_ctrl = self
+            .controller
+            .step(&est.x, &planner.sp, t_s_us as f64 / 1e6);
+        let w_sent = command_for_step(&w_ctrl, est.step, &limits);
+        let n_int = self.controller.x_int().len();
+        let mut x_int = [0.0; 4];
+        x_int[..n_int].copy_from_slice(self.controller.x_int());
+        self.prev = Some((w_ctrl, w_sent, t_cmd_us));
+        ControlOut {
+            step: est.step,
+            t_ctrl_us,
+            t_cmd_us,
+            w_ctrl,
+            w_sent,
+            x_int,
+            n_int,
+            saturated: w_sent
+                .iter()
+                .any(|&w| w == limits.w_min_rad_s || w == limits.w_max_rad_s),
+        }
+    }
+}
+
+/// Where the filter's GPS samples come from.
+#[derive(Debug, Clone)]
+pub enum GpsFeed {
+    Off,
+    /// Samples stamped in a log, fused by the first later Kalman step (ERRATA 5).
+    Recorded(RecordedGps),
+    /// The fake-GPS rule on the motor-command clock (ERRATA 10): a sample produced after
+    /// command k is fused by Kalman step k + 1.
+    Clock {
+        clock: FakeGpsClock,
+        positions: FakePositions,
+        pending: Option<GpsSample>,
+    },
+    /// Live samples (gpsd): whatever arrived since the previous step.
+    Live(Option<GpsSample>),
+}
+
+impl GpsFeed {
+    pub fn fake(positions: FakePositions) -> Self {
+        GpsFeed::Clock {
+            clock: FakeGpsClock::default(),
+            positions,
+            pending: None,
+        }
+    }
+
+    /// After the motor command at `t_cmd_us`.
+    pub fn after_command(&mut self, t_cmd_us: i64) {
+        if let GpsFeed::Clock {
+            clock,
+            positions,
+            pending,
+        } = self
+            && clock.on_motor_command(t_cmd_us)
+        {
+            *pending = Some(positions.next_sample());
+        }
+    }
+
+    /// The sample to fuse in the Kalman step at `t_us`, if any.
+    pub fn for_step(&mut self, t_us: i64) -> Option<GpsSample> {
+        match self {
+            GpsFeed::Off => None,
+            GpsFeed::Recorded(r) => r.take_before(t_us),
+            GpsFeed::Clock { pending, .. } => pending.take(),
+            GpsFeed::Live(s) => s.take(),
+        }
+    }
+}
