@@ -24,7 +24,57 @@ pub struct Config {
     pub ekf: Ekf,
     pub control: Control,
     pub motor: Motor,
+    pub esc: Esc,
     pub gps: Gps,
+    pub log: Log,
+}
+
+/// The ESC writer (spec 6.3, 6.4).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Esc {
+    /// Linux I2C bus of the ESCs.
+    pub bus: PathBuf,
+    /// I2C addresses of motors m0..m3.
+    pub addresses: [u8; 4],
+    /// Trims added to the speed values of m0..m3 while running.
+    pub trims: [i16; 4],
+    /// Re-send period of the last speeds, ms (the ESCs stop when I2C traffic stops).
+    pub resend_ms: u32,
+    /// A flight command older than this is replaced by zero + disable, ms.
+    pub command_timeout_ms: u32,
+}
+
+impl Default for Esc {
+    fn default() -> Self {
+        let m = crate::core::motor::MotorMap::UQUAD;
+        Esc {
+            bus: PathBuf::from("/dev/i2c-2"),
+            addresses: m.addresses,
+            trims: m.trims,
+            resend_ms: 2,
+            command_timeout_ms: 12,
+        }
+    }
+}
+
+/// Log streams.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Log {
+    /// Folder under which each run gets its own `<run-id>` folder.
+    pub dir: PathBuf,
+    /// Records each stream may queue before new ones are dropped (and counted).
+    pub queue_records: u32,
+}
+
+impl Default for Log {
+    fn default() -> Self {
+        Log {
+            dir: PathBuf::from("logs"),
+            queue_records: 256,
+        }
+    }
 }
 
 /// The estimator (spec 3). Diagonals of the noise matrices, in state / measurement order.
@@ -97,6 +147,10 @@ pub struct Vehicle {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct Imu {
+    /// Serial device of the IMU (115200 8N1 raw).
+    pub device: PathBuf,
+    /// Baud rate.
+    pub baud: u32,
     /// `imu_calib.txt` (45 numbers, spec 2.1).
     pub calib_file: PathBuf,
     /// Consecutive in-range frame intervals required before calibrating.
@@ -208,6 +262,8 @@ impl Default for Imu {
     fn default() -> Self {
         let p = StartupParams::ORIGINAL;
         Imu {
+            device: PathBuf::from("/dev/ttyS1"),
+            baud: 115_200,
             calib_file: PathBuf::from("imu_calib.txt"),
             settle_frames: p.settle_frames,
             settle_max_frames: p.settle_max_frames,
@@ -330,6 +386,14 @@ pub struct Profile {
 }
 
 impl Profile {
+    /// The ESC wiring and trims.
+    pub fn motor_map(&self) -> crate::core::motor::MotorMap {
+        crate::core::motor::MotorMap {
+            addresses: self.config.esc.addresses,
+            trims: self.config.esc.trims,
+        }
+    }
+
     /// The controller this profile describes, with its integrators seeded.
     pub fn controller(&self) -> crate::core::control::Controller {
         let c = &self.config.control;
@@ -585,6 +649,55 @@ pub fn load(path: &Path, sets: &[(String, toml::Value)]) -> Result<Profile, Conf
         imu.calib_frames.to_string(),
         "6 to 100000 frames (at least the FIR length)",
     );
+    range(
+        "imu.baud",
+        [9_600, 19_200, 38_400, 57_600, 115_200, 230_400].contains(&c.imu.baud),
+        c.imu.baud.to_string(),
+        "one of 9600, 19200, 38400, 57600, 115200, 230400",
+    );
+    let esc = &c.esc;
+    for (i, a) in esc.addresses.iter().enumerate() {
+        range(
+            &format!("esc.addresses[{i}]"),
+            (0x08..=0x77).contains(a),
+            format!("0x{a:02x}"),
+            "a 7-bit I2C address, 0x08 to 0x77",
+        );
+    }
+    let mut sorted = esc.addresses;
+    sorted.sort_unstable();
+    range(
+        "esc.addresses",
+        sorted.windows(2).all(|w| w[0] != w[1]),
+        format!("{:?}", esc.addresses),
+        "four different addresses",
+    );
+    for (i, t) in esc.trims.iter().enumerate() {
+        range(
+            &format!("esc.trims[{i}]"),
+            (-50..=50).contains(t),
+            t.to_string(),
+            "-50 to 50",
+        );
+    }
+    range(
+        "esc.resend_ms",
+        (1..=20).contains(&esc.resend_ms),
+        esc.resend_ms.to_string(),
+        "1 to 20 ms",
+    );
+    range(
+        "esc.command_timeout_ms",
+        esc.command_timeout_ms > esc.resend_ms && esc.command_timeout_ms <= 1000,
+        esc.command_timeout_ms.to_string(),
+        "above esc.resend_ms, at most 1000 ms",
+    );
+    range(
+        "log.queue_records",
+        (1..=1_000_000).contains(&c.log.queue_records),
+        c.log.queue_records.to_string(),
+        "1 to 1000000",
+    );
     let w_max = c.motor.w_max_rad_s;
     range(
         "motor.w_max_rad_s",
@@ -742,6 +855,7 @@ pub fn load(path: &Path, sets: &[(String, toml::Value)]) -> Result<Profile, Conf
         }
     };
     c.imu.calib_file = resolve(&c.imu.calib_file);
+    c.log.dir = resolve(&c.log.dir);
     c.control.k_prop_file = resolve(&c.control.k_prop_file);
     c.control.k_int_file = resolve(&c.control.k_int_file);
     c.control.lqr_q_file = resolve(&c.control.lqr_q_file);

@@ -6,4 +6,6 @@
 pub mod app;
 pub mod config;
 pub mod core;
+pub mod hw;
 pub mod logs;
+pub mod tasks;

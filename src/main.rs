@@ -38,6 +38,26 @@ Exits 0 when everything is valid. Otherwise prints one line per problem, naming 
         #[command(flatten)]
         sets: SetArgs,
     },
+    /// Fly: the flight program (serial IMU, EKF, controller, ESCs over I2C, loggers).
+    #[command(long_about = "Fly: the flight program the BeagleBoard runs.\n\n\
+Opens the IMU on imu.device (115200 8N1 raw) and the ESCs on esc.bus (Linux I2C). Start-up: \
+wait for a stable IMU sampling period (motors off), run the ESC start-up ramp, calibrate the IMU \
+(512 frames, motors idling), ramp the motors up over 100 steps, then hover at control.hover_z_m. \
+Logs go to <log dir>/<run-id>/ (imu_raw, kalman_in, x_hat, w, int, gps, err, and the resolved \
+config.toml with copies of its data files, so `uquad replay <run folder>` reruns it).\n\n\
+SIGINT/SIGTERM zero and disable the motors, then the logs are flushed; a second signal exits at \
+once. The original's manual-mode keys work from stdin (j/g roll, y/h pitch, q/w yaw, e/d \
+altitude, i/k mass, 0 reset mass, ESC quit).")]
+    Fly {
+        /// Configuration profile (default: config/uquad.toml under the working directory).
+        #[arg(long, value_name = "FILE")]
+        config: Option<PathBuf>,
+        #[command(flatten)]
+        sets: SetArgs,
+        /// Folder under which the run folder is created (default: log.dir of the profile).
+        #[arg(long, value_name = "DIR")]
+        log_dir: Option<PathBuf>,
+    },
     /// Design hover gains by LQR from the vehicle model and write them as gain files.
     #[command(
         long_about = "Design hover gains by LQR from the vehicle model (spec 4.5) and write them as gain files.\n\n\
@@ -133,6 +153,45 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 Ok(ExitCode::FAILURE)
             }
         },
+        Command::Fly {
+            config,
+            sets,
+            log_dir,
+        } => {
+            let path = config::resolve_path(config.as_deref()).map_err(anyhow::Error::msg)?;
+            let profile = load_profile(&path, &sets)?;
+            let cfg = &profile.config;
+            let rt = tokio::runtime::Runtime::new().context("cannot start the runtime")?;
+            let summary = rt.block_on(async {
+                let imu = uquad::hw::serial::open_imu(&cfg.imu.device, cfg.imu.baud)?;
+                let bus = uquad::hw::esc_bus::LinuxEscBus::open(&cfg.esc.bus, &cfg.esc.addresses)?;
+                uquad::app::fly::run(
+                    &profile,
+                    uquad::app::fly::Edges {
+                        imu: Box::new(imu),
+                        bus: Box::new(bus),
+                    },
+                    uquad::app::fly::FlyOptions {
+                        log_dir,
+                        realtime: true,
+                        stdin_keys: true,
+                        log_stall: None,
+                        handle_signals: true,
+                    },
+                    tokio_util::sync::CancellationToken::new(),
+                )
+                .await
+            });
+            // A blocked stdin read must not hold the process after the run.
+            rt.shutdown_timeout(std::time::Duration::from_millis(200));
+            let summary = summary?;
+            eprintln!("{}", summary.text());
+            Ok(if summary.error.is_some() {
+                ExitCode::FAILURE
+            } else {
+                ExitCode::SUCCESS
+            })
+        }
         Command::Lqr {
             config,
             sets,

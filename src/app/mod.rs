@@ -1,4 +1,5 @@
 //! Composition roots: each mode wires the pure core to its edges.
 
+pub mod fly;
 pub mod lqr;
 pub mod replay;

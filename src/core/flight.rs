@@ -287,8 +287,8 @@ impl GpsFeed {
         }
     }
 
-    /// After the motor command at `t_cmd_us`.
-    pub fn after_command(&mut self, t_cmd_us: i64) {
+    /// After the motor command at `t_cmd_us`; `true` when a fake sample was produced.
+    pub fn after_command(&mut self, t_cmd_us: i64) -> bool {
         if let GpsFeed::Clock {
             clock,
             positions,
@@ -297,7 +297,9 @@ impl GpsFeed {
             && clock.on_motor_command(t_cmd_us)
         {
             *pending = Some(positions.next_sample());
+            return true;
         }
+        false
     }
 
     /// The sample to fuse in the Kalman step at `t_us`, if any.

@@ -1,0 +1,91 @@
+//! Controller task: hover planner, P + I controller, flight ramp and saturation.
+//!
+//! In: estimates from the estimator; manual-mode commands (stdin keys, console).
+//! Out: motor commands to the ESC writer; feedback (the next EKF input) to the estimator;
+//! `w` and `int` records.
+//! Rate: one control step per estimate (100 Hz). Ends: when estimates stop, on a quit
+//! command, or on cancel.
+
+use crate::core::control::{ManualCommand, ManualOutcome};
+use crate::core::flight::ControllerCore;
+use crate::tasks::esc_writer::{EscMailbox, MotorCommand};
+use crate::tasks::estimator::{EstimateMsg, Feedback};
+use crate::tasks::logger::{LogHub, Record};
+use std::sync::Arc;
+use tokio::sync::{mpsc, watch};
+use tokio_util::sync::CancellationToken;
+
+/// Counters of the controller.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ControllerReport {
+    pub steps: u64,
+    pub saturated: u64,
+    pub manual_commands: u64,
+}
+
+pub struct ControllerTask {
+    pub core: ControllerCore,
+    pub estimates: mpsc::Receiver<EstimateMsg>,
+    pub manual: mpsc::Receiver<ManualCommand>,
+    pub feedback: watch::Sender<Feedback>,
+    pub esc: Arc<EscMailbox>,
+    pub logs: LogHub,
+    pub cancel: CancellationToken,
+}
+
+impl ControllerTask {
+    pub async fn run(mut self) -> ControllerReport {
+        let mut rep = ControllerReport::default();
+        self.feedback.send_replace(Feedback {
+            step: 0,
+            u_next: self.core.input_for_step(1),
+            mass_kg: self.core.mass_kg(),
+            t_cmd_us: None,
+        });
+        loop {
+            let msg = tokio::select! {
+                _ = self.cancel.cancelled() => break,
+                m = self.estimates.recv() => match m {
+                    Some(m) => m,
+                    None => break,
+                },
+            };
+            while let Ok(cmd) = self.manual.try_recv() {
+                rep.manual_commands += 1;
+                match self.core.apply_manual(cmd) {
+                    Some(ManualOutcome::Quit) => {
+                        self.logs.err("manual quit: stopping");
+                        tracing::info!("manual quit");
+                        self.cancel.cancel();
+                    }
+                    Some(o) => {
+                        let sp = self.core.planner().map(|p| p.sp.x);
+                        self.logs
+                            .err(format!("manual {cmd:?}: {o:?}; set point {sp:?}"));
+                    }
+                    None => self
+                        .logs
+                        .err(format!("manual {cmd:?} ignored before flight")),
+                }
+            }
+            let est = &msg.est;
+            // Control and command times are the frame's stamp: what the replay consumes.
+            let c = self.core.control(est, est.t_us, est.t_us);
+            self.esc.command(MotorCommand {
+                w_rad_s: c.w_sent,
+                frame_at: msg.frame_at,
+            });
+            self.feedback.send_replace(Feedback {
+                step: c.step,
+                u_next: self.core.input_for_step(c.step + 1),
+                mass_kg: self.core.mass_kg(),
+                t_cmd_us: Some(c.t_cmd_us),
+            });
+            rep.steps += 1;
+            rep.saturated += u64::from(c.saturated);
+            self.logs.log(Record::Int(c.t_ctrl_us, c.x_int, c.n_int));
+            self.logs.log(Record::W(c.t_cmd_us, c.w_sent));
+        }
+        rep
+    }
+}

@@ -1,0 +1,362 @@
+//! ESC writer: the last line of defence, on its own OS thread (the I2C ioctls block).
+//!
+//! In: start request, motor commands (newest wins), halt and shutdown, through [`EscMailbox`].
+//! Out: I2C transactions on the [`EscBus`]; [`EscStatus`] counters and phase.
+//! Rate: re-sends the last speeds every `resend_ms` (2 ms); wakes at once on a new command.
+//! Ends: on shutdown, after writing zero to every ESC and disabling them all.
+//!
+//! The process boots with the ESCs disabled. Start: enable all, then the driver's saw-tooth
+//! start-up ramp (spec 6.4), then idle (I2C 50) until flight commands arrive. A flight command
+//! older than `command_timeout` or not finite, a halt, or shutdown: zero, then disable (the
+//! disable is attempted even when writes keep failing). A failed write is a missed ack: counted,
+//! with the run of consecutive failures exposed for the watchdog.
+
+use crate::core::motor::{
+    EscAction, I2C_IDLE, MotorMap, REG_DISABLE, REG_ENABLE, esc_startup_ramp, i2c_from_rad_s,
+};
+use crate::hw::esc_bus::EscBus;
+use std::sync::atomic::{AtomicU8, AtomicU64, Ordering};
+use std::sync::{Arc, Condvar, Mutex};
+use std::time::{Duration, Instant};
+
+/// Where the ESCs are.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+pub enum EscPhase {
+    /// Disabled, waiting for the start request.
+    Disabled = 0,
+    /// Running the start-up ramp.
+    Ramping = 1,
+    /// Ramp done; idling or following flight commands.
+    Running = 2,
+    /// Zero written and disabled (halt, stale or bad command, shutdown).
+    Stopped = 3,
+}
+
+/// A flight command: motor speeds and when the frame that produced it arrived.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MotorCommand {
+    pub w_rad_s: [f64; 4],
+    pub frame_at: Instant,
+}
+
+#[derive(Debug, Default)]
+struct Requests {
+    start: bool,
+    command: Option<MotorCommand>,
+    new_command: bool,
+    halt: Option<String>,
+    shutdown: bool,
+}
+
+/// The writer's inbox: newest command wins; start, halt and shutdown are latched.
+#[derive(Debug, Default)]
+pub struct EscMailbox {
+    req: Mutex<Requests>,
+    wake: Condvar,
+}
+
+impl EscMailbox {
+    fn with<R>(&self, f: impl FnOnce(&mut Requests) -> R) -> R {
+        // A poisoned lock means a writer thread panicked; the requests are still plain data.
+        let mut g = self.req.lock().unwrap_or_else(|p| p.into_inner());
+        let r = f(&mut g);
+        self.wake.notify_all();
+        r
+    }
+
+    /// Enable the ESCs and run the start-up ramp.
+    pub fn start(&self) {
+        self.with(|r| r.start = true);
+    }
+
+    pub fn command(&self, c: MotorCommand) {
+        self.with(|r| {
+            r.command = Some(c);
+            r.new_command = true;
+        });
+    }
+
+    /// Zero and disable now; `reason` is recorded.
+    pub fn halt(&self, reason: &str) {
+        self.with(|r| {
+            if r.halt.is_none() {
+                r.halt = Some(reason.to_string());
+            }
+        });
+    }
+
+    /// Zero, disable and end the writer thread.
+    pub fn shutdown(&self) {
+        self.with(|r| r.shutdown = true);
+    }
+}
+
+/// Counters and phase, readable from any thread.
+#[derive(Debug, Default)]
+pub struct EscStatus {
+    phase: AtomicU8,
+    pub writes: AtomicU64,
+    pub failed_writes: AtomicU64,
+    /// Consecutive failed writes (0 after any success): the watchdog's missed acks.
+    pub consecutive_failures: AtomicU64,
+    /// Flight commands written.
+    pub commands: AtomicU64,
+    /// Commands refused as stale or not finite.
+    pub refused_commands: AtomicU64,
+    /// Why the ESCs were stopped, once they were.
+    pub stop_reason: Mutex<Option<String>>,
+    /// Frame-arrival → ESC-write latency of each flight command, µs (newest last).
+    pub latencies_us: Mutex<Vec<u32>>,
+}
+
+impl EscStatus {
+    pub fn phase(&self) -> EscPhase {
+        match self.phase.load(Ordering::SeqCst) {
+            0 => EscPhase::Disabled,
+            1 => EscPhase::Ramping,
+            2 => EscPhase::Running,
+            _ => EscPhase::Stopped,
+        }
+    }
+
+    fn set_phase(&self, p: EscPhase) {
+        self.phase.store(p as u8, Ordering::SeqCst);
+    }
+
+    pub fn stop_reason(&self) -> Option<String> {
+        self.stop_reason.lock().ok().and_then(|g| g.clone())
+    }
+}
+
+/// Latency samples kept (about 2.8 hours of flight at 100 Hz).
+const MAX_LATENCY_SAMPLES: usize = 1_000_000;
+
+/// Writer settings.
+#[derive(Debug, Clone, Copy)]
+pub struct EscParams {
+    pub map: MotorMap,
+    pub resend: Duration,
+    pub command_timeout: Duration,
+}
+
+struct Writer {
+    bus: Box<dyn EscBus>,
+    params: EscParams,
+    status: Arc<EscStatus>,
+}
+
+impl Writer {
+    fn write(&mut self, addr: u8, reg: u8, value: u8) -> bool {
+        self.status.writes.fetch_add(1, Ordering::Relaxed);
+        match self.bus.write_byte_data(addr, reg, value) {
+            Ok(()) => {
+                self.status.consecutive_failures.store(0, Ordering::SeqCst);
+                true
+            }
+            Err(e) => {
+                self.status.failed_writes.fetch_add(1, Ordering::Relaxed);
+                let n = self
+                    .status
+                    .consecutive_failures
+                    .fetch_add(1, Ordering::SeqCst)
+                    + 1;
+                if n == 1 {
+                    tracing::warn!("{e}");
+                }
+                false
+            }
+        }
+    }
+
+    fn all(&mut self, reg: u8, value: u8) {
+        for addr in self.params.map.addresses {
+            self.write(addr, reg, value);
+        }
+    }
+
+    fn speeds(&mut self, values: &[u8; 4]) {
+        for (addr, reg, v) in self.params.map.speed_writes(values) {
+            self.write(addr, reg, v);
+        }
+    }
+
+    /// Zero every ESC, then disable every ESC — each attempted whatever the bus answers.
+    fn stop(&mut self, reason: &str) {
+        self.speeds(&[0; 4]);
+        self.all(REG_DISABLE, 0);
+        self.status.set_phase(EscPhase::Stopped);
+        if let Ok(mut r) = self.status.stop_reason.lock()
+            && r.is_none()
+        {
+            *r = Some(reason.to_string());
+        }
+        tracing::info!(reason, "ESCs zeroed and disabled");
+    }
+}
+
+/// Starts the writer thread. It owns the bus; it ends after shutdown.
+pub fn spawn(
+    bus: Box<dyn EscBus>,
+    params: EscParams,
+    mailbox: Arc<EscMailbox>,
+    status: Arc<EscStatus>,
+) -> std::io::Result<std::thread::JoinHandle<()>> {
+    std::thread::Builder::new()
+        .name("esc_writer".into())
+        .spawn(move || {
+            run(
+                Writer {
+                    bus,
+                    params,
+                    status,
+                },
+                &mailbox,
+            )
+        })
+}
+
+enum Wake {
+    Shutdown,
+    Halt(String),
+    Start,
+    Command(MotorCommand),
+    Tick,
+}
+
+/// Waits for a request or until `deadline`.
+fn wait(mailbox: &EscMailbox, deadline: Option<Instant>, accept_start: bool) -> Wake {
+    let mut g = mailbox.req.lock().unwrap_or_else(|p| p.into_inner());
+    loop {
+        if g.shutdown {
+            return Wake::Shutdown;
+        }
+        if let Some(h) = g.halt.clone() {
+            return Wake::Halt(h);
+        }
+        if accept_start && g.start {
+            g.start = false;
+            return Wake::Start;
+        }
+        if g.new_command {
+            g.new_command = false;
+            if let Some(c) = g.command {
+                return Wake::Command(c);
+            }
+        }
+        match deadline {
+            None => g = mailbox.wake.wait(g).unwrap_or_else(|p| p.into_inner()),
+            Some(d) => {
+                let now = Instant::now();
+                if now >= d {
+                    return Wake::Tick;
+                }
+                g = mailbox
+                    .wake
+                    .wait_timeout(g, d - now)
+                    .unwrap_or_else(|p| p.into_inner())
+                    .0;
+            }
+        }
+    }
+}
+
+fn run(mut w: Writer, mailbox: &EscMailbox) {
+    w.status.set_phase(EscPhase::Disabled);
+    // Disabled until started. Nothing is written: the ESCs boot disabled.
+    match wait(mailbox, None, true) {
+        Wake::Start => {}
+        Wake::Shutdown => return,
+        Wake::Halt(reason) => {
+            w.stop(&reason);
+            return park_until_shutdown(mailbox);
+        }
+        Wake::Command(_) | Wake::Tick => {}
+    }
+    // Start-up ramp on its own schedule; a halt or shutdown interrupts it.
+    w.status.set_phase(EscPhase::Ramping);
+    let t0 = Instant::now();
+    for (at_us, action) in esc_startup_ramp() {
+        match wait(mailbox, Some(t0 + Duration::from_micros(at_us)), false) {
+            Wake::Shutdown => return w.stop("shutdown"),
+            Wake::Halt(reason) => {
+                w.stop(&reason);
+                return park_until_shutdown(mailbox);
+            }
+            _ => {}
+        }
+        match action {
+            EscAction::EnableAll => w.all(REG_ENABLE, 0),
+            EscAction::SpeedAll(v) => {
+                for addr in w.params.map.addresses {
+                    w.write(addr, crate::core::motor::REG_SPEED, v);
+                }
+            }
+        }
+    }
+    w.status.set_phase(EscPhase::Running);
+    tracing::info!("ESC start-up ramp done; idling");
+    let mut values = [I2C_IDLE; 4];
+    let mut last_command: Option<MotorCommand> = None;
+    let mut next_resend = Instant::now();
+    let mut due = true;
+    loop {
+        if due {
+            w.speeds(&values);
+            next_resend += w.params.resend;
+            let now = Instant::now();
+            if next_resend < now {
+                next_resend = now + w.params.resend;
+            }
+        }
+        due = true;
+        let woke = wait(mailbox, Some(next_resend), false);
+        match woke {
+            Wake::Shutdown => return w.stop("shutdown"),
+            Wake::Halt(reason) => {
+                w.stop(&reason);
+                return park_until_shutdown(mailbox);
+            }
+            Wake::Command(c) => {
+                if c.w_rad_s.iter().any(|v| !v.is_finite()) {
+                    w.status.refused_commands.fetch_add(1, Ordering::Relaxed);
+                    w.stop("non-finite motor command");
+                    return park_until_shutdown(mailbox);
+                }
+                values = c.w_rad_s.map(i2c_from_rad_s);
+                last_command = Some(c);
+                w.speeds(&values);
+                w.status.commands.fetch_add(1, Ordering::Relaxed);
+                let latency = c.frame_at.elapsed().as_micros().min(u128::from(u32::MAX)) as u32;
+                if let Ok(mut l) = w.status.latencies_us.lock()
+                    && l.len() < MAX_LATENCY_SAMPLES
+                {
+                    l.push(latency);
+                }
+                next_resend = Instant::now() + w.params.resend;
+                due = false;
+            }
+            Wake::Start | Wake::Tick => {}
+        }
+        if let Some(c) = last_command
+            && c.frame_at.elapsed() > w.params.command_timeout
+        {
+            w.status.refused_commands.fetch_add(1, Ordering::Relaxed);
+            w.stop("stale motor command");
+            return park_until_shutdown(mailbox);
+        }
+    }
+}
+
+/// After a stop the writer writes nothing more; it waits for shutdown to end the thread.
+fn park_until_shutdown(mailbox: &EscMailbox) {
+    loop {
+        if let Wake::Shutdown = wait(mailbox, None, false) {
+            return;
+        }
+        // Halts and commands after a stop are ignored: the motors stay off.
+        let mut g = mailbox.req.lock().unwrap_or_else(|p| p.into_inner());
+        g.new_command = false;
+        g.halt = None;
+    }
+}

@@ -1,0 +1,7 @@
+//! Tasks of the flight runtime; each file's header says In / Out / rate / when it ends.
+
+pub mod controller;
+pub mod esc_writer;
+pub mod estimator;
+pub mod imu_reader;
+pub mod logger;

@@ -1,0 +1,274 @@
+//! `fly` end to end without hardware: real frames through a pseudo-terminal into the IMU reader
+//! (tokio-serial), a mock I2C bus recording every ESC transaction, then a replay of the run.
+
+mod common;
+use common::*;
+use std::time::Duration;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio_util::sync::CancellationToken;
+use uquad::core::imu::frame::RawFrame;
+use uquad::core::motor::{
+    EscAction, MotorMap, REG_DISABLE, REG_ENABLE, REG_SPEED, esc_startup_ramp, i2c_from_rad_s,
+};
+use uquad::hw::esc_bus::{MockBus, Transaction};
+use uquad::logs::{ImuRawRecord, parse_log};
+
+/// The 2012 flight's raw frames, to be sent again and again.
+fn frames_2012() -> Vec<RawFrame> {
+    let text = std::fs::read_to_string(flight_dir().join("imu_raw.log")).unwrap();
+    parse_log(&text, ImuRawRecord::parse_fields)
+        .unwrap()
+        .rows
+        .into_iter()
+        .map(|r| r.frame)
+        .collect()
+}
+
+/// Writes frames into the pty master every 10 ms, each in three chunks spaced as 115200 baud
+/// sends them (about 0.9 ms per 10 bytes), starting after the IMU got its '!' command.
+async fn imu_sim(mut master: tokio_serial::SerialStream, cancel: CancellationToken) -> u64 {
+    let mut cmd = [0u8; 1];
+    tokio::select! {
+        _ = cancel.cancelled() => return 0,
+        r = master.read_exact(&mut cmd) => { r.unwrap(); }
+    }
+    assert_eq!(cmd[0], b'!', "the host puts the IMU in binary mode first");
+    let frames = frames_2012();
+    let mut tick = tokio::time::interval(Duration::from_millis(10));
+    let mut sent = 0u64;
+    for (i, f) in frames.iter().cycle().enumerate() {
+        tokio::select! {
+            _ = cancel.cancelled() => return sent,
+            _ = tick.tick() => {}
+        }
+        let bytes = f.encode(if i % 2 == 0 { b'C' } else { b'A' });
+        for chunk in bytes.chunks(10) {
+            if master.write_all(chunk).await.is_err() {
+                return sent;
+            }
+            tokio::time::sleep(Duration::from_micros(870)).await;
+        }
+        sent += 1;
+    }
+    sent
+}
+
+/// A short start-up; and a command timeout above this machine's frame-pacing jitter (a test
+/// process writing a pty on a loaded 2-core machine is not a 100 Hz IMU; the 12 ms default is
+/// exercised by the watchdog's tests).
+fn sets(extra: &[&str]) -> Vec<(String, toml::Value)> {
+    [
+        "imu.settle_frames=5",
+        "imu.settle_max_frames=40",
+        "imu.calib_frames=64",
+        "esc.command_timeout_ms=200",
+    ]
+    .iter()
+    .chain(extra)
+    .map(|s| uquad::config::parse_set(s).unwrap())
+    .collect()
+}
+
+/// Flies the 2012 profile (with a short start-up) for `run_for`, then cancels as a signal
+/// would. Returns the summary, the frames sent, the bus and the log folder.
+async fn fly_for(
+    extra: &[&str],
+    stall: Option<uquad::tasks::logger::LogStall>,
+    run_for: Duration,
+) -> (uquad::app::fly::FlySummary, u64, MockBus, tempfile::TempDir) {
+    let profile = uquad::config::load(&profile_2012(), &sets(extra)).unwrap();
+    let logs = tempfile::tempdir().unwrap();
+    let (master, slave) = tokio_serial::SerialStream::pair().expect("a pty pair");
+    let bus = MockBus::new();
+    let cancel = CancellationToken::new();
+    let sim = tokio::spawn(imu_sim(master, cancel.clone()));
+    let fly = tokio::spawn({
+        let bus = bus.clone();
+        let cancel = cancel.clone();
+        let log_dir = logs.path().to_path_buf();
+        async move {
+            uquad::app::fly::run(
+                &profile,
+                uquad::app::fly::Edges {
+                    imu: Box::new(slave),
+                    bus: Box::new(bus),
+                },
+                uquad::app::fly::FlyOptions {
+                    log_dir: Some(log_dir),
+                    log_stall: stall,
+                    ..Default::default()
+                },
+                cancel,
+            )
+            .await
+        }
+    });
+    tokio::time::sleep(run_for).await;
+    cancel.cancel();
+    let summary = fly.await.unwrap().unwrap();
+    let sent = sim.await.unwrap();
+    (summary, sent, bus, logs)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn fly_through_a_pty_with_a_mock_bus_then_replay() {
+    // Settle 0.05 s + ESC ramp 2.37 s + calibration 0.64 s + flight ramp 1 s + 1 s of hover.
+    let (summary, sent, bus, _logs) = fly_for(&[], None, Duration::from_millis(5_500)).await;
+    assert!(summary.error.is_none(), "{:?}", summary.error);
+    assert!(
+        summary.frames > 400 && summary.frames <= sent,
+        "{} of {sent}",
+        summary.frames
+    );
+    assert!(summary.steps > 150, "steps {}", summary.steps);
+    assert_eq!(summary.rejected_frames, 0);
+    assert_eq!(summary.log_drops_total(), 0);
+
+    let tx = bus.transactions();
+    assert!(tx.iter().all(|t| t.acked));
+    let map = MotorMap::UQUAD;
+    let addrs = map.addresses;
+    // 1. Booted disabled: the first writes enable every ESC.
+    let first: Vec<(u8, u8, u8)> = tx[..4].iter().map(|t| (t.addr, t.reg, t.value)).collect();
+    assert_eq!(first, addrs.map(|a| (a, REG_ENABLE, 0)).to_vec());
+    // 2. The start-up saw-tooth, every value to every ESC, untrimmed.
+    let ramp: Vec<u8> = esc_startup_ramp()
+        .filter_map(|(_, a)| match a {
+            EscAction::SpeedAll(v) => Some(v),
+            EscAction::EnableAll => None,
+        })
+        .collect();
+    let mut at = 4;
+    for v in &ramp {
+        for a in addrs {
+            let t: &Transaction = &tx[at];
+            assert_eq!(
+                (t.addr, t.reg, t.value),
+                (a, REG_SPEED, *v),
+                "ramp write {at}"
+            );
+            at += 1;
+        }
+    }
+    // 3. Idle with trims while calibrating, then the flight commands with trims: every row of
+    //    the run's w.log appears, in order, as four trimmed speed writes.
+    let run_dir = summary.run_dir.clone();
+    let w = numbers(&run_dir.join("w.log"));
+    assert_eq!(w.len() as u64, summary.steps);
+    let speed_writes: Vec<[u8; 4]> = tx[at..]
+        .chunks(4)
+        .take_while(|c| c.len() == 4 && c.iter().all(|t| t.reg == REG_SPEED))
+        .map(|c| {
+            for (t, a) in c.iter().zip(addrs) {
+                assert_eq!(t.addr, a);
+            }
+            [c[0].value, c[1].value, c[2].value, c[3].value]
+        })
+        .collect();
+    let idle = map.speed_writes(&[50; 4]).map(|(_, _, v)| v);
+    assert_eq!(speed_writes[0], idle, "idle 50 + trims after the ramp");
+    let mut k = 0;
+    for row in &w {
+        let values: [u8; 4] = std::array::from_fn(|m| i2c_from_rad_s(row[m + 1]));
+        let want = map.speed_writes(&values).map(|(_, _, v)| v);
+        while k < speed_writes.len() && speed_writes[k] != want {
+            k += 1;
+        }
+        assert!(
+            k < speed_writes.len(),
+            "command {row:?} ({want:?}) never written"
+        );
+    }
+    // 4. Shutdown: zero to every ESC, then disable every ESC, and nothing after.
+    let n = tx.len();
+    let tail: Vec<(u8, u8, u8)> = tx[n - 8..]
+        .iter()
+        .map(|t| (t.addr, t.reg, t.value))
+        .collect();
+    let mut expected: Vec<(u8, u8, u8)> = addrs.map(|a| (a, REG_SPEED, 0)).to_vec();
+    expected.extend(addrs.map(|a| (a, REG_DISABLE, 0)));
+    assert_eq!(tail, expected);
+    assert_eq!(summary.esc_stop_reason.as_deref(), Some("shutdown"));
+
+    // The run folder is self-contained and replays to identical bytes.
+    for f in [
+        "config.toml",
+        "imu_calib.txt",
+        "K_prop_full_ppzt.txt",
+        "err.log",
+        "imu_raw.log",
+    ] {
+        assert!(run_dir.join(f).is_file(), "{f} missing from the run folder");
+    }
+    let moved = tempfile::tempdir().unwrap();
+    for e in std::fs::read_dir(&run_dir).unwrap() {
+        let e = e.unwrap();
+        std::fs::copy(e.path(), moved.path().join(e.file_name())).unwrap();
+    }
+    let out = tempfile::tempdir().unwrap();
+    let o = uquad(
+        &root(),
+        &[
+            "replay",
+            moved.path().to_str().unwrap(),
+            "--out",
+            out.path().to_str().unwrap(),
+        ],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for f in ["x_hat.log", "w.log", "int.log", "kalman_in.log"] {
+        let ours = std::fs::read(run_dir.join(f)).unwrap();
+        let replayed = std::fs::read(out.path().join(f)).unwrap();
+        assert!(!ours.is_empty());
+        assert_eq!(ours, replayed, "{f}: the replay differs from the run");
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stalled_logger_loses_no_control_step() {
+    // x_hat's logger stops writing for 500 ms a little after the flight starts; its queue holds
+    // 8 records, so about 40 records cannot be queued.
+    let stall = uquad::tasks::logger::LogStall {
+        stream: 2,
+        after_records: 20,
+        duration: Duration::from_millis(500),
+    };
+    let (summary, _sent, _bus, _logs) = fly_for(
+        &["log.queue_records=8"],
+        Some(stall),
+        Duration::from_millis(5_000),
+    )
+    .await;
+    assert!(summary.error.is_none(), "{:?}", summary.error);
+    let run_dir = &summary.run_dir;
+    let steps = summary.steps;
+    assert!(steps > 100, "{steps}");
+    // Every control step happened and was commanded and logged on the other streams.
+    assert_eq!(summary.dropped_frames, 0);
+    assert_eq!(summary.late_feedback, 0);
+    assert_eq!(read_table(&run_dir.join("w.log")).len() as u64, steps);
+    assert_eq!(
+        read_table(&run_dir.join("kalman_in.log")).len() as u64,
+        steps
+    );
+    // Newest command wins at the ESC writer: two frames decoded from one read can merge.
+    assert!(
+        summary.esc_commands * 10 >= steps * 9,
+        "{} commands for {steps} steps",
+        summary.esc_commands
+    );
+    // The stalled stream lost records, counted, and said so in err.log.
+    let dropped = summary.log_drops[2];
+    assert!(dropped > 20, "dropped {dropped}");
+    assert_eq!(summary.log_drops_total(), dropped);
+    assert_eq!(
+        read_table(&run_dir.join("x_hat.log")).len() as u64,
+        steps - dropped
+    );
+    let err = std::fs::read_to_string(run_dir.join("err.log")).unwrap();
+    assert!(
+        err.contains(&format!("log stream x_hat: {dropped} records dropped")),
+        "{err}"
+    );
+    assert!(summary.text().contains(&format!("x_hat {dropped}")));
+}
