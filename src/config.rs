@@ -246,6 +246,8 @@ pub enum GpsMode {
 #[serde(default)]
 pub struct Gps {
     pub mode: GpsMode,
+    /// gpsd's address (gps.mode = "gpsd").
+    pub server: String,
     /// Seed of the fake-random positions.
     pub seed: u64,
     /// Span of the fake-random positions (`GPS_RAND_PP`), m.
@@ -311,6 +313,7 @@ impl Default for Gps {
     fn default() -> Self {
         Gps {
             mode: GpsMode::FakeZero,
+            server: "127.0.0.1:2947".to_string(),
             seed: 1,
             fake_span_m: 1.0,
         }
@@ -711,6 +714,15 @@ pub fn load(path: &Path, sets: &[(String, toml::Value)]) -> Result<Profile, Conf
         !m_ok || !w_max.is_finite() || w_hover < w_max,
         format!("{m} (hover needs {w_hover:.1} rad/s)"),
         "a mass that hovers below motor.w_max_rad_s",
+    );
+    range(
+        "gps.server",
+        c.gps
+            .server
+            .rsplit_once(':')
+            .is_some_and(|(h, p)| !h.is_empty() && p.parse::<u16>().is_ok()),
+        format!("{:?}", c.gps.server),
+        "HOST:PORT, e.g. 127.0.0.1:2947",
     );
     let span = c.gps.fake_span_m;
     range(

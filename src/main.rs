@@ -58,6 +58,21 @@ altitude, i/k mass, 0 reset mass, ESC quit).")]
         #[arg(long, value_name = "DIR")]
         log_dir: Option<PathBuf>,
     },
+    /// Print the fixes gpsd gives, one JSON object per line: a check to run before flying.
+    #[command(
+        long_about = "Print the fixes gpsd gives, one JSON object per line on stdout: mode (2 or 3), \
+lat_deg, lon_deg, alt_m, and x_m, y_m, z_m in the local frame (north, west, up from the first \
+fix), plus gpsd's time. Reports without a fix are not printed; logs go to stderr. Exits 0 after \
+COUNT fixes, non-zero with the reason when gpsd cannot be reached or goes away."
+    )]
+    Gps {
+        /// gpsd's address.
+        #[arg(long, value_name = "HOST:PORT", default_value = "127.0.0.1:2947")]
+        gpsd: String,
+        /// Fixes to print before exiting.
+        #[arg(long, value_name = "N", default_value_t = 10)]
+        count: u64,
+    },
     /// Design hover gains by LQR from the vehicle model and write them as gain files.
     #[command(
         long_about = "Design hover gains by LQR from the vehicle model (spec 4.5) and write them as gain files.\n\n\
@@ -191,6 +206,15 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             } else {
                 ExitCode::SUCCESS
             })
+        }
+        Command::Gps { gpsd, count } => {
+            let rt = tokio::runtime::Runtime::new().context("cannot start the runtime")?;
+            rt.block_on(uquad::app::gps::run(
+                &gpsd,
+                count,
+                &mut std::io::stdout().lock(),
+            ))?;
+            Ok(ExitCode::SUCCESS)
         }
         Command::Lqr {
             config,

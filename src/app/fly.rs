@@ -20,6 +20,7 @@ use crate::hw::esc_bus::EscBus;
 use crate::tasks::controller::{ControllerReport, ControllerTask};
 use crate::tasks::esc_writer::{self, EscMailbox, EscParams, EscStatus};
 use crate::tasks::estimator::{EstimatorReport, EstimatorTask, Feedback};
+use crate::tasks::gps_client::{self, GpsStats};
 use crate::tasks::imu_reader::{self, ImuStats};
 use crate::tasks::logger::{self, LogStall, STREAMS};
 use anyhow::Context;
@@ -68,6 +69,10 @@ pub struct FlySummary {
     pub late_feedback: u64,
     pub ekf_errors: u64,
     pub gps_updates: u64,
+    /// gpsd sessions opened and lost, and fixes received.
+    pub gpsd_connects: u64,
+    pub gpsd_disconnects: u64,
+    pub gpsd_fixes: u64,
     pub saturated_commands: u64,
     pub esc_writes: u64,
     pub esc_failed_writes: u64,
@@ -260,6 +265,8 @@ pub async fn run(
         lock_memory();
     }
 
+    // The run's clock: every stamp is µs since this instant.
+    let start = Instant::now();
     // The actuator edge first: it boots disabled and owns the bus.
     let mailbox = Arc::new(EscMailbox::default());
     let esc_status = Arc::new(EscStatus::default());
@@ -282,15 +289,24 @@ pub async fn run(
     }
 
     // The control path on its own thread.
-    let start = Instant::now();
     let imu_stats = Arc::new(ImuStats::default());
-    let gps = match cfg.gps.mode {
-        crate::config::GpsMode::Off => GpsFeed::Off,
+    let gps_stats = Arc::new(GpsStats::default());
+    let (gps, gps_live) = match cfg.gps.mode {
+        crate::config::GpsMode::Off => (GpsFeed::Off, None),
         crate::config::GpsMode::Gpsd => {
-            tracing::warn!("gps.mode = gpsd is not available in this version: flying without GPS");
-            GpsFeed::Off
+            let (tx, rx) = watch::channel(None);
+            logs.log(logger::Record::GpsHeader);
+            // On the main runtime: the control path never waits on gpsd.
+            tokio::spawn(gps_client::run(
+                cfg.gps.server.clone(),
+                start,
+                tx,
+                gps_stats.clone(),
+                cancel.clone(),
+            ));
+            (GpsFeed::Live(None), Some(rx))
         }
-        _ => GpsFeed::fake(profile.fake_positions()),
+        _ => (GpsFeed::fake(profile.fake_positions()), None),
     };
     let estimator_core = profile.estimator_core(false).hold_after_settle();
     let controller_core = profile.controller_core();
@@ -345,6 +361,7 @@ pub async fn run(
                         let estimator = EstimatorTask {
                             core: estimator_core,
                             gps,
+                            gps_live,
                             frames: frame_rx,
                             feedback: fb_rx,
                             estimates: est_tx,
@@ -413,6 +430,9 @@ pub async fn run(
         late_feedback: est.late_feedback,
         ekf_errors: est.ekf_errors,
         gps_updates: est.gps_updates,
+        gpsd_connects: gps_stats.connects.load(Ordering::Relaxed),
+        gpsd_disconnects: gps_stats.disconnects.load(Ordering::Relaxed),
+        gpsd_fixes: gps_stats.fixes.load(Ordering::Relaxed),
         saturated_commands: ctl.saturated,
         esc_writes: esc_status.writes.load(Ordering::Relaxed),
         esc_failed_writes: esc_status.failed_writes.load(Ordering::Relaxed),

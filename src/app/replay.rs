@@ -137,7 +137,11 @@ fn joined<T>(r: std::thread::Result<anyhow::Result<T>>) -> anyhow::Result<T> {
 }
 
 /// The GPS feed of a replay: the run's gps.log when it has one, else the fake-GPS rule.
-fn gps_source(profile: &Profile, recorded: Option<Vec<GpsLogRecord>>) -> anyhow::Result<GpsFeed> {
+fn gps_source(
+    profile: &Profile,
+    recorded: Option<Vec<GpsLogRecord>>,
+    local_positions: bool,
+) -> anyhow::Result<GpsFeed> {
     let g = &profile.config.gps;
     let mut positions = profile.fake_positions();
     Ok(match (g.mode, recorded) {
@@ -158,13 +162,20 @@ fn gps_source(profile: &Profile, recorded: Option<Vec<GpsLogRecord>>) -> anyhow:
                     GpsLogRecord::Gpsd {
                         t_us,
                         fix_mode,
+                        pos_m,
                         lat_deg,
                         lon_deg,
                         alt_m,
                     } if fix_mode >= 2 => samples.push((
                         t_us,
                         GpsSample {
-                            pos_m: frame.to_local(lat_deg, lon_deg, alt_m),
+                            // uquad's own logs hold the local position the filter used; the
+                            // original's hold absolute UTM, so convert from latitude/longitude.
+                            pos_m: if local_positions {
+                                pos_m
+                            } else {
+                                frame.to_local(lat_deg, lon_deg, alt_m)
+                            },
                         },
                     )),
                     GpsLogRecord::Gpsd { .. } => {}
@@ -222,7 +233,9 @@ pub fn run_observed(
     let raw = raw.with_context(|| format!("{} has no imu_raw.log", run_dir.display()))?;
 
     let cfg = &profile.config;
-    let mut gps = gps_source(profile, recorded_gps)?;
+    let local_positions = std::fs::read_to_string(run_dir.join("gps.log"))
+        .is_ok_and(|t| t.starts_with(logs::UQUAD_GPS_HEADER));
+    let mut gps = gps_source(profile, recorded_gps, local_positions)?;
     // The original's imu_raw.log holds no settling frames (spec 1.6): start with calibration.
     let mut estimator = profile.estimator_core(true);
     let mut control = profile.controller_core();

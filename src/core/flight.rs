@@ -302,6 +302,13 @@ impl GpsFeed {
         false
     }
 
+    /// A live sample arrived (gpsd): it is fused by the next step.
+    pub fn offer_live(&mut self, sample: GpsSample) {
+        if let GpsFeed::Live(slot) = self {
+            *slot = Some(sample);
+        }
+    }
+
     /// The sample to fuse in the Kalman step at `t_us`, if any.
     pub fn for_step(&mut self, t_us: i64) -> Option<GpsSample> {
         match self {

@@ -1,9 +1,126 @@
-//! GPS samples for the filter: the fake-GPS generators of the 2012 flights, latitude/longitude
-//! to the local frame, and the schedule that applies a sample to the next Kalman step.
+//! GPS samples for the filter: gpsd's JSON reports, the fake-GPS generators of the 2012
+//! flights, latitude/longitude to the local frame, and the schedule that applies a sample to
+//! the next Kalman step.
 //!
-//! Spec sections 7.3 (lat/lon → UTM), 7.4 (fake GPS) with ERRATA 5 and 10. The local frame has
+//! Spec sections 7.1 (gpsd client), 7.3 (lat/lon → UTM), 7.4 (fake GPS) with ERRATA 5 and 10. The local frame has
 //! x north, y west, z up, in m, with its origin at the first fix (the original's absolute-UTM
 //! state and its UTM integer-fraction bug are not reproduced).
+
+/// A gpsd report (protocol 3): the classes the client handles; any other class is `Other`,
+/// and unknown fields are ignored.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[serde(tag = "class")]
+pub enum Report {
+    #[serde(rename = "TPV")]
+    Tpv(Tpv),
+    #[serde(rename = "SKY")]
+    Sky(Sky),
+    #[serde(rename = "VERSION")]
+    Version(Version),
+    #[serde(rename = "DEVICES")]
+    Devices {},
+    #[serde(rename = "WATCH")]
+    Watch {},
+    #[serde(rename = "ERROR")]
+    Error {
+        #[serde(default)]
+        message: String,
+    },
+    #[serde(other)]
+    Other,
+}
+
+/// Time-position-velocity report. gpsd leaves out what it does not know.
+#[derive(Debug, Clone, PartialEq, Default, serde::Deserialize)]
+pub struct Tpv {
+    /// 0 unknown, 1 no fix, 2 2D, 3 3D.
+    #[serde(default)]
+    pub mode: u8,
+    pub time: Option<String>,
+    pub lat: Option<f64>,
+    pub lon: Option<f64>,
+    /// Altitude above mean sea level (gpsd ≥ 3.20), m.
+    #[serde(rename = "altMSL")]
+    pub alt_msl: Option<f64>,
+    /// Altitude (older gpsd; MSL), m.
+    pub alt: Option<f64>,
+    /// Height above the ellipsoid, m.
+    #[serde(rename = "altHAE")]
+    pub alt_hae: Option<f64>,
+    pub epx: Option<f64>,
+    pub epy: Option<f64>,
+    pub epv: Option<f64>,
+}
+
+/// Sky view: only the satellites' count is kept.
+#[derive(Debug, Clone, PartialEq, Default, serde::Deserialize)]
+pub struct Sky {
+    #[serde(default)]
+    pub satellites: Vec<Satellite>,
+}
+
+#[derive(Debug, Clone, PartialEq, Default, serde::Deserialize)]
+pub struct Satellite {
+    #[serde(rename = "PRN")]
+    pub prn: Option<i64>,
+    pub used: Option<bool>,
+}
+
+#[derive(Debug, Clone, PartialEq, Default, serde::Deserialize)]
+pub struct Version {
+    #[serde(default)]
+    pub release: String,
+    #[serde(default)]
+    pub proto_major: u32,
+    #[serde(default)]
+    pub proto_minor: u32,
+}
+
+/// A position fix from a TPV report.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Fix {
+    /// 2 or 3.
+    pub mode: u8,
+    pub lat_deg: f64,
+    pub lon_deg: f64,
+    /// Altitude, m (MSL when gpsd gives it; 0 for a 2D fix without one).
+    pub alt_m: f64,
+}
+
+impl Tpv {
+    /// The fix this report carries: mode 2 or 3 with finite latitude and longitude.
+    pub fn fix(&self) -> Option<Fix> {
+        if self.mode < 2 {
+            return None;
+        }
+        let (lat, lon) = (self.lat?, self.lon?);
+        if !(lat.is_finite() && lon.is_finite()) || lat.abs() > 90.0 || lon.abs() > 180.0 {
+            return None;
+        }
+        let alt = self
+            .alt_msl
+            .or(self.alt)
+            .or(self.alt_hae)
+            .filter(|a| a.is_finite())
+            .unwrap_or(0.0);
+        Some(Fix {
+            mode: self.mode,
+            lat_deg: lat,
+            lon_deg: lon,
+            alt_m: alt,
+        })
+    }
+}
+
+/// Why a gpsd line was not understood.
+#[derive(Debug, thiserror::Error)]
+#[error("not a gpsd report: {0}")]
+pub struct ReportError(#[from] serde_json::Error);
+
+/// Parses one line of gpsd's JSON output.
+pub fn parse_report(line: &str) -> Result<Report, ReportError> {
+    Ok(serde_json::from_str(line)?)
+}
 
 /// One GPS sample for the filter: position in the local frame, m.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -178,6 +295,87 @@ impl LocalFrame {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    // Lines gpsd 3.22 wrote for an NMEA stream (RMC + GGA + GSA) of this project's tests.
+    const TPV_3D: &str = r#"{"class":"TPV","device":"tcp://127.0.0.1:29471","mode":3,"time":"2031-09-15T12:00:04.000Z","ept":0.005,"lat":-34.919588333,"lon":-56.166258333,"altHAE":41.7000,"altMSL":27.7000,"alt":27.7000,"epv":27.600,"track":0.0000,"magtrack":349.0664,"magvar":-10.9,"speed":0.000,"climb":0.000,"epc":55.20,"geoidSep":14.000,"eph":1.800,"sep":3.000}"#;
+    const VERSION: &str =
+        r#"{"class":"VERSION","release":"3.22","rev":"3.22","proto_major":3,"proto_minor":14}"#;
+    const DEVICES: &str = r#"{"class":"DEVICES","devices":[{"class":"DEVICE","path":"tcp://127.0.0.1:29471","driver":"NMEA0183","activated":"2026-11-22T19:21:31.304Z","flags":1}]}"#;
+    const WATCH: &str = r#"{"class":"WATCH","enable":true,"json":true,"nmea":false,"raw":0,"scaled":false,"timing":false,"split24":false,"pps":false}"#;
+
+    #[test]
+    fn parses_the_report_classes() {
+        let Report::Tpv(t) = parse_report(TPV_3D).unwrap() else {
+            panic!()
+        };
+        let f = t.fix().unwrap();
+        assert_eq!(f.mode, 3);
+        assert_eq!(
+            (f.lat_deg, f.lon_deg, f.alt_m),
+            (-34.919588333, -56.166258333, 27.7)
+        );
+        assert_eq!(
+            parse_report(VERSION).unwrap(),
+            Report::Version(Version {
+                release: "3.22".into(),
+                proto_major: 3,
+                proto_minor: 14
+            })
+        );
+        assert_eq!(parse_report(DEVICES).unwrap(), Report::Devices {});
+        assert_eq!(parse_report(WATCH).unwrap(), Report::Watch {});
+        assert!(matches!(
+            parse_report(r#"{"class":"SKY","satellites":[{"PRN":1},{"PRN":2}]}"#).unwrap(),
+            Report::Sky(s) if s.satellites.len() == 2
+        ));
+        assert_eq!(
+            parse_report(r#"{"class":"ERROR","message":"unrecognized request"}"#).unwrap(),
+            Report::Error {
+                message: "unrecognized request".into()
+            }
+        );
+        assert_eq!(
+            parse_report(r#"{"class":"PPS","x":1}"#).unwrap(),
+            Report::Other
+        );
+        assert!(parse_report("not json").is_err());
+        assert!(parse_report(r#"{"no":"class"}"#).is_err());
+    }
+
+    #[test]
+    fn no_fix_and_missing_fields() {
+        let no_fix =
+            r#"{"class":"TPV","device":"/dev/ttyUSB0","mode":1,"time":"2012-01-30T23:03:06.000Z"}"#;
+        let Report::Tpv(t) = parse_report(no_fix).unwrap() else {
+            panic!()
+        };
+        assert_eq!(t.fix(), None);
+        // Mode 3 claimed but no longitude: not a fix.
+        let Report::Tpv(t) = parse_report(r#"{"class":"TPV","mode":3,"lat":-34.9}"#).unwrap()
+        else {
+            panic!()
+        };
+        assert_eq!(t.fix(), None);
+        // 2D fix without altitude: altitude 0; older gpsd's "alt" is used when altMSL is absent.
+        let Report::Tpv(t) =
+            parse_report(r#"{"class":"TPV","mode":2,"lat":-34.9,"lon":-56.1}"#).unwrap()
+        else {
+            panic!()
+        };
+        assert_eq!(t.fix().unwrap().alt_m, 0.0);
+        let Report::Tpv(t) =
+            parse_report(r#"{"class":"TPV","mode":3,"lat":-34.9,"lon":-56.1,"alt":12.5}"#).unwrap()
+        else {
+            panic!()
+        };
+        assert_eq!(t.fix().unwrap().alt_m, 12.5);
+        // No mode at all.
+        let Report::Tpv(t) = parse_report(r#"{"class":"TPV"}"#).unwrap() else {
+            panic!()
+        };
+        assert_eq!(t.mode, 0);
+        assert_eq!(t.fix(), None);
+    }
 
     #[test]
     fn utm_matches_an_independent_projection() {

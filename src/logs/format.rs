@@ -14,7 +14,7 @@ pub struct LineError {
 }
 
 /// Splits a log's text into (1-based line number, trimmed record), accepting `\n`, `\r\n` and
-/// `\n\r` and skipping blank or whitespace-only pieces.
+/// `\n\r` and skipping blank or whitespace-only pieces and `#` comment lines.
 pub fn records(text: &str) -> impl Iterator<Item = (usize, &str)> {
     text.split('\n')
         .enumerate()
@@ -24,7 +24,7 @@ pub fn records(text: &str) -> impl Iterator<Item = (usize, &str)> {
                 l.trim_matches(|c: char| c == '\r' || c.is_whitespace()),
             )
         })
-        .filter(|(_, l)| !l.is_empty())
+        .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'))
 }
 
 /// Formats a time in µs as the original's `%ld.%06ld` seconds.
@@ -392,6 +392,33 @@ pub fn parse_x_hat(f: &[&str]) -> Result<[f64; 15], String> {
     Ok(v)
 }
 
+/// First line of the gps.log uquad writes for gpsd fixes: columns 4–6 are then positions in the
+/// local frame (x north, y west, z up from the first fix, m), printed to round-trip exactly.
+pub const UQUAD_GPS_HEADER: &str = "# uquad gps.log: t_main gps_time fix x y z vx vy vz lat lon speed climb track vel_ok; x y z = local frame (north, west, up from the first fix), m";
+
+/// Writes one fused gpsd fix in the 15 columns of spec 7.1 (velocities not used: 0). `t_us` is
+/// the time before which the fix was received, so a replay fuses it in the same step.
+#[allow(clippy::too_many_arguments)]
+pub fn write_gps_fix(
+    out: &mut String,
+    t_us: i64,
+    stamp_us: i64,
+    fix_mode: u8,
+    pos_m: [f64; 3],
+    lat_deg: f64,
+    lon_deg: f64,
+) {
+    push_time_us(out, t_us);
+    out.push('\t');
+    push_time_us(out, stamp_us);
+    // `{}` prints the shortest text that reads back to the same f64.
+    let _ = writeln!(
+        out,
+        "\t{fix_mode}\t{}\t{}\t{}\t0\t0\t0\t{lat_deg}\t{lon_deg}\t0\t0\t0\t0\t",
+        pos_m[0], pos_m[1], pos_m[2]
+    );
+}
+
 /// One `gps.log` line in either of the original's formats.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum GpsLogRecord {
@@ -402,6 +429,9 @@ pub enum GpsLogRecord {
     Gpsd {
         t_us: i64,
         fix_mode: i32,
+        /// Columns 4–6: absolute UTM in the original's logs; the local-frame position in
+        /// uquad's (whose gps.log starts with [`UQUAD_GPS_HEADER`]).
+        pos_m: [f64; 3],
         lat_deg: f64,
         lon_deg: f64,
         alt_m: f64,
@@ -423,6 +453,7 @@ impl GpsLogRecord {
             15 => Ok(GpsLogRecord::Gpsd {
                 t_us: time_field(f, 0, "t_main")?,
                 fix_mode: field(f, 2, "fix")?,
+                pos_m: [field(f, 3, "x")?, field(f, 4, "y")?, field(f, 5, "z")?],
                 alt_m: field(f, 5, "z")?,
                 lat_deg: field(f, 9, "lat")?,
                 lon_deg: field(f, 10, "lon")?,
@@ -493,12 +524,23 @@ mod tests {
             GpsLogRecord::Gpsd {
                 t_us: 174_962_037,
                 fix_mode: 3,
+                pos_m: [576_155.592_9, 6_135_556.114_4, 27.7],
                 lat_deg: -34.919588333,
                 lon_deg: -56.166258333,
                 alt_m: 27.7
             }
         );
         assert!(parse_log("1 2 3\n", GpsLogRecord::parse_fields).is_err());
+        // uquad's own gpsd lines round-trip the local position exactly, behind a header.
+        let mut ours = format!("{UQUAD_GPS_HEADER}\n");
+        let pos = [0.1 + 0.2, -13.426_443_214_528_263, 1e-300];
+        write_gps_fix(
+            &mut ours, 12_000_001, 11_999_000, 3, pos, -34.9193, -56.167_14,
+        );
+        let p = parse_log(&ours, GpsLogRecord::parse_fields).unwrap();
+        assert!(
+            matches!(p.rows[0], GpsLogRecord::Gpsd { pos_m, t_us: 12_000_001, .. } if pos_m == pos)
+        );
     }
 
     #[test]

@@ -14,6 +14,7 @@ use crate::core::flight::{Estimate, EstimatorCore, GpsFeed};
 use crate::core::imu::startup::FrontEndEvent;
 use crate::logs::{ImuRawRecord, KalmanInRecord};
 use crate::tasks::esc_writer::{EscMailbox, EscPhase, EscStatus};
+use crate::tasks::gps_client::LiveFix;
 use crate::tasks::imu_reader::StampedFrame;
 use crate::tasks::logger::{LogHub, Record};
 use std::sync::Arc;
@@ -58,6 +59,8 @@ pub struct EstimatorReport {
 pub struct EstimatorTask {
     pub core: EstimatorCore,
     pub gps: GpsFeed,
+    /// Live fixes (gps.mode = gpsd).
+    pub gps_live: Option<watch::Receiver<Option<LiveFix>>>,
     pub frames: mpsc::Receiver<StampedFrame>,
     pub feedback: watch::Receiver<Feedback>,
     pub estimates: mpsc::Sender<EstimateMsg>,
@@ -72,6 +75,7 @@ impl EstimatorTask {
         let mut rep = EstimatorReport::default();
         let mut prev_stamp_us: Option<i64> = None;
         let mut esc_started = false;
+        let mut offered: Option<LiveFix> = None;
         loop {
             let f = tokio::select! {
                 _ = self.cancel.cancelled() => break,
@@ -137,7 +141,21 @@ impl EstimatorTask {
             {
                 self.logs.log(Record::Gps(t_cmd));
             }
+            if let Some(rx) = self.gps_live.as_mut()
+                && rx.has_changed().unwrap_or(false)
+                && let Some(live) = *rx.borrow_and_update()
+            {
+                self.gps.offer_live(live.sample);
+                offered = Some(live);
+            }
             let gps = self.gps.for_step(f.stamp_us);
+            if gps.is_some()
+                && let Some(live) = offered.take()
+            {
+                // Logged with a time the replay fuses in this same step.
+                let t = prev_stamp_us.unwrap_or(f.stamp_us - 1);
+                self.logs.log(Record::GpsFix(t, live));
+            }
             let Some(est) = self
                 .core
                 .step(sample, f.stamp_us, fb.u_next, fb.mass_kg, gps)

@@ -28,6 +28,10 @@ pub enum Record {
     Int(i64, [f64; 4], usize),
     /// Time of a fake GPS sample (the original's time-only gps.log line).
     Gps(i64),
+    /// A gpsd fix fused by the filter, logged with the time before which it arrived.
+    GpsFix(i64, crate::tasks::gps_client::LiveFix),
+    /// The header of a gps.log holding gpsd fixes.
+    GpsHeader,
     /// A line of free text (err.log).
     Err(String),
 }
@@ -40,7 +44,7 @@ impl Record {
             Record::XHat(_) => 2,
             Record::W(..) => 3,
             Record::Int(..) => 4,
-            Record::Gps(_) => 5,
+            Record::Gps(_) | Record::GpsFix(..) | Record::GpsHeader => 5,
             Record::Err(_) => 6,
         }
     }
@@ -55,6 +59,19 @@ impl Record {
             Record::Gps(t) => {
                 out.push_str(&logs::fmt_time_us(*t));
                 out.push_str("\t\n");
+            }
+            Record::GpsFix(t, l) => logs::write_gps_fix(
+                out,
+                *t,
+                l.stamp_us,
+                l.fix.mode,
+                l.sample.pos_m,
+                l.fix.lat_deg,
+                l.fix.lon_deg,
+            ),
+            Record::GpsHeader => {
+                out.push_str(logs::UQUAD_GPS_HEADER);
+                out.push('\n');
             }
             Record::Err(s) => {
                 out.push_str(s);

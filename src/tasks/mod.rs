@@ -3,5 +3,6 @@
 pub mod controller;
 pub mod esc_writer;
 pub mod estimator;
+pub mod gps_client;
 pub mod imu_reader;
 pub mod logger;
