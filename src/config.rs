@@ -25,6 +25,7 @@ pub struct Config {
     pub control: Control,
     pub motor: Motor,
     pub esc: Esc,
+    pub watchdog: WatchdogConfig,
     pub gps: Gps,
     pub log: Log,
 }
@@ -41,8 +42,55 @@ pub struct Esc {
     pub trims: [i16; 4],
     /// Re-send period of the last speeds, ms (the ESCs stop when I2C traffic stops).
     pub resend_ms: u32,
-    /// A flight command older than this is replaced by zero + disable, ms.
+    /// The writer's own refusal: a flight command whose frame is older than this is replaced
+    /// by zero + disable, ms. A backup to the watchdog, which names the reason: it must leave
+    /// the watchdog time to act (above its IMU timeout and its deadline + one IMU period).
     pub command_timeout_ms: u32,
+}
+
+/// The watchdog (its policy: `core::watchdog`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct WatchdogConfig {
+    /// Longest time from a frame's arrival to its motor command, ms.
+    pub deadline_ms: u32,
+    /// Longest time without a frame while the motors run, ms.
+    pub imu_timeout_ms: u32,
+    /// Consecutive failed ESC write cycles that halt the motors.
+    pub max_missed_acks: u32,
+    /// Sanity (spec 2.5): IMU temperature limit, °C.
+    pub sanity_temp_max_c: f64,
+    /// Sanity: |ψ̂|, |φ̂| limit, rad.
+    pub sanity_tilt_max_rad: f64,
+    /// Sanity: insane steps (net) tolerated.
+    pub sanity_max: u32,
+}
+
+impl Default for WatchdogConfig {
+    fn default() -> Self {
+        let d = crate::core::watchdog::WatchdogParams::DEFAULT;
+        WatchdogConfig {
+            deadline_ms: (d.deadline_us / 1000) as u32,
+            imu_timeout_ms: (d.imu_timeout_us / 1000) as u32,
+            max_missed_acks: d.max_missed_acks,
+            sanity_temp_max_c: d.temp_max_c,
+            sanity_tilt_max_rad: d.tilt_max_rad,
+            sanity_max: d.sanity_max,
+        }
+    }
+}
+
+impl WatchdogConfig {
+    pub fn params(&self) -> crate::core::watchdog::WatchdogParams {
+        crate::core::watchdog::WatchdogParams {
+            deadline_us: i64::from(self.deadline_ms) * 1000,
+            imu_timeout_us: i64::from(self.imu_timeout_ms) * 1000,
+            max_missed_acks: self.max_missed_acks,
+            temp_max_c: self.sanity_temp_max_c,
+            tilt_max_rad: self.sanity_tilt_max_rad,
+            sanity_max: self.sanity_max,
+        }
+    }
 }
 
 impl Default for Esc {
@@ -53,7 +101,7 @@ impl Default for Esc {
             addresses: m.addresses,
             trims: m.trims,
             resend_ms: 2,
-            command_timeout_ms: 12,
+            command_timeout_ms: 25,
         }
     }
 }
@@ -689,11 +737,52 @@ pub fn load(path: &Path, sets: &[(String, toml::Value)]) -> Result<Profile, Conf
         esc.resend_ms.to_string(),
         "1 to 20 ms",
     );
+    let wd = &c.watchdog;
+    range(
+        "watchdog.deadline_ms",
+        (1..=1000).contains(&wd.deadline_ms),
+        wd.deadline_ms.to_string(),
+        "1 to 1000 ms",
+    );
+    range(
+        "watchdog.imu_timeout_ms",
+        wd.imu_timeout_ms > esc.resend_ms && wd.imu_timeout_ms <= 1000,
+        wd.imu_timeout_ms.to_string(),
+        "above esc.resend_ms, at most 1000 ms",
+    );
     range(
         "esc.command_timeout_ms",
-        esc.command_timeout_ms > esc.resend_ms && esc.command_timeout_ms <= 1000,
+        esc.command_timeout_ms > wd.imu_timeout_ms
+            && esc.command_timeout_ms > wd.deadline_ms + 10
+            && esc.command_timeout_ms <= 2000,
         esc.command_timeout_ms.to_string(),
-        "above esc.resend_ms, at most 1000 ms",
+        "above watchdog.imu_timeout_ms and watchdog.deadline_ms + 10, at most 2000 ms",
+    );
+    range(
+        "watchdog.max_missed_acks",
+        (1..=1000).contains(&wd.max_missed_acks),
+        wd.max_missed_acks.to_string(),
+        "1 to 1000",
+    );
+    range(
+        "watchdog.sanity_temp_max_c",
+        wd.sanity_temp_max_c.is_finite() && (0.0..=125.0).contains(&wd.sanity_temp_max_c),
+        wd.sanity_temp_max_c.to_string(),
+        "0 to 125 °C",
+    );
+    range(
+        "watchdog.sanity_tilt_max_rad",
+        wd.sanity_tilt_max_rad.is_finite()
+            && wd.sanity_tilt_max_rad > 0.0
+            && wd.sanity_tilt_max_rad <= 1.57,
+        wd.sanity_tilt_max_rad.to_string(),
+        "more than 0, at most 1.57 rad",
+    );
+    range(
+        "watchdog.sanity_max",
+        wd.sanity_max <= 10_000,
+        wd.sanity_max.to_string(),
+        "0 to 10000",
     );
     range(
         "log.queue_records",

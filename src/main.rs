@@ -57,6 +57,10 @@ altitude, i/k mass, 0 reset mass, ESC quit).")]
         /// Folder under which the run folder is created (default: log.dir of the profile).
         #[arg(long, value_name = "DIR")]
         log_dir: Option<PathBuf>,
+        /// Write the flight report (JSON: frames, steps, latency_us {p50, p99, max},
+        /// deadline_misses, log_drops, watchdog_trips, halt, run_dir) to FILE at the end.
+        #[arg(long, value_name = "FILE")]
+        report: Option<PathBuf>,
     },
     /// Print the fixes gpsd gives, one JSON object per line: a check to run before flying.
     #[command(
@@ -172,6 +176,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             config,
             sets,
             log_dir,
+            report,
         } => {
             let path = config::resolve_path(config.as_deref()).map_err(anyhow::Error::msg)?;
             let profile = load_profile(&path, &sets)?;
@@ -192,6 +197,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                         stdin_keys: true,
                         log_stall: None,
                         handle_signals: true,
+                        control_delay: None,
                     },
                     tokio_util::sync::CancellationToken::new(),
                 )
@@ -201,7 +207,10 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             rt.shutdown_timeout(std::time::Duration::from_millis(200));
             let summary = summary?;
             eprintln!("{}", summary.text());
-            Ok(if summary.error.is_some() {
+            if let Some(path) = report {
+                summary.write_report(&path)?;
+            }
+            Ok(if summary.error.is_some() || summary.halt.is_some() {
                 ExitCode::FAILURE
             } else {
                 ExitCode::SUCCESS

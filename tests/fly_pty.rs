@@ -171,4 +171,7 @@ async fn a_stalled_logger_loses_no_control_step() {
         "{err}"
     );
     assert!(summary.text().contains(&format!("x_hat {dropped}")));
+    // The stall cost the control path nothing.
+    assert_eq!(summary.deadline_misses, 0);
+    assert!(summary.halt.is_none(), "{:?}", summary.halt);
 }

@@ -149,7 +149,8 @@ async fn uquad_gps_prints_the_streams_fixes() {
         .map(|l| serde_json::from_str(l).unwrap())
         .collect();
     for f in &fixes {
-        assert_eq!(f["mode"], 3);
+        let mode = f["mode"].as_u64().unwrap();
+        assert!(mode == 2 || mode == 3, "{f}");
         let (lat, lon) = (
             f["lat_deg"].as_f64().unwrap(),
             f["lon_deg"].as_f64().unwrap(),

@@ -23,6 +23,7 @@ use crate::tasks::estimator::{EstimatorReport, EstimatorTask, Feedback};
 use crate::tasks::gps_client::{self, GpsStats};
 use crate::tasks::imu_reader::{self, ImuStats};
 use crate::tasks::logger::{self, LogStall, STREAMS};
+use crate::tasks::watchdog::{self, Halt, Heartbeats, WatchdogStatus};
 use anyhow::Context;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -55,6 +56,8 @@ pub struct FlyOptions {
     pub log_stall: Option<LogStall>,
     /// Handle SIGINT/SIGTERM (the command does; tests cancel instead).
     pub handle_signals: bool,
+    /// Fault injection: from this control step on, each control step takes this long.
+    pub control_delay: Option<(u32, Duration)>,
 }
 
 /// What a run did.
@@ -84,6 +87,9 @@ pub struct FlySummary {
     pub log_records: [u64; 7],
     /// Frame arrival → ESC write, µs.
     pub latencies_us: Vec<u32>,
+    pub deadline_misses: u64,
+    /// The watchdog's halt, if it tripped.
+    pub halt: Option<Halt>,
     /// Why the run ended with an error, if it did (motors were stopped first).
     pub error: Option<String>,
 }
@@ -93,8 +99,8 @@ impl FlySummary {
         self.log_drops.iter().sum()
     }
 
-    /// The exit summary, a few lines for a person.
-    pub fn text(&self) -> String {
+    /// Latency percentiles (p50, p99, max), µs.
+    pub fn latency_percentiles(&self) -> (u32, u32, u32) {
         let mut lat = self.latencies_us.clone();
         lat.sort_unstable();
         let pct = |q: f64| {
@@ -102,6 +108,59 @@ impl FlySummary {
                 .copied()
                 .unwrap_or(0)
         };
+        (pct(0.5), pct(0.99), lat.last().copied().unwrap_or(0))
+    }
+
+    /// The flight report (`--report FILE`).
+    pub fn report(&self) -> serde_json::Value {
+        let (p50, p99, max) = self.latency_percentiles();
+        let run_dir = std::fs::canonicalize(&self.run_dir).unwrap_or_else(|_| self.run_dir.clone());
+        serde_json::json!({
+            "frames": self.frames,
+            "steps": self.steps,
+            "latency_us": { "p50": p50, "p99": p99, "max": max },
+            "deadline_misses": self.deadline_misses,
+            "log_drops": self.log_drops_total(),
+            "watchdog_trips": u64::from(self.halt.is_some()),
+            "halt": self.halt.map(|h| serde_json::json!({
+                "reason": h.trip.reason.name(),
+                "latency_ms": h.latency_ms(),
+                "event_s": h.trip.event_us as f64 / 1e6,
+                "halt_s": h.halt_us as f64 / 1e6,
+            })),
+            "run_dir": run_dir,
+            "log_drops_by_stream": STREAMS.iter().zip(self.log_drops).map(|(s, d)| (s.to_string(), d)).collect::<std::collections::BTreeMap<_, _>>(),
+            "esc": {
+                "commands": self.esc_commands,
+                "writes": self.esc_writes,
+                "failed_writes": self.esc_failed_writes,
+                "stop_reason": self.esc_stop_reason,
+            },
+            "imu": {
+                "discarded_bytes": self.discarded_bytes,
+                "rejected_frames": self.rejected_frames,
+                "dropped_frames": self.dropped_frames,
+            },
+            "gps": {
+                "updates": self.gps_updates,
+                "gpsd_connects": self.gpsd_connects,
+                "gpsd_disconnects": self.gpsd_disconnects,
+                "gpsd_fixes": self.gpsd_fixes,
+            },
+            "error": self.error,
+        })
+    }
+
+    /// Writes the report as JSON to `path`.
+    pub fn write_report(&self, path: &Path) -> anyhow::Result<()> {
+        let text = serde_json::to_string_pretty(&self.report())?;
+        std::fs::write(path, text + "\n")
+            .with_context(|| format!("cannot write the report {}", path.display()))
+    }
+
+    /// The exit summary, a few lines for a person.
+    pub fn text(&self) -> String {
+        let (p50, p99, max) = self.latency_percentiles();
         let drops: Vec<String> = STREAMS
             .iter()
             .zip(self.log_drops)
@@ -111,7 +170,8 @@ impl FlySummary {
         format!(
             "run {}\n  frames {} (discarded bytes {}, rejected frames {}, dropped {}), Kalman steps {}\n  \
              ESC: {} commands, {} writes, {} failed; stopped: {}\n  \
-             latency frame -> ESC write: p50 {} us, p99 {} us, max {} us\n  \
+             latency frame -> ESC write: p50 {} us, p99 {} us, max {} us; deadline misses {}\n  \
+             watchdog: {}\n  \
              log drops: {}{}",
             self.run_dir.display(),
             self.frames,
@@ -123,9 +183,18 @@ impl FlySummary {
             self.esc_writes,
             self.esc_failed_writes,
             self.esc_stop_reason.as_deref().unwrap_or("never started"),
-            pct(0.5),
-            pct(0.99),
-            lat.last().copied().unwrap_or(0),
+            p50,
+            p99,
+            max,
+            self.deadline_misses,
+            match self.halt {
+                Some(h) => format!(
+                    "HALT, reason {}, {:.3} ms after the event",
+                    h.trip.reason.name(),
+                    h.latency_ms()
+                ),
+                None => "no trip".to_string(),
+            },
             if drops.is_empty() {
                 "none".to_string()
             } else {
@@ -267,6 +336,7 @@ pub async fn run(
 
     // The run's clock: every stamp is µs since this instant.
     let start = Instant::now();
+    let beats = Arc::new(Heartbeats::new(start));
     // The actuator edge first: it boots disabled and owns the bus.
     let mailbox = Arc::new(EscMailbox::default());
     let esc_status = Arc::new(EscStatus::default());
@@ -279,8 +349,35 @@ pub async fn run(
         },
         mailbox.clone(),
         esc_status.clone(),
+        beats.clone(),
     )
     .context("cannot start the ESC writer thread")?;
+
+    // The watchdog, on its own thread: it halts through the ESC writer and ends the run.
+    let wd_status = Arc::new(WatchdogStatus::default());
+    let wd_thread = watchdog::spawn(
+        cfg.watchdog.params(),
+        beats.clone(),
+        wd_status.clone(),
+        mailbox.clone(),
+        esc_status.clone(),
+        {
+            let logs = logs.clone();
+            move |h| {
+                let line = format!(
+                    "watchdog: halt, reason {}; event at {} s, halt at {} s ({:.3} ms later)",
+                    h.trip.reason.name(),
+                    crate::logs::fmt_time_us(h.trip.event_us),
+                    crate::logs::fmt_time_us(h.halt_us),
+                    h.latency_ms()
+                );
+                tracing::error!("{line}");
+                logs.err(line);
+            }
+        },
+        cancel.clone(),
+    )
+    .context("cannot start the watchdog thread")?;
 
     // Manual keys from stdin.
     let (manual_tx, manual_rx) = mpsc::channel::<ManualCommand>(16);
@@ -316,6 +413,8 @@ pub async fn run(
         let mailbox = mailbox.clone();
         let esc_status = esc_status.clone();
         let imu_stats = imu_stats.clone();
+        let beats = beats.clone();
+        let control_delay = opts.control_delay;
         let realtime = opts.realtime;
         std::thread::Builder::new()
             .name("control".into())
@@ -341,7 +440,7 @@ pub async fn run(
                         });
                         let reader = tokio::spawn(imu_reader::run(
                             edges.imu,
-                            start,
+                            beats.clone(),
                             frame_tx,
                             imu_stats,
                             cancel.clone(),
@@ -355,6 +454,7 @@ pub async fn run(
                                 esc: mailbox.clone(),
                                 logs: logs.clone(),
                                 cancel: cancel.clone(),
+                                delay: control_delay,
                             }
                             .run(),
                         );
@@ -368,6 +468,7 @@ pub async fn run(
                             esc: mailbox,
                             esc_status,
                             logs,
+                            beats,
                             cancel: cancel.clone(),
                         }
                         .run()
@@ -393,6 +494,8 @@ pub async fn run(
     cancel.cancelled().await;
     // Motors first: zero and disable, then wait for the writer to finish.
     mailbox.shutdown();
+    wd_status.stop();
+    let _ = tokio::task::spawn_blocking(move || wd_thread.join()).await;
     let esc_joined = tokio::task::spawn_blocking(move || esc_thread.join()).await;
     if !matches!(esc_joined, Ok(Ok(()))) {
         tracing::error!("the ESC writer thread did not end cleanly");
@@ -441,6 +544,8 @@ pub async fn run(
         log_drops: logs.dropped(),
         log_records: [0; 7],
         latencies_us,
+        deadline_misses: wd_status.deadline_misses.load(Ordering::Relaxed),
+        halt: wd_status.halt(),
         error,
     };
     // The drop counts so far go into err.log itself; then the loggers drain and flush.

@@ -11,3 +11,4 @@ pub mod lqr;
 pub mod model;
 pub mod motor;
 pub mod numfile;
+pub mod watchdog;

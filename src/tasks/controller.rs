@@ -31,6 +31,8 @@ pub struct ControllerTask {
     pub esc: Arc<EscMailbox>,
     pub logs: LogHub,
     pub cancel: CancellationToken,
+    /// Fault injection: from this step on, each control step takes this long.
+    pub delay: Option<(u32, std::time::Duration)>,
 }
 
 impl ControllerTask {
@@ -69,6 +71,11 @@ impl ControllerTask {
                 }
             }
             let est = &msg.est;
+            if let Some((from, d)) = self.delay
+                && est.step >= from
+            {
+                tokio::time::sleep(d).await;
+            }
             // Control and command times are the frame's stamp: what the replay consumes.
             let c = self.core.control(est, est.t_us, est.t_us);
             self.esc.command(MotorCommand {

@@ -15,6 +15,7 @@ use crate::core::motor::{
     EscAction, I2C_IDLE, MotorMap, REG_DISABLE, REG_ENABLE, esc_startup_ramp, i2c_from_rad_s,
 };
 use crate::hw::esc_bus::EscBus;
+use crate::tasks::watchdog::{Event, Heartbeats};
 use std::sync::atomic::{AtomicU8, AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
@@ -108,6 +109,8 @@ pub struct EscStatus {
     pub stop_reason: Mutex<Option<String>>,
     /// Frame-arrival → ESC-write latency of each flight command, µs (newest last).
     pub latencies_us: Mutex<Vec<u32>>,
+    /// When the ESCs were zeroed and disabled.
+    stopped_at: Mutex<Option<Instant>>,
 }
 
 impl EscStatus {
@@ -127,6 +130,10 @@ impl EscStatus {
     pub fn stop_reason(&self) -> Option<String> {
         self.stop_reason.lock().ok().and_then(|g| g.clone())
     }
+
+    pub fn stopped_at(&self) -> Option<Instant> {
+        self.stopped_at.lock().ok().and_then(|g| *g)
+    }
 }
 
 /// Latency samples kept (about 2.8 hours of flight at 100 Hz).
@@ -144,6 +151,10 @@ struct Writer {
     bus: Box<dyn EscBus>,
     params: EscParams,
     status: Arc<EscStatus>,
+    beats: Arc<Heartbeats>,
+    /// Consecutive write cycles with a failed write, and when the first of them was.
+    failed_cycles: u32,
+    first_failure: Option<Instant>,
 }
 
 impl Writer {
@@ -175,9 +186,24 @@ impl Writer {
         }
     }
 
+    /// One write cycle: the four speed registers. A cycle with any failed write is a missed
+    /// acknowledgement for the watchdog.
     fn speeds(&mut self, values: &[u8; 4]) {
+        let mut ok = true;
         for (addr, reg, v) in self.params.map.speed_writes(values) {
-            self.write(addr, reg, v);
+            ok &= self.write(addr, reg, v);
+        }
+        if ok {
+            self.failed_cycles = 0;
+            self.first_failure = None;
+        } else {
+            let now = Instant::now();
+            self.failed_cycles += 1;
+            let first = *self.first_failure.get_or_insert(now);
+            self.beats.report(Event::EscFailures {
+                cycles: self.failed_cycles,
+                first_us: self.beats.us(first),
+            });
         }
     }
 
@@ -185,6 +211,9 @@ impl Writer {
     fn stop(&mut self, reason: &str) {
         self.speeds(&[0; 4]);
         self.all(REG_DISABLE, 0);
+        if let Ok(mut at) = self.status.stopped_at.lock() {
+            at.get_or_insert(Instant::now());
+        }
         self.status.set_phase(EscPhase::Stopped);
         if let Ok(mut r) = self.status.stop_reason.lock()
             && r.is_none()
@@ -201,6 +230,7 @@ pub fn spawn(
     params: EscParams,
     mailbox: Arc<EscMailbox>,
     status: Arc<EscStatus>,
+    beats: Arc<Heartbeats>,
 ) -> std::io::Result<std::thread::JoinHandle<()>> {
     std::thread::Builder::new()
         .name("esc_writer".into())
@@ -210,6 +240,9 @@ pub fn spawn(
                     bus,
                     params,
                     status,
+                    beats,
+                    failed_cycles: 0,
+                    first_failure: None,
                 },
                 &mailbox,
             )
@@ -326,6 +359,11 @@ fn run(mut w: Writer, mailbox: &EscMailbox) {
                 values = c.w_rad_s.map(i2c_from_rad_s);
                 last_command = Some(c);
                 w.speeds(&values);
+                let written = Instant::now();
+                w.beats.report(Event::Command {
+                    frame_us: w.beats.us(c.frame_at),
+                    written_us: w.beats.us(written),
+                });
                 w.status.commands.fetch_add(1, Ordering::Relaxed);
                 let latency = c.frame_at.elapsed().as_micros().min(u128::from(u32::MAX)) as u32;
                 if let Ok(mut l) = w.status.latencies_us.lock()

@@ -17,6 +17,7 @@ use crate::tasks::esc_writer::{EscMailbox, EscPhase, EscStatus};
 use crate::tasks::gps_client::LiveFix;
 use crate::tasks::imu_reader::StampedFrame;
 use crate::tasks::logger::{LogHub, Record};
+use crate::tasks::watchdog::{Event, Heartbeats};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, watch};
@@ -42,9 +43,10 @@ pub struct EstimateMsg {
     pub frame_at: Instant,
 }
 
-/// How long a step waits for the controller's feedback of the previous step. The control
-/// path is sequential, so it is normally there already.
-const FEEDBACK_WAIT: Duration = Duration::from_millis(5);
+/// After this long without the previous step's feedback the wait is counted as late (it still
+/// waits: the EKF input must be the previous command, and a stuck controller is the
+/// watchdog's to catch as a missed deadline).
+const FEEDBACK_LATE: Duration = Duration::from_millis(5);
 
 /// Counters of the estimator.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -67,6 +69,7 @@ pub struct EstimatorTask {
     pub esc: Arc<EscMailbox>,
     pub esc_status: Arc<EscStatus>,
     pub logs: LogHub,
+    pub beats: Arc<Heartbeats>,
     pub cancel: CancellationToken,
 }
 
@@ -135,7 +138,9 @@ impl EstimatorTask {
             };
             let step = self.core.steps() + 1;
             // The feedback of the previous step: the EKF input and the command time.
-            let fb = self.wait_feedback(step - 1, &mut rep).await;
+            let Some(fb) = self.wait_feedback(step - 1, &mut rep).await else {
+                break;
+            };
             if let Some(t_cmd) = fb.t_cmd_us
                 && self.gps.after_command(t_cmd)
             {
@@ -164,6 +169,12 @@ impl EstimatorTask {
             };
             rep.steps += 1;
             rep.gps_updates += u64::from(est.gps_used);
+            self.beats.report(Event::Estimate {
+                step_us: est.t_us,
+                temp_c: est.sample.temp_c,
+                psi_rad: est.x[crate::core::ekf::idx::PSI],
+                phi_rad: est.x[crate::core::ekf::idx::PHI],
+            });
             if let Some(e) = est.ekf_error {
                 rep.ekf_errors += 1;
                 tracing::warn!(step, "{e}");
@@ -187,15 +198,23 @@ impl EstimatorTask {
         Ok(rep)
     }
 
-    async fn wait_feedback(&mut self, step: u32, rep: &mut EstimatorReport) -> Feedback {
+    /// The controller's feedback for `step`; `None` when the controller is gone or on cancel.
+    async fn wait_feedback(&mut self, step: u32, rep: &mut EstimatorReport) -> Option<Feedback> {
         let ready = |fb: &Feedback| fb.step >= step;
         if !ready(&self.feedback.borrow()) {
-            let waited =
-                tokio::time::timeout(FEEDBACK_WAIT, self.feedback.wait_for(|fb| ready(fb))).await;
-            if !matches!(waited, Ok(Ok(_))) {
+            let t0 = Instant::now();
+            let cancel = self.cancel.clone();
+            let got = tokio::select! {
+                _ = cancel.cancelled() => false,
+                r = self.feedback.wait_for(|fb| ready(fb)) => r.is_ok(),
+            };
+            if t0.elapsed() > FEEDBACK_LATE {
                 rep.late_feedback += 1;
             }
+            if !got {
+                return None;
+            }
         }
-        *self.feedback.borrow()
+        Some(*self.feedback.borrow())
     }
 }

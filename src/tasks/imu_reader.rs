@@ -14,6 +14,8 @@ use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::mpsc;
 use tokio_util::sync::CancellationToken;
 
+use crate::tasks::watchdog::{Event, Heartbeats};
+
 /// A decoded frame and when its last byte arrived.
 #[derive(Debug, Clone, Copy)]
 pub struct StampedFrame {
@@ -38,7 +40,7 @@ pub const BINARY_MODE_COMMAND: u8 = b'!';
 
 pub async fn run<IO: AsyncRead + AsyncWrite + Unpin>(
     mut io: IO,
-    start: Instant,
+    beats: Arc<Heartbeats>,
     tx: mpsc::Sender<StampedFrame>,
     stats: Arc<ImuStats>,
     cancel: CancellationToken,
@@ -57,9 +59,10 @@ pub async fn run<IO: AsyncRead + AsyncWrite + Unpin>(
             return Ok(());
         }
         let at = Instant::now();
-        let stamp_us = at.duration_since(start).as_micros() as i64;
+        let stamp_us = beats.us(at);
         while let Some(frame) = decoder.next_frame(&mut buf) {
             stats.frames.fetch_add(1, Ordering::Relaxed);
+            beats.report(Event::Frame(stamp_us));
             if tx
                 .try_send(StampedFrame {
                     frame,

@@ -6,3 +6,4 @@ pub mod estimator;
 pub mod gps_client;
 pub mod imu_reader;
 pub mod logger;
+pub mod watchdog;

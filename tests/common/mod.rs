@@ -4,7 +4,6 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::time::Duration;
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio_util::sync::CancellationToken;
 use uquad::core::imu::frame::RawFrame;
 use uquad::hw::esc_bus::MockBus;
@@ -98,44 +97,167 @@ pub fn frames_2012() -> Vec<RawFrame> {
         .collect()
 }
 
-/// Writes frames into the pty master every 10 ms, each in three chunks spaced as 115200 baud
-/// sends them (about 0.9 ms per 10 bytes), starting after the IMU got its '!' command.
-pub async fn imu_sim(mut master: tokio_serial::SerialStream, cancel: CancellationToken) -> u64 {
-    let mut cmd = [0u8; 1];
-    tokio::select! {
-        _ = cancel.cancelled() => return 0,
-        r = master.read_exact(&mut cmd) => { r.unwrap(); }
-    }
-    assert_eq!(cmd[0], b'!', "the host puts the IMU in binary mode first");
-    let frames = frames_2012();
-    let mut tick = tokio::time::interval(Duration::from_millis(10));
-    let mut sent = 0u64;
-    for (i, f) in frames.iter().cycle().enumerate() {
-        tokio::select! {
-            _ = cancel.cancelled() => return sent,
-            _ = tick.tick() => {}
-        }
-        let bytes = f.encode(if i % 2 == 0 { b'C' } else { b'A' });
-        for chunk in bytes.chunks(10) {
-            if master.write_all(chunk).await.is_err() {
-                return sent;
-            }
-            tokio::time::sleep(Duration::from_micros(870)).await;
-        }
-        sent += 1;
-    }
-    sent
+/// A blocking byte stream the feeder writes frames into.
+pub trait ReadWrite: std::io::Read + std::io::Write + Send {}
+impl<T: std::io::Read + std::io::Write + Send> ReadWrite for T {}
+
+/// What the simulated IMU sends as frame `k`: the frame, or `None` to fall silent from then on.
+pub type FramePlan = Box<dyn Fn(usize, RawFrame) -> Option<RawFrame> + Send>;
+
+/// The simulated IMU: a thread writing the 2012 frames into a pty master every 10 ms on an
+/// absolute schedule, each frame in three chunks spaced as 115200 baud sends them, after the
+/// host's '!' command. A thread (not a task) so the test's own load cannot delay frames.
+pub struct ImuFeeder {
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    thread: Option<std::thread::JoinHandle<u64>>,
 }
 
-/// A short start-up; and a command timeout above this machine's frame-pacing jitter (a test
-/// process writing a pty on a loaded 2-core machine is not a 100 Hz IMU; the 12 ms default is
-/// exercised by the watchdog's tests).
+/// How the simulated IMU reaches `fly`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Link {
+    /// A pseudo-terminal, opened by `fly` with tokio-serial, as a serial IMU is.
+    Pty,
+    /// An in-memory pipe: no kernel tty layer in between, so the frame timing is the feeder's
+    /// alone (for the tests that measure milliseconds).
+    Pipe,
+}
+
+/// The feeder's end of a pipe: blocking reads and writes on the test's runtime.
+struct PipeEnd {
+    io: tokio::io::DuplexStream,
+    rt: tokio::runtime::Handle,
+}
+
+impl std::io::Read for PipeEnd {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        use tokio::io::AsyncReadExt;
+        self.rt.block_on(self.io.read(buf))
+    }
+}
+
+impl std::io::Write for PipeEnd {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        use tokio::io::AsyncWriteExt;
+        self.rt.block_on(self.io.write(buf))
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
+impl ImuFeeder {
+    /// Returns the feeder and the host's end of the link (boxed for `fly`'s edges). Must be
+    /// called inside a Tokio runtime.
+    pub fn start(plan: FramePlan, link: Link) -> (ImuFeeder, Box<dyn uquad::app::fly::ImuIo>) {
+        use std::io::{Read, Write};
+        use std::sync::atomic::Ordering;
+        let (mut master, slave): (Box<dyn ReadWrite>, Box<dyn uquad::app::fly::ImuIo>) = match link
+        {
+            Link::Pty => {
+                let (master, slave) = serialport::TTYPort::pair().expect("a pty pair");
+                let slave =
+                    tokio_serial::SerialStream::try_from(slave).expect("the slave end as async");
+                (Box::new(master), Box::new(slave))
+            }
+            Link::Pipe => {
+                let (a, b) = tokio::io::duplex(64 * 1024);
+                (
+                    Box::new(PipeEnd {
+                        io: a,
+                        rt: tokio::runtime::Handle::current(),
+                    }),
+                    Box::new(b),
+                )
+            }
+        };
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let flag = stop.clone();
+        let thread = std::thread::spawn(move || {
+            // Real time when permitted, like the IMU it stands for (its timing is not the
+            // test's load).
+            let param = libc::sched_param { sched_priority: 60 };
+            // SAFETY: sets this thread's scheduling policy; no memory is touched.
+            unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
+            // The host puts the IMU in binary mode first.
+            let mut cmd = [0u8; 1];
+            loop {
+                if flag.load(Ordering::SeqCst) {
+                    return 0;
+                }
+                match master.read(&mut cmd) {
+                    Ok(1) => break,
+                    _ => continue,
+                }
+            }
+            assert_eq!(cmd[0], b'!', "the host puts the IMU in binary mode first");
+            let frames = frames_2012();
+            let t0 = std::time::Instant::now();
+            let mut sent = 0u64;
+            let mut silent = false;
+            for (k, f) in frames.iter().cycle().enumerate() {
+                if flag.load(Ordering::SeqCst) {
+                    break;
+                }
+                let due = t0 + Duration::from_millis(10 * k as u64);
+                if let Some(wait) = due.checked_duration_since(std::time::Instant::now()) {
+                    std::thread::sleep(wait);
+                }
+                if silent {
+                    continue;
+                }
+                let Some(f) = plan(k, *f) else {
+                    silent = true;
+                    continue;
+                };
+                let bytes = f.encode(if k % 2 == 0 { b'C' } else { b'A' });
+                for (i, chunk) in bytes.chunks(10).enumerate() {
+                    if i > 0 {
+                        std::thread::sleep(Duration::from_micros(870));
+                    }
+                    if master.write_all(chunk).is_err() {
+                        return sent;
+                    }
+                }
+                sent += 1;
+            }
+            sent
+        });
+        (
+            ImuFeeder {
+                stop,
+                thread: Some(thread),
+            },
+            slave,
+        )
+    }
+
+    /// Stops the feeder; returns the frames it sent.
+    pub fn stop(mut self) -> u64 {
+        self.stop.store(true, std::sync::atomic::Ordering::SeqCst);
+        self.thread.take().map_or(0, |t| t.join().unwrap_or(0))
+    }
+}
+
+impl Drop for ImuFeeder {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::SeqCst);
+    }
+}
+
+/// The configured IMU timeout and the ESC writer's own refusal (tests of the watchdog and of a
+/// healthy flight pass these to undo [`sets`]' relaxed values).
+pub const DEFAULT_TIMEOUTS: [&str; 2] = ["watchdog.imu_timeout_ms=12", "esc.command_timeout_ms=25"];
+
+/// A short start-up (5 settling frames, 64 calibration frames), and an IMU timeout of 100 ms:
+/// tests of other subjects must not fail on this shared machine's scheduling jitter (the 12 ms
+/// default leaves 2 ms over the 10 ms frame period; the watchdog's tests use it).
 pub fn sets(extra: &[&str]) -> Vec<(String, toml::Value)> {
     [
         "imu.settle_frames=5",
         "imu.settle_max_frames=40",
         "imu.calib_frames=64",
-        "esc.command_timeout_ms=200",
+        "watchdog.imu_timeout_ms=100",
+        "esc.command_timeout_ms=150",
     ]
     .iter()
     .chain(extra)
@@ -150,12 +272,32 @@ pub async fn fly_for(
     stall: Option<uquad::tasks::logger::LogStall>,
     during: impl std::future::Future<Output = ()>,
 ) -> (uquad::app::fly::FlySummary, u64, MockBus, tempfile::TempDir) {
+    fly_with(
+        extra,
+        uquad::app::fly::FlyOptions {
+            log_stall: stall,
+            ..Default::default()
+        },
+        Link::Pty,
+        Box::new(|_, f| Some(f)),
+        |_| during,
+    )
+    .await
+}
+
+/// [`fly_for`] with any options and frame plan; `during` gets the mock bus.
+pub async fn fly_with<F: std::future::Future<Output = ()>>(
+    extra: &[&str],
+    opts: uquad::app::fly::FlyOptions,
+    link: Link,
+    plan: FramePlan,
+    during: impl FnOnce(MockBus) -> F,
+) -> (uquad::app::fly::FlySummary, u64, MockBus, tempfile::TempDir) {
     let profile = uquad::config::load(&profile_2012(), &sets(extra)).unwrap();
     let logs = tempfile::tempdir().unwrap();
-    let (master, slave) = tokio_serial::SerialStream::pair().expect("a pty pair");
+    let (feeder, slave) = ImuFeeder::start(plan, link);
     let bus = MockBus::new();
     let cancel = CancellationToken::new();
-    let sim = tokio::spawn(imu_sim(master, cancel.clone()));
     let fly = tokio::spawn({
         let bus = bus.clone();
         let cancel = cancel.clone();
@@ -164,22 +306,27 @@ pub async fn fly_for(
             uquad::app::fly::run(
                 &profile,
                 uquad::app::fly::Edges {
-                    imu: Box::new(slave),
+                    imu: slave,
                     bus: Box::new(bus),
                 },
                 uquad::app::fly::FlyOptions {
                     log_dir: Some(log_dir),
-                    log_stall: stall,
-                    ..Default::default()
+                    // The control thread at SCHED_FIFO when permitted, as in flight.
+                    realtime: true,
+                    ..opts
                 },
                 cancel,
             )
             .await
         }
     });
-    during.await;
+    // The run ends when `during` is done, or earlier when the watchdog halts it.
+    tokio::select! {
+        _ = during(bus.clone()) => {}
+        _ = cancel.cancelled() => {}
+    }
     cancel.cancel();
     let summary = fly.await.unwrap().unwrap();
-    let sent = sim.await.unwrap();
+    let sent = feeder.stop();
     (summary, sent, bus, logs)
 }

@@ -1,0 +1,320 @@
+//! Watchdog policy: when the motors must be halted, as a pure state machine (time passed in).
+//!
+//! Spec sections 2.5 (sanity: temperature, tilt, with its counter), 8.4 (timing) and the
+//! flight stack's own rules: the 10 ms frame → command deadline, a silent IMU while the motors
+//! run, consecutive missed ESC acknowledgements. Times are µs since the run's start.
+
+/// Why the motors were halted. The names are the report's and the err log's.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TripReason {
+    Deadline,
+    ImuTimeout,
+    EscAck,
+    SanityTemp,
+    SanityTilt,
+}
+
+impl TripReason {
+    pub fn name(self) -> &'static str {
+        match self {
+            TripReason::Deadline => "deadline",
+            TripReason::ImuTimeout => "imu-timeout",
+            TripReason::EscAck => "esc-ack",
+            TripReason::SanityTemp => "sanity-temp",
+            TripReason::SanityTilt => "sanity-tilt",
+        }
+    }
+}
+
+/// A decision to halt.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Trip {
+    pub reason: TripReason,
+    /// When the triggering event happened: the late frame's arrival (deadline), the last frame
+    /// (imu-timeout), the first failed write of the run (esc-ack), the step that exhausted the
+    /// sanity counter (sanity-*).
+    pub event_us: i64,
+    /// When the policy decided.
+    pub decided_us: i64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WatchdogParams {
+    pub deadline_us: i64,
+    pub imu_timeout_us: i64,
+    pub max_missed_acks: u32,
+    /// Sanity (spec 2.5): temperature above this, °C, or |ψ̂| or |φ̂| above the tilt, rad,
+    /// make a step insane; the counter goes up by one per insane step and down by one (to 0)
+    /// per sane one; above `sanity_max` the motors halt.
+    pub temp_max_c: f64,
+    pub tilt_max_rad: f64,
+    pub sanity_max: u32,
+}
+
+impl WatchdogParams {
+    /// The defaults: 10 ms deadline, 12 ms IMU timeout (the original's longest accepted
+    /// period), 3 missed acks (6 ms at the 2 ms re-send period), the original's sanity rules.
+    pub const DEFAULT: WatchdogParams = WatchdogParams {
+        deadline_us: 10_000,
+        imu_timeout_us: 12_000,
+        max_missed_acks: 3,
+        temp_max_c: 55.0,
+        tilt_max_rad: 1.0,
+        sanity_max: 20,
+    };
+}
+
+/// Frames remembered without a command: far more than arrive within a deadline.
+const UNCOMMANDED_CAP: usize = 64;
+
+/// The policy's state.
+#[derive(Debug, Clone)]
+pub struct Watchdog {
+    params: WatchdogParams,
+    /// Arrival of the newest frame.
+    last_frame_us: Option<i64>,
+    /// Arrivals of the frames not yet commanded, oldest first (tracked while flying).
+    uncommanded_us: std::collections::VecDeque<i64>,
+    /// Motors under flight commands (the deadline and IMU timeout apply from then on).
+    flying: bool,
+    sanity_counter: u32,
+    deadline_misses: u64,
+    trip: Option<Trip>,
+}
+
+impl Watchdog {
+    pub fn new(params: WatchdogParams) -> Self {
+        Watchdog {
+            params,
+            last_frame_us: None,
+            uncommanded_us: std::collections::VecDeque::with_capacity(UNCOMMANDED_CAP),
+            flying: false,
+            sanity_counter: 0,
+            deadline_misses: 0,
+            trip: None,
+        }
+    }
+
+    pub fn trip(&self) -> Option<Trip> {
+        self.trip
+    }
+
+    pub fn deadline_misses(&self) -> u64 {
+        self.deadline_misses
+    }
+
+    fn decide(&mut self, reason: TripReason, event_us: i64, now_us: i64) -> Option<Trip> {
+        if self.trip.is_none() {
+            self.trip = Some(Trip {
+                reason,
+                event_us,
+                decided_us: now_us,
+            });
+            return self.trip;
+        }
+        None
+    }
+
+    /// A frame arrived.
+    pub fn on_frame(&mut self, arrival_us: i64) {
+        self.last_frame_us = Some(self.last_frame_us.map_or(arrival_us, |l| l.max(arrival_us)));
+        if self.flying && self.uncommanded_us.len() < UNCOMMANDED_CAP {
+            self.uncommanded_us.push_back(arrival_us);
+        }
+    }
+
+    /// The command for the frame that arrived at `frame_us` was written at `written_us`. It
+    /// answers that frame and any older one (the ESC writer keeps only the newest command).
+    pub fn on_command(&mut self, frame_us: i64, written_us: i64) -> Option<Trip> {
+        self.flying = true;
+        while self.uncommanded_us.front().is_some_and(|&f| f <= frame_us) {
+            self.uncommanded_us.pop_front();
+        }
+        if written_us - frame_us > self.params.deadline_us {
+            self.deadline_misses += 1;
+            return self.decide(TripReason::Deadline, frame_us, written_us);
+        }
+        None
+    }
+
+    /// `failures` consecutive failed ESC write cycles, the first at `first_failure_us`.
+    pub fn on_esc_failures(
+        &mut self,
+        failures: u32,
+        first_failure_us: i64,
+        now_us: i64,
+    ) -> Option<Trip> {
+        if failures >= self.params.max_missed_acks {
+            return self.decide(TripReason::EscAck, first_failure_us, now_us);
+        }
+        None
+    }
+
+    /// A Kalman step at `step_us` estimated roll `psi_rad` and pitch `phi_rad` with the IMU at
+    /// `temp_c` (spec 2.5).
+    pub fn on_estimate(
+        &mut self,
+        step_us: i64,
+        temp_c: f64,
+        psi_rad: f64,
+        phi_rad: f64,
+    ) -> Option<Trip> {
+        // NaN is insane too: only a reading known to be within its limit is sane.
+        let within = |v: f64, limit: f64| v.partial_cmp(&limit).is_some_and(|o| o.is_le());
+        let hot = !within(temp_c, self.params.temp_max_c);
+        let tilted = !(within(psi_rad.abs(), self.params.tilt_max_rad)
+            && within(phi_rad.abs(), self.params.tilt_max_rad));
+        if hot || tilted {
+            self.sanity_counter += 1;
+        } else {
+            self.sanity_counter = self.sanity_counter.saturating_sub(1);
+        }
+        if self.sanity_counter > self.params.sanity_max {
+            let reason = if hot {
+                TripReason::SanityTemp
+            } else {
+                TripReason::SanityTilt
+            };
+            return self.decide(reason, step_us, step_us);
+        }
+        None
+    }
+
+    /// Time passes: a frame left without command past the deadline, or no frame for the IMU
+    /// timeout while flying.
+    pub fn tick(&mut self, now_us: i64) -> Option<Trip> {
+        if !self.flying {
+            return None;
+        }
+        if let Some(last) = self.last_frame_us
+            && now_us - last > self.params.imu_timeout_us
+        {
+            return self.decide(TripReason::ImuTimeout, last, now_us);
+        }
+        // The oldest frame still without a command, past the deadline.
+        if let Some(&oldest) = self.uncommanded_us.front()
+            && now_us - oldest > self.params.deadline_us
+        {
+            self.deadline_misses += 1;
+            return self.decide(TripReason::Deadline, oldest, now_us);
+        }
+        None
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn wd() -> Watchdog {
+        Watchdog::new(WatchdogParams::DEFAULT)
+    }
+
+    #[test]
+    fn nothing_trips_before_flight_or_when_healthy() {
+        let mut w = wd();
+        w.on_frame(0);
+        assert_eq!(w.tick(1_000_000), None, "not flying: no timeout");
+        let mut t = 2_000_000;
+        for _ in 0..1000 {
+            w.on_frame(t);
+            assert_eq!(w.on_command(t, t + 300), None);
+            assert_eq!(w.on_estimate(t, 38.0, 0.1, -0.1), None);
+            for dt in [2_000, 4_000, 6_000, 8_000, 10_000] {
+                assert_eq!(w.tick(t + dt), None);
+            }
+            t += 10_000;
+        }
+        assert_eq!(w.deadline_misses(), 0);
+    }
+
+    #[test]
+    fn late_command_trips_deadline() {
+        let mut w = wd();
+        w.on_frame(100);
+        let trip = w.on_command(100, 10_101).unwrap();
+        assert_eq!(trip.reason, TripReason::Deadline);
+        assert_eq!((trip.event_us, trip.decided_us), (100, 10_101));
+        assert_eq!(w.deadline_misses(), 1);
+        // Decided once.
+        assert_eq!(w.on_command(200, 90_000), None);
+        assert_eq!(w.trip().unwrap().reason, TripReason::Deadline);
+    }
+
+    #[test]
+    fn missing_command_trips_deadline() {
+        let mut w = wd();
+        w.on_frame(0);
+        w.on_command(0, 500);
+        w.on_frame(10_000);
+        assert_eq!(w.tick(19_000), None);
+        let trip = w.tick(20_001).unwrap();
+        assert_eq!((trip.reason, trip.event_us), (TripReason::Deadline, 10_000));
+    }
+
+    #[test]
+    fn a_late_frame_is_caught_even_when_newer_frames_arrive() {
+        let mut w = wd();
+        w.on_frame(0);
+        w.on_command(0, 400);
+        w.on_frame(10_000); // its command is late
+        w.on_frame(20_000);
+        assert_eq!(w.tick(19_000), None);
+        let trip = w.tick(20_001).unwrap();
+        assert_eq!((trip.reason, trip.event_us), (TripReason::Deadline, 10_000));
+        // A command answers its frame and the older ones.
+        let mut w = wd();
+        w.on_command(0, 100);
+        w.on_frame(10_000);
+        w.on_frame(10_001);
+        assert_eq!(w.on_command(10_001, 10_400), None);
+        // Both frames are answered: no deadline trip, only the IMU timeout later.
+        assert_eq!(w.tick(21_000), None);
+        assert_eq!(w.tick(22_002).unwrap().reason, TripReason::ImuTimeout);
+    }
+
+    #[test]
+    fn silent_imu_trips_timeout() {
+        let mut w = wd();
+        w.on_frame(0);
+        w.on_command(0, 500);
+        assert_eq!(w.tick(12_000), None);
+        let trip = w.tick(12_001).unwrap();
+        assert_eq!((trip.reason, trip.event_us), (TripReason::ImuTimeout, 0));
+    }
+
+    #[test]
+    fn missed_acks_trip() {
+        let mut w = wd();
+        assert_eq!(w.on_esc_failures(2, 1_000, 3_000), None);
+        let trip = w.on_esc_failures(3, 1_000, 5_000).unwrap();
+        assert_eq!((trip.reason, trip.event_us), (TripReason::EscAck, 1_000));
+    }
+
+    #[test]
+    fn sanity_counter_as_the_original() {
+        let mut w = wd();
+        // 20 insane steps are tolerated, the 21st trips; a sane step takes one back.
+        for k in 0..20 {
+            assert_eq!(w.on_estimate(k, 60.0, 0.0, 0.0), None);
+        }
+        assert_eq!(w.on_estimate(20, 20.0, 0.0, 0.0), None);
+        assert_eq!(w.on_estimate(21, 60.0, 0.0, 0.0), None);
+        let trip = w.on_estimate(22, 60.0, 0.0, 0.0).unwrap();
+        assert_eq!((trip.reason, trip.event_us), (TripReason::SanityTemp, 22));
+        let mut w = wd();
+        for k in 0..20 {
+            assert_eq!(w.on_estimate(k, 30.0, 0.0, -1.2), None);
+        }
+        assert_eq!(
+            w.on_estimate(20, 30.0, 1.1, 0.0).unwrap().reason,
+            TripReason::SanityTilt
+        );
+        // NaN counts as insane.
+        let mut w = wd();
+        for k in 0..21 {
+            w.on_estimate(k, f64::NAN, 0.0, 0.0);
+        }
+        assert_eq!(w.trip().unwrap().reason, TripReason::SanityTemp);
+    }
+}

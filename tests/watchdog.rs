@@ -1,0 +1,168 @@
+//! The watchdog halts the motors — zero, then disable, on the mock bus — within the limit plus
+//! one ESC period, for each trip cause, with the reason in err.log and the report.
+
+mod common;
+use common::*;
+use std::time::Duration;
+use uquad::core::motor::{MotorMap, REG_DISABLE, REG_SPEED};
+
+/// Frames before the flight has surely started: 5 settling, about 240 during the ESC ramp,
+/// 64 calibrating, then some flight.
+const FLYING_AT_FRAME: usize = 400;
+
+/// One flight at a time: these tests measure milliseconds on a shared 2-core machine. The
+/// causes other than a silent IMU keep the common settings' 100 ms IMU timeout, so that
+/// scheduling jitter cannot pre-empt the cause under test; the silent-IMU test uses 12 ms.
+static ONE_AT_A_TIME: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
+
+/// Runs until the watchdog ends the run (at most `max`), then checks the halt: the reason, the
+/// latency bound, zero then disable as the last bus transactions, err.log and the report.
+async fn expect_halt(
+    extra: &[&str],
+    opts: uquad::app::fly::FlyOptions,
+    plan: FramePlan,
+    during: impl FnOnce(
+        uquad::hw::esc_bus::MockBus,
+    ) -> std::pin::Pin<Box<dyn std::future::Future<Output = ()> + Send>>,
+    reason: &str,
+    max_latency_ms: f64,
+) -> uquad::app::fly::FlySummary {
+    let _one = ONE_AT_A_TIME.lock().await;
+    let (summary, _, bus, _logs) = fly_with(extra, opts, Link::Pipe, plan, during).await;
+    let halt = summary
+        .halt
+        .unwrap_or_else(|| panic!("no halt: {}", summary.text()));
+    assert_eq!(halt.trip.reason.name(), reason, "{}", summary.text());
+    let latency = halt.latency_ms();
+    assert!(
+        (0.0..=max_latency_ms).contains(&latency),
+        "halt {latency} ms after the event (limit {max_latency_ms})"
+    );
+    // Zero to every ESC, then disable every ESC, and nothing after.
+    let tx = bus.transactions();
+    let addrs = MotorMap::UQUAD.addresses;
+    let tail: Vec<(u8, u8, u8)> = tx[tx.len() - 8..]
+        .iter()
+        .map(|t| (t.addr, t.reg, t.value))
+        .collect();
+    let mut expected: Vec<(u8, u8, u8)> = addrs.map(|a| (a, REG_SPEED, 0)).to_vec();
+    expected.extend(addrs.map(|a| (a, REG_DISABLE, 0)));
+    assert_eq!(tail, expected);
+    assert_eq!(summary.esc_stop_reason.as_deref(), Some(reason));
+    // err.log and the report say why.
+    let err = std::fs::read_to_string(summary.run_dir.join("err.log")).unwrap();
+    assert!(
+        err.contains(&format!("watchdog: halt, reason {reason}")),
+        "{err}"
+    );
+    let report_path = summary.run_dir.join("report.json");
+    summary.write_report(&report_path).unwrap();
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report_path).unwrap()).unwrap();
+    assert_eq!(report["halt"]["reason"], reason);
+    assert_eq!(report["watchdog_trips"], 1);
+    assert!(report["halt"]["latency_ms"].as_f64().unwrap() <= max_latency_ms);
+    assert!(std::path::Path::new(report["run_dir"].as_str().unwrap()).is_absolute());
+    summary
+}
+
+fn no_fault() -> FramePlan {
+    Box::new(|_, f| Some(f))
+}
+
+fn idle(
+    max: Duration,
+) -> impl FnOnce(
+    uquad::hw::esc_bus::MockBus,
+) -> std::pin::Pin<Box<dyn std::future::Future<Output = ()> + Send>> {
+    move |_| Box::pin(tokio::time::sleep(max))
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn silent_imu_trips_imu_timeout_within_14_ms() {
+    // The IMU falls silent mid-flight: 12 ms timeout + 2 ms.
+    let plan: FramePlan = Box::new(|k, f| (k < FLYING_AT_FRAME).then_some(f));
+    expect_halt(
+        &DEFAULT_TIMEOUTS,
+        Default::default(),
+        plan,
+        idle(Duration::from_secs(8)),
+        "imu-timeout",
+        14.0,
+    )
+    .await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn missed_acks_trip_esc_ack_within_12_ms() {
+    // Every I2C write fails from 4.5 s on: 3 failed cycles (6 ms) decide; 12 ms is the bound.
+    let during = |bus: uquad::hw::esc_bus::MockBus| -> std::pin::Pin<Box<dyn std::future::Future<Output = ()> + Send>> {
+        Box::pin(async move {
+            tokio::time::sleep(Duration::from_millis(4_500)).await;
+            bus.set_failing(true);
+            tokio::time::sleep(Duration::from_secs(3)).await;
+        })
+    };
+    let s = expect_halt(&[], Default::default(), no_fault(), during, "esc-ack", 12.0).await;
+    // The disable was attempted although the bus kept failing.
+    assert!(s.esc_failed_writes >= 8);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn slow_control_trips_deadline() {
+    // From control step 50 on each step takes 15 ms: the 10 ms deadline + 2 ms.
+    let opts = uquad::app::fly::FlyOptions {
+        control_delay: Some((50, Duration::from_millis(15))),
+        ..Default::default()
+    };
+    let s = expect_halt(
+        &[],
+        opts,
+        no_fault(),
+        idle(Duration::from_secs(8)),
+        "deadline",
+        12.0,
+    )
+    .await;
+    assert_eq!(s.deadline_misses, 1);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn hot_imu_trips_sanity_temp() {
+    // 60 °C from mid-flight: the 21st insane step trips; the halt follows within 2 ms.
+    let plan: FramePlan = Box::new(|k, mut f| {
+        if k >= FLYING_AT_FRAME {
+            f.temp_dc = 600;
+        }
+        Some(f)
+    });
+    expect_halt(
+        &[],
+        Default::default(),
+        plan,
+        idle(Duration::from_secs(8)),
+        "sanity-temp",
+        2.0,
+    )
+    .await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn rolling_over_trips_sanity_tilt() {
+    // A steady roll rate of about 3 rad/s from mid-flight: past 1 rad, 21 insane steps trip.
+    let plan: FramePlan = Box::new(|k, mut f| {
+        if k >= FLYING_AT_FRAME {
+            f.gyro[0] = f.gyro[0].saturating_add(2400);
+        }
+        Some(f)
+    });
+    expect_halt(
+        &[],
+        Default::default(),
+        plan,
+        idle(Duration::from_secs(9)),
+        "sanity-tilt",
+        2.0,
+    )
+    .await;
+}
