@@ -8,4 +8,5 @@ pub mod config;
 pub mod core;
 pub mod hw;
 pub mod logs;
+pub mod sim;
 pub mod tasks;

@@ -49,8 +49,9 @@ const GPS_OBS: [usize; GPS_ROWS] = [3, 4, 5, 12, 13, 14, 9, 10, 11, 0, 1, 2];
 /// Filter parameters (from the `ekf.*` configuration keys).
 #[derive(Debug, Clone, PartialEq)]
 pub struct EkfParams {
-    /// Keep the original's model quirks its logs depend on: the `cψ·cψ` term of the z row of
-    /// the process model (and its Jacobian). `false` uses the corrected `cφ·cψ`.
+    /// Keep the original's model quirks its logs depend on: `cψ·cψ` in the z row and `cφ·sθ`
+    /// in the x row of the process model (and their Jacobian terms). `false` uses the
+    /// rotation's `cφ·cψ` and `cψ·sθ`.
     pub original_model: bool,
     /// Process noise, diagonal (added unscaled each step).
     pub q_diag: [f64; N_STATES],
@@ -184,10 +185,12 @@ pub fn process(x: &State, u: &Input, t_s: f64, mass_kg: f64, original_model: boo
         c_phi * c_psi
     };
     let mut n = *x;
+    // The original wrote cφ·sθ in the x row where the rotation has cψ·sθ (spec 3.3).
+    let x_vqy_s_th = if original_model { c_phi } else { c_psi };
     n[idx::X] = x[idx::X]
         + t_s
             * (vqx * c_phi * c_th
-                + vqy * (c_th * s_phi * s_psi - c_phi * s_th)
+                + vqy * (c_th * s_phi * s_psi - x_vqy_s_th * s_th)
                 + vqz * (s_psi * s_th + c_psi * c_th * s_phi));
     n[idx::Y] = x[idx::Y]
         + t_s
@@ -235,16 +238,29 @@ pub fn jacobian(x: &State, u: &Input, t_s: f64, original_model: bool) -> StateMa
     let t = t_s;
     let w_sum = u[0] - u[1] + u[2] - u[3];
     let mut f = StateMatrix::identity();
-    f[(0, 3)] = t * (vqz * (c_psi * s_th - c_th * s_phi * s_psi) + vqy * c_psi * c_th * s_phi);
-    f[(0, 4)] = t
-        * (vqy * (s_phi * s_th + c_phi * c_th * s_psi) - vqx * c_th * s_phi
-            + vqz * c_phi * c_psi * c_th);
-    f[(0, 5)] = -t
-        * (vqy * (c_phi * c_th + s_phi * s_psi * s_th)
-            - vqz * (c_th * s_psi - c_psi * s_phi * s_th)
-            + vqx * c_phi * s_th);
+    if original_model {
+        f[(0, 3)] = t * (vqz * (c_psi * s_th - c_th * s_phi * s_psi) + vqy * c_psi * c_th * s_phi);
+        f[(0, 4)] = t
+            * (vqy * (s_phi * s_th + c_phi * c_th * s_psi) - vqx * c_th * s_phi
+                + vqz * c_phi * c_psi * c_th);
+        f[(0, 5)] = -t
+            * (vqy * (c_phi * c_th + s_phi * s_psi * s_th)
+                - vqz * (c_th * s_psi - c_psi * s_phi * s_th)
+                + vqx * c_phi * s_th);
+        f[(0, 7)] = -t * (c_phi * s_th - c_th * s_phi * s_psi);
+    } else {
+        f[(0, 3)] = t
+            * (vqz * (c_psi * s_th - c_th * s_phi * s_psi)
+                + vqy * (c_psi * c_th * s_phi + s_psi * s_th));
+        f[(0, 4)] =
+            t * (vqy * c_phi * c_th * s_psi - vqx * c_th * s_phi + vqz * c_phi * c_psi * c_th);
+        f[(0, 5)] = -t
+            * (vqy * (c_psi * c_th + s_phi * s_psi * s_th)
+                - vqz * (c_th * s_psi - c_psi * s_phi * s_th)
+                + vqx * c_phi * s_th);
+        f[(0, 7)] = -t * (c_psi * s_th - c_th * s_phi * s_psi);
+    }
     f[(0, 6)] = t * c_phi * c_th;
-    f[(0, 7)] = -t * (c_phi * s_th - c_th * s_phi * s_psi);
     f[(0, 8)] = t * (s_psi * s_th + c_psi * c_th * s_phi);
 
     f[(1, 3)] = -t
@@ -541,15 +557,19 @@ mod tests {
     }
 
     #[test]
-    fn original_and_corrected_models_differ_only_in_the_z_row() {
+    fn original_and_corrected_models_differ_only_in_the_x_and_z_rows() {
         let x = some_state();
         let u = [300.0; 4];
         let a = process(&x, &u, 0.01, 1.55, true);
         let b = process(&x, &u, 0.01, 1.55, false);
+        let (c_psi, c_phi, s_th) = (x[idx::PSI].cos(), x[idx::PHI].cos(), x[idx::THETA].sin());
         for i in 0..N_STATES {
             if i == idx::Z {
-                let c = x[idx::PSI].cos();
-                let expected = 0.01 * x[idx::VQZ] * (c * c - x[idx::PHI].cos() * c);
+                let expected = 0.01 * x[idx::VQZ] * (c_psi * c_psi - c_phi * c_psi);
+                assert!((a[i] - b[i] - expected).abs() < 1e-15);
+                assert!((a[i] - b[i]).abs() > 1e-6);
+            } else if i == idx::X {
+                let expected = -0.01 * x[idx::VQY] * (c_phi - c_psi) * s_th;
                 assert!((a[i] - b[i] - expected).abs() < 1e-15);
                 assert!((a[i] - b[i]).abs() > 1e-6);
             } else {

@@ -4,6 +4,7 @@
 
 pub mod control;
 pub mod ekf;
+pub mod esc;
 pub mod flight;
 pub mod gps;
 pub mod imu;

@@ -11,28 +11,14 @@
 //! disable is attempted even when writes keep failing). A failed write is a missed ack: counted,
 //! with the run of consecutive failures exposed for the watchdog.
 
-use crate::core::motor::{
-    EscAction, I2C_IDLE, MotorMap, REG_DISABLE, REG_ENABLE, esc_startup_ramp, i2c_from_rad_s,
-};
+pub use crate::core::esc::EscPhase;
+use crate::core::esc::{Cycle, CycleKind, EscDriver};
+use crate::core::motor::MotorMap;
 use crate::hw::esc_bus::EscBus;
 use crate::tasks::watchdog::{Event, Heartbeats};
 use std::sync::atomic::{AtomicU8, AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
-
-/// Where the ESCs are.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[repr(u8)]
-pub enum EscPhase {
-    /// Disabled, waiting for the start request.
-    Disabled = 0,
-    /// Running the start-up ramp.
-    Ramping = 1,
-    /// Ramp done; idling or following flight commands.
-    Running = 2,
-    /// Zero written and disabled (halt, stale or bad command, shutdown).
-    Stopped = 3,
-}
 
 /// A flight command: motor speeds and when the frame that produced it arrived.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -158,69 +144,70 @@ struct Writer {
 }
 
 impl Writer {
-    fn write(&mut self, addr: u8, reg: u8, value: u8) -> bool {
-        self.status.writes.fetch_add(1, Ordering::Relaxed);
-        match self.bus.write_byte_data(addr, reg, value) {
-            Ok(()) => {
-                self.status.consecutive_failures.store(0, Ordering::SeqCst);
-                true
-            }
-            Err(e) => {
-                self.status.failed_writes.fetch_add(1, Ordering::Relaxed);
-                let n = self
-                    .status
-                    .consecutive_failures
-                    .fetch_add(1, Ordering::SeqCst)
-                    + 1;
-                if n == 1 {
-                    tracing::warn!("{e}");
+    /// Executes the driver's cycles on the bus: counts failed writes and failed cycles (the
+    /// watchdog's missed acks), notes the stop time and the command latency.
+    fn execute(&mut self, cycles: &mut Vec<(CycleKind, Cycle)>, command_frame_at: Option<Instant>) {
+        for (kind, cycle) in cycles.drain(..) {
+            let mut ok = true;
+            for (addr, reg, value) in cycle {
+                self.status.writes.fetch_add(1, Ordering::Relaxed);
+                match self.bus.write_byte_data(addr, reg, value) {
+                    Ok(()) => {
+                        self.status.consecutive_failures.store(0, Ordering::SeqCst);
+                    }
+                    Err(e) => {
+                        ok = false;
+                        self.status.failed_writes.fetch_add(1, Ordering::Relaxed);
+                        let n = self
+                            .status
+                            .consecutive_failures
+                            .fetch_add(1, Ordering::SeqCst)
+                            + 1;
+                        if n == 1 {
+                            tracing::warn!("{e}");
+                        }
+                    }
                 }
-                false
+            }
+            let now = Instant::now();
+            if ok {
+                self.failed_cycles = 0;
+                self.first_failure = None;
+            } else {
+                self.failed_cycles += 1;
+                let first = *self.first_failure.get_or_insert(now);
+                self.beats.report(Event::EscFailures {
+                    cycles: self.failed_cycles,
+                    first_us: self.beats.us(first),
+                });
+            }
+            match kind {
+                CycleKind::Command => {
+                    if let Some(frame_at) = command_frame_at {
+                        self.beats.report(Event::Command {
+                            frame_us: self.beats.us(frame_at),
+                            written_us: self.beats.us(now),
+                        });
+                        self.status.commands.fetch_add(1, Ordering::Relaxed);
+                        let latency = now
+                            .duration_since(frame_at)
+                            .as_micros()
+                            .min(u128::from(u32::MAX)) as u32;
+                        if let Ok(mut l) = self.status.latencies_us.lock()
+                            && l.len() < MAX_LATENCY_SAMPLES
+                        {
+                            l.push(latency);
+                        }
+                    }
+                }
+                CycleKind::StopDisable => {
+                    if let Ok(mut at) = self.status.stopped_at.lock() {
+                        at.get_or_insert(now);
+                    }
+                }
+                CycleKind::Enable | CycleKind::Ramp | CycleKind::Speeds | CycleKind::StopZero => {}
             }
         }
-    }
-
-    fn all(&mut self, reg: u8, value: u8) {
-        for addr in self.params.map.addresses {
-            self.write(addr, reg, value);
-        }
-    }
-
-    /// One write cycle: the four speed registers. A cycle with any failed write is a missed
-    /// acknowledgement for the watchdog.
-    fn speeds(&mut self, values: &[u8; 4]) {
-        let mut ok = true;
-        for (addr, reg, v) in self.params.map.speed_writes(values) {
-            ok &= self.write(addr, reg, v);
-        }
-        if ok {
-            self.failed_cycles = 0;
-            self.first_failure = None;
-        } else {
-            let now = Instant::now();
-            self.failed_cycles += 1;
-            let first = *self.first_failure.get_or_insert(now);
-            self.beats.report(Event::EscFailures {
-                cycles: self.failed_cycles,
-                first_us: self.beats.us(first),
-            });
-        }
-    }
-
-    /// Zero every ESC, then disable every ESC — each attempted whatever the bus answers.
-    fn stop(&mut self, reason: &str) {
-        self.speeds(&[0; 4]);
-        self.all(REG_DISABLE, 0);
-        if let Ok(mut at) = self.status.stopped_at.lock() {
-            at.get_or_insert(Instant::now());
-        }
-        self.status.set_phase(EscPhase::Stopped);
-        if let Ok(mut r) = self.status.stop_reason.lock()
-            && r.is_none()
-        {
-            *r = Some(reason.to_string());
-        }
-        tracing::info!(reason, "ESCs zeroed and disabled");
     }
 }
 
@@ -295,94 +282,72 @@ fn wait(mailbox: &EscMailbox, deadline: Option<Instant>, accept_start: bool) -> 
 }
 
 fn run(mut w: Writer, mailbox: &EscMailbox) {
+    let mut driver = EscDriver::new(
+        w.params.map,
+        w.params.resend.as_micros() as i64,
+        w.params.command_timeout.as_micros() as i64,
+    );
+    let mut cycles = Vec::with_capacity(8);
     w.status.set_phase(EscPhase::Disabled);
-    // Disabled until started. Nothing is written: the ESCs boot disabled.
-    match wait(mailbox, None, true) {
-        Wake::Start => {}
-        Wake::Shutdown => return,
-        Wake::Halt(reason) => {
-            w.stop(&reason);
-            return park_until_shutdown(mailbox);
-        }
-        Wake::Command(_) | Wake::Tick => {}
-    }
-    // Start-up ramp on its own schedule; a halt or shutdown interrupts it.
-    w.status.set_phase(EscPhase::Ramping);
-    let t0 = Instant::now();
-    for (at_us, action) in esc_startup_ramp() {
-        match wait(mailbox, Some(t0 + Duration::from_micros(at_us)), false) {
-            Wake::Shutdown => return w.stop("shutdown"),
-            Wake::Halt(reason) => {
-                w.stop(&reason);
-                return park_until_shutdown(mailbox);
-            }
-            _ => {}
-        }
-        match action {
-            EscAction::EnableAll => w.all(REG_ENABLE, 0),
-            EscAction::SpeedAll(v) => {
-                for addr in w.params.map.addresses {
-                    w.write(addr, crate::core::motor::REG_SPEED, v);
-                }
-            }
-        }
-    }
-    w.status.set_phase(EscPhase::Running);
-    tracing::info!("ESC start-up ramp done; idling");
-    let mut values = [I2C_IDLE; 4];
-    let mut last_command: Option<MotorCommand> = None;
-    let mut next_resend = Instant::now();
-    let mut due = true;
     loop {
-        if due {
-            w.speeds(&values);
-            next_resend += w.params.resend;
-            let now = Instant::now();
-            if next_resend < now {
-                next_resend = now + w.params.resend;
+        let deadline = driver
+            .next_wake_us()
+            .map(|us| w.beats.start() + Duration::from_micros(us.max(0) as u64));
+        let wake = wait(mailbox, deadline, driver.phase() == EscPhase::Disabled);
+        let now_us = w.beats.us(Instant::now());
+        let mut frame_at = None;
+        match wake {
+            Wake::Shutdown => {
+                driver.stop("shutdown", &mut cycles);
+                w.execute(&mut cycles, None);
+                w.finish(&driver);
+                return;
             }
-        }
-        due = true;
-        let woke = wait(mailbox, Some(next_resend), false);
-        match woke {
-            Wake::Shutdown => return w.stop("shutdown"),
-            Wake::Halt(reason) => {
-                w.stop(&reason);
-                return park_until_shutdown(mailbox);
-            }
+            Wake::Halt(reason) => driver.stop(&reason, &mut cycles),
+            Wake::Start => driver.start(now_us),
             Wake::Command(c) => {
                 if c.w_rad_s.iter().any(|v| !v.is_finite()) {
                     w.status.refused_commands.fetch_add(1, Ordering::Relaxed);
-                    w.stop("non-finite motor command");
-                    return park_until_shutdown(mailbox);
                 }
-                values = c.w_rad_s.map(i2c_from_rad_s);
-                last_command = Some(c);
-                w.speeds(&values);
-                let written = Instant::now();
-                w.beats.report(Event::Command {
-                    frame_us: w.beats.us(c.frame_at),
-                    written_us: w.beats.us(written),
-                });
-                w.status.commands.fetch_add(1, Ordering::Relaxed);
-                let latency = c.frame_at.elapsed().as_micros().min(u128::from(u32::MAX)) as u32;
-                if let Ok(mut l) = w.status.latencies_us.lock()
-                    && l.len() < MAX_LATENCY_SAMPLES
-                {
-                    l.push(latency);
-                }
-                next_resend = Instant::now() + w.params.resend;
-                due = false;
+                frame_at = Some(c.frame_at);
+                driver.command(&c.w_rad_s, w.beats.us(c.frame_at), now_us, &mut cycles);
             }
-            Wake::Start | Wake::Tick => {}
+            Wake::Tick => {}
         }
-        if let Some(c) = last_command
-            && c.frame_at.elapsed() > w.params.command_timeout
-        {
+        let was_running = driver.phase() == EscPhase::Running;
+        driver.poll(now_us, &mut cycles);
+        if was_running && driver.stop_reason() == Some("stale motor command") {
             w.status.refused_commands.fetch_add(1, Ordering::Relaxed);
-            w.stop("stale motor command");
+        }
+        w.execute(&mut cycles, frame_at);
+        w.finish(&driver);
+        if driver.phase() == EscPhase::Stopped {
             return park_until_shutdown(mailbox);
         }
+    }
+}
+
+impl Writer {
+    /// Publishes the driver's phase (and why it stopped).
+    fn finish(&mut self, driver: &EscDriver) {
+        let phase = driver.phase();
+        if phase != self.status.phase() {
+            match phase {
+                EscPhase::Running => tracing::info!("ESC start-up ramp done; idling"),
+                EscPhase::Stopped => tracing::info!(
+                    reason = driver.stop_reason().unwrap_or(""),
+                    "ESCs zeroed and disabled"
+                ),
+                EscPhase::Disabled | EscPhase::Ramping => {}
+            }
+        }
+        if let Some(r) = driver.stop_reason()
+            && let Ok(mut g) = self.status.stop_reason.lock()
+            && g.is_none()
+        {
+            *g = Some(r.to_string());
+        }
+        self.status.set_phase(phase);
     }
 }
 

@@ -147,6 +147,14 @@ impl Calibration {
     }
 }
 
+impl Calibration {
+    /// Inverse of the magnetometer conversion: the counts that read as field `m`.
+    pub fn magn_counts_for(&self, m: &V3) -> V3 {
+        let c = solve3(&self.magn.tk_inv, m);
+        std::array::from_fn(|i| c[i] + self.magn.offset_counts[i])
+    }
+}
+
 /// Solves `m · x = v` by Cramer's rule (3×3, well conditioned calibration matrices).
 fn solve3(m: &M3, v: &V3) -> V3 {
     let det = |a: &M3| {

@@ -1,0 +1,234 @@
+//! Rigid-body physics of the uQuad (spec 3.2, 3.3 and 4.1): the same equations the filter
+//! models — body-frame velocities and rates, thrust and drag-torque polynomials, rotor inertia —
+//! with the corrected z kinematics, plus what the filter does not model: first-order motor lag,
+//! linear air drag with optional wind, and the ground. Integrated with fixed steps (1 kHz or
+//! more). Units: m, rad, m/s, rad/s, N, s.
+
+use crate::core::ekf::{State, idx, process};
+use crate::core::model::{GRAVITY_M_S2, thrust_n};
+
+/// Physical parameters beyond the model constants.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PlantParams {
+    pub mass_kg: f64,
+    /// Motor time constant, s.
+    pub motor_tau_s: f64,
+    /// Linear air drag, N per m/s of airspeed.
+    pub drag_n_per_m_s: f64,
+    /// Steady wind (inertial x north, y west, z up), m/s.
+    pub wind_m_s: [f64; 3],
+}
+
+/// The true state of the vehicle.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Plant {
+    pub params: PlantParams,
+    /// x, y, z, ψ, φ, θ, body velocities, body rates (the filter's first 12 states; the last
+    /// three, accelerometer bias, stay 0 here).
+    pub x: State,
+    /// Motor speeds, rad/s.
+    pub w_rad_s: [f64; 4],
+    /// Commanded motor speeds, rad/s.
+    pub w_cmd_rad_s: [f64; 4],
+    /// Simulated time, µs.
+    pub t_us: i64,
+    /// Specific force in the body frame of the last step (what an accelerometer reads), m/s².
+    pub specific_force_m_s2: [f64; 3],
+    pub on_ground: bool,
+}
+
+/// Body-to-inertial rotation (ZYX: yaw θ, pitch φ, roll ψ), as the filter's kinematics use.
+pub fn rotation(psi: f64, phi: f64, theta: f64) -> [[f64; 3]; 3] {
+    let (sps, cps) = psi.sin_cos();
+    let (sph, cph) = phi.sin_cos();
+    let (sth, cth) = theta.sin_cos();
+    [
+        [
+            cph * cth,
+            cth * sph * sps - cps * sth,
+            sps * sth + cps * cth * sph,
+        ],
+        [
+            cph * sth,
+            sth * sph * sps + cps * cth,
+            cps * sth * sph - cth * sps,
+        ],
+        [-sph, cph * sps, cph * cps],
+    ]
+}
+
+fn mul(r: &[[f64; 3]; 3], v: &[f64; 3]) -> [f64; 3] {
+    std::array::from_fn(|i| r[i][0] * v[0] + r[i][1] * v[1] + r[i][2] * v[2])
+}
+
+fn mul_t(r: &[[f64; 3]; 3], v: &[f64; 3]) -> [f64; 3] {
+    std::array::from_fn(|i| r[0][i] * v[0] + r[1][i] * v[1] + r[2][i] * v[2])
+}
+
+impl Plant {
+    /// At rest on the ground, level, facing `yaw_rad`.
+    pub fn new(params: PlantParams, yaw_rad: f64) -> Self {
+        let mut x = State::zeros();
+        x[idx::THETA] = yaw_rad;
+        Plant {
+            params,
+            x,
+            w_rad_s: [0.0; 4],
+            w_cmd_rad_s: [0.0; 4],
+            t_us: 0,
+            specific_force_m_s2: [0.0, 0.0, GRAVITY_M_S2],
+            on_ground: true,
+        }
+    }
+
+    /// Advances by `dt_us`.
+    pub fn step(&mut self, dt_us: i64) {
+        let dt = dt_us as f64 * 1e-6;
+        let p = self.params;
+        // Motors: first-order lag toward the command.
+        let a = (dt / p.motor_tau_s).min(1.0);
+        for (w, c) in self.w_rad_s.iter_mut().zip(self.w_cmd_rad_s) {
+            *w += a * (c - *w);
+        }
+        let r = rotation(self.x[idx::PSI], self.x[idx::PHI], self.x[idx::THETA]);
+        let v_body = [self.x[idx::VQX], self.x[idx::VQY], self.x[idx::VQZ]];
+        let v_in = mul(&r, &v_body);
+        // Air drag on the airspeed, as a body-frame acceleration.
+        let air: [f64; 3] = std::array::from_fn(|i| p.wind_m_s[i] - v_in[i]);
+        let drag_in: [f64; 3] = std::array::from_fn(|i| p.drag_n_per_m_s * air[i] / p.mass_kg);
+        let drag_body = mul_t(&r, &drag_in);
+        let thrust: f64 = self.w_rad_s.iter().map(|&w| thrust_n(w.max(0.0))).sum();
+        // The filter's model is the rigid body; its bias slots carry the drag here.
+        let mut ext = self.x;
+        ext[idx::BAX] = drag_body[0];
+        ext[idx::BAY] = drag_body[1];
+        ext[idx::BAZ] = drag_body[2];
+        let mut next = process(&ext, &self.w_rad_s, dt, p.mass_kg, false);
+        next[idx::BAX] = 0.0;
+        next[idx::BAY] = 0.0;
+        next[idx::BAZ] = 0.0;
+        // The ground: it holds the vehicle up and level until the thrust lifts it, and stops it
+        // when it comes down.
+        let lift = thrust / p.mass_kg > GRAVITY_M_S2;
+        let pinned = (self.on_ground && !lift) || (!self.on_ground && next[idx::Z] < 0.0);
+        if pinned {
+            for i in [
+                idx::Z,
+                idx::PSI,
+                idx::PHI,
+                idx::VQX,
+                idx::VQY,
+                idx::VQZ,
+                idx::WQX,
+                idx::WQY,
+                idx::WQZ,
+            ] {
+                next[i] = 0.0;
+            }
+            next[idx::X] = self.x[idx::X];
+            next[idx::Y] = self.x[idx::Y];
+            next[idx::THETA] = self.x[idx::THETA];
+            self.on_ground = true;
+        } else {
+            self.on_ground = false;
+        }
+        // Specific force: thrust and drag; on the ground the ground's push instead.
+        self.specific_force_m_s2 = if self.on_ground {
+            mul_t(&r, &[0.0, 0.0, GRAVITY_M_S2])
+        } else {
+            [
+                drag_body[0],
+                drag_body[1],
+                thrust / p.mass_kg + drag_body[2],
+            ]
+        };
+        self.x = next;
+        self.t_us += dt_us;
+    }
+
+    /// Position (x north, y west, z up), m.
+    pub fn position_m(&self) -> [f64; 3] {
+        [self.x[idx::X], self.x[idx::Y], self.x[idx::Z]]
+    }
+
+    /// Body rates, rad/s.
+    pub fn rates_rad_s(&self) -> [f64; 3] {
+        [self.x[idx::WQX], self.x[idx::WQY], self.x[idx::WQZ]]
+    }
+
+    /// Roll, pitch, yaw, rad.
+    pub fn euler_rad(&self) -> [f64; 3] {
+        [self.x[idx::PSI], self.x[idx::PHI], self.x[idx::THETA]]
+    }
+
+    /// A vector given in the inertial frame, seen in the body frame.
+    pub fn to_body(&self, v: &[f64; 3]) -> [f64; 3] {
+        let e = self.euler_rad();
+        mul_t(&rotation(e[0], e[1], e[2]), v)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::core::model::w_hover_rad_s;
+
+    fn params() -> PlantParams {
+        PlantParams {
+            mass_kg: 1.55,
+            motor_tau_s: 0.03,
+            drag_n_per_m_s: 0.1,
+            wind_m_s: [0.0; 3],
+        }
+    }
+
+    #[test]
+    fn rests_on_the_ground_reading_gravity() {
+        let mut p = Plant::new(params(), 0.3);
+        for _ in 0..1000 {
+            p.step(1000);
+        }
+        assert!(p.on_ground);
+        assert_eq!(p.position_m(), [0.0; 3]);
+        assert!((p.specific_force_m_s2[2] - GRAVITY_M_S2).abs() < 1e-12);
+    }
+
+    #[test]
+    fn hover_thrust_holds_and_more_climbs() {
+        let mut p = Plant::new(params(), 0.0);
+        let w = w_hover_rad_s(1.55);
+        p.w_cmd_rad_s = [w * 1.05; 4];
+        for _ in 0..1000 {
+            p.step(1000);
+        }
+        assert!(!p.on_ground);
+        let z1 = p.position_m()[2];
+        assert!(z1 > 0.1, "{z1}");
+        // Level: no torque with equal motors.
+        assert!(p.euler_rad()[0].abs() < 1e-9 && p.euler_rad()[1].abs() < 1e-9);
+        // The accelerometer reads the thrust.
+        assert!(
+            (p.specific_force_m_s2[2] - GRAVITY_M_S2 * 1.1025).abs() < 0.05,
+            "{:?}",
+            p.specific_force_m_s2
+        );
+    }
+
+    #[test]
+    fn rotation_matches_the_filter_kinematics() {
+        let r = rotation(0.1, -0.2, 0.3);
+        // Orthonormal.
+        for i in 0..3 {
+            for j in 0..3 {
+                let d: f64 = (0..3).map(|k| r[k][i] * r[k][j]).sum();
+                assert!((d - if i == j { 1.0 } else { 0.0 }).abs() < 1e-12);
+            }
+        }
+        // Gravity in the body frame as the filter's velocity equations have it.
+        let g = mul_t(&r, &[0.0, 0.0, -GRAVITY_M_S2]);
+        let (psi, phi) = (0.1f64, -0.2f64);
+        assert!((g[0] - GRAVITY_M_S2 * phi.sin()).abs() < 1e-12);
+        assert!((g[1] + GRAVITY_M_S2 * phi.cos() * psi.sin()).abs() < 1e-12);
+        assert!((g[2] + GRAVITY_M_S2 * phi.cos() * psi.cos()).abs() < 1e-12);
+    }
+}
