@@ -284,19 +284,6 @@ pub fn write_run_config(profile: &Profile, run_dir: &Path) -> anyhow::Result<()>
         .with_context(|| format!("cannot write {}", run_dir.join("config.toml").display()))
 }
 
-/// Asks for real-time scheduling of the calling thread.
-fn raise_priority() {
-    // SAFETY: plain libc calls with valid arguments; they only change scheduling attributes.
-    let param = libc::sched_param { sched_priority: 50 };
-    let rc = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
-    if rc != 0 {
-        tracing::warn!(
-            "SCHED_FIFO not permitted ({}); the control path runs at normal priority",
-            std::io::Error::last_os_error()
-        );
-    }
-}
-
 fn lock_memory() {
     // SAFETY: mlockall takes flags only.
     let rc = unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) };
@@ -350,6 +337,7 @@ pub async fn run(
         mailbox.clone(),
         esc_status.clone(),
         beats.clone(),
+        opts.realtime,
     )
     .context("cannot start the ESC writer thread")?;
 
@@ -359,8 +347,7 @@ pub async fn run(
         cfg.watchdog.params(),
         beats.clone(),
         wd_status.clone(),
-        mailbox.clone(),
-        esc_status.clone(),
+        (mailbox.clone(), esc_status.clone()),
         {
             let logs = logs.clone();
             move |h| {
@@ -376,6 +363,7 @@ pub async fn run(
             }
         },
         cancel.clone(),
+        opts.realtime,
     )
     .context("cannot start the watchdog thread")?;
 
@@ -423,7 +411,7 @@ pub async fn run(
                     // Whatever ends this thread (an error, a panic) ends the run.
                     let _end_run = cancel.clone().drop_guard();
                     if realtime {
-                        raise_priority();
+                        crate::tasks::raise_priority("control", 50);
                     }
                     let rt = tokio::runtime::Builder::new_current_thread()
                         .enable_all()

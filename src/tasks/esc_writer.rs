@@ -218,10 +218,14 @@ pub fn spawn(
     mailbox: Arc<EscMailbox>,
     status: Arc<EscStatus>,
     beats: Arc<Heartbeats>,
+    realtime: bool,
 ) -> std::io::Result<std::thread::JoinHandle<()>> {
     std::thread::Builder::new()
         .name("esc_writer".into())
         .spawn(move || {
+            if realtime {
+                crate::tasks::raise_priority("esc_writer", 60);
+            }
             run(
                 Writer {
                     bus,

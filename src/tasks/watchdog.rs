@@ -113,20 +113,26 @@ pub fn spawn(
     params: WatchdogParams,
     beats: Arc<Heartbeats>,
     status: Arc<WatchdogStatus>,
-    mailbox: Arc<EscMailbox>,
-    esc: Arc<EscStatus>,
+    (mailbox, esc): (Arc<EscMailbox>, Arc<EscStatus>),
     on_halt: impl FnOnce(Halt) + Send + 'static,
     cancel: CancellationToken,
+    realtime: bool,
 ) -> std::io::Result<std::thread::JoinHandle<()>> {
     std::thread::Builder::new()
         .name("watchdog".into())
         .spawn(move || {
+            if realtime {
+                crate::tasks::raise_priority("watchdog", 70);
+            }
             let mut wd = Watchdog::new(params);
             loop {
                 if status.stop.load(Ordering::SeqCst) || cancel.is_cancelled() {
                     return;
                 }
                 std::thread::sleep(TICK);
+                // The time first, then the events: every frame that arrived before `now` is in
+                // this batch, so a preemption here cannot look like a silent IMU.
+                let now_us = beats.us(Instant::now());
                 let mut trip = None;
                 for e in beats.take() {
                     let t = match e {
@@ -145,12 +151,12 @@ pub fn spawn(
                             phi_rad,
                         } => wd.on_estimate(step_us, temp_c, psi_rad, phi_rad),
                         Event::EscFailures { cycles, first_us } => {
-                            wd.on_esc_failures(cycles, first_us, beats.us(Instant::now()))
+                            wd.on_esc_failures(cycles, first_us, now_us.max(first_us))
                         }
                     };
                     trip = trip.or(t);
                 }
-                let trip = trip.or_else(|| wd.tick(beats.us(Instant::now())));
+                let trip = trip.or_else(|| wd.tick(now_us));
                 status
                     .deadline_misses
                     .store(wd.deadline_misses(), Ordering::Relaxed);
