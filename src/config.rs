@@ -27,6 +27,7 @@ pub struct Config {
     pub esc: Esc,
     pub watchdog: WatchdogConfig,
     pub gps: Gps,
+    pub sim: Sim,
     pub log: Log,
 }
 
@@ -46,6 +47,57 @@ pub struct Esc {
     /// by zero + disable, ms. A backup to the watchdog, which names the reason: it must leave
     /// the watchdog time to act (above its IMU timeout and its deadline + one IMU period).
     pub command_timeout_ms: u32,
+}
+
+/// The simulator (`uquad sim`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Sim {
+    /// Simulated seconds flown by `uquad sim` without --duration (start-up included).
+    pub duration_s: f64,
+    /// The hover window of the report starts this long after the flight ramp ends, s.
+    pub settle_s: f64,
+    /// Physics steps per second (1000 or more).
+    pub physics_hz: u32,
+    /// Motor time constant, s.
+    pub motor_tau_s: f64,
+    /// Linear air drag, N per m/s.
+    pub drag_n_per_m_s: f64,
+    /// Steady wind (north, west, up), m/s.
+    pub wind_m_s: [f64; 3],
+    /// Sensor noise (standard deviations) and gyro bias.
+    pub acc_noise_m_s2: f64,
+    pub gyro_noise_rad_s: f64,
+    pub gyro_bias_rad_s: [f64; 3],
+    pub baro_noise_pa: f64,
+    pub mag_noise: f64,
+    /// IMU temperature, °C.
+    pub temp_c: f64,
+    /// Heading at start, rad.
+    pub initial_yaw_rad: f64,
+    /// Seed of every random draw of the simulation.
+    pub seed: u64,
+}
+
+impl Default for Sim {
+    fn default() -> Self {
+        Sim {
+            duration_s: 40.0,
+            settle_s: 20.0,
+            physics_hz: 1000,
+            motor_tau_s: 0.03,
+            drag_n_per_m_s: 0.1,
+            wind_m_s: [0.0; 3],
+            acc_noise_m_s2: 0.05,
+            gyro_noise_rad_s: 0.003,
+            gyro_bias_rad_s: [0.01, -0.005, 0.002],
+            baro_noise_pa: 1.0,
+            mag_noise: 0.005,
+            temp_c: 30.0,
+            initial_yaw_rad: 0.3,
+            seed: 1,
+        }
+    }
 }
 
 /// The watchdog (its policy: `core::watchdog`).
@@ -812,6 +864,92 @@ pub fn load(path: &Path, sets: &[(String, toml::Value)]) -> Result<Profile, Conf
             .is_some_and(|(h, p)| !h.is_empty() && p.parse::<u16>().is_ok()),
         format!("{:?}", c.gps.server),
         "HOST:PORT, e.g. 127.0.0.1:2947",
+    );
+    let sim = &c.sim;
+    let nonneg = |v: f64, hi: f64| v.is_finite() && (0.0..=hi).contains(&v);
+    range(
+        "sim.duration_s",
+        sim.duration_s.is_finite() && sim.duration_s > 0.0 && sim.duration_s <= 86_400.0,
+        sim.duration_s.to_string(),
+        "more than 0, at most 86400 s",
+    );
+    range(
+        "sim.settle_s",
+        nonneg(sim.settle_s, 3600.0),
+        sim.settle_s.to_string(),
+        "0 to 3600 s",
+    );
+    range(
+        "sim.physics_hz",
+        (1000..=100_000).contains(&sim.physics_hz)
+            && 1_000_000 % sim.physics_hz == 0
+            && (sim.physics_hz / 100) % 2 == 0,
+        sim.physics_hz.to_string(),
+        "1000 to 100000, dividing 1 s into whole µs and each 5 ms into whole steps",
+    );
+    range(
+        "sim.motor_tau_s",
+        sim.motor_tau_s.is_finite() && sim.motor_tau_s > 0.0 && sim.motor_tau_s <= 1.0,
+        sim.motor_tau_s.to_string(),
+        "more than 0, at most 1 s",
+    );
+    range(
+        "sim.drag_n_per_m_s",
+        nonneg(sim.drag_n_per_m_s, 10.0),
+        sim.drag_n_per_m_s.to_string(),
+        "0 to 10 N per m/s",
+    );
+    range(
+        "sim.wind_m_s",
+        sim.wind_m_s
+            .iter()
+            .all(|w| w.is_finite() && w.abs() <= 30.0),
+        format!("{:?}", sim.wind_m_s),
+        "each within ±30 m/s",
+    );
+    range(
+        "sim.acc_noise_m_s2",
+        nonneg(sim.acc_noise_m_s2, 10.0),
+        sim.acc_noise_m_s2.to_string(),
+        "0 to 10 m/s²",
+    );
+    range(
+        "sim.gyro_noise_rad_s",
+        nonneg(sim.gyro_noise_rad_s, 1.0),
+        sim.gyro_noise_rad_s.to_string(),
+        "0 to 1 rad/s",
+    );
+    range(
+        "sim.gyro_bias_rad_s",
+        sim.gyro_bias_rad_s
+            .iter()
+            .all(|b| b.is_finite() && b.abs() <= 1.0),
+        format!("{:?}", sim.gyro_bias_rad_s),
+        "each within ±1 rad/s",
+    );
+    range(
+        "sim.baro_noise_pa",
+        nonneg(sim.baro_noise_pa, 1000.0),
+        sim.baro_noise_pa.to_string(),
+        "0 to 1000 Pa",
+    );
+    range(
+        "sim.mag_noise",
+        nonneg(sim.mag_noise, 1.0),
+        sim.mag_noise.to_string(),
+        "0 to 1",
+    );
+    range(
+        "sim.temp_c",
+        sim.temp_c.is_finite() && (-20.0..=50.0).contains(&sim.temp_c),
+        sim.temp_c.to_string(),
+        "-20 to 50 °C",
+    );
+    range(
+        "sim.initial_yaw_rad",
+        sim.initial_yaw_rad.is_finite() && sim.initial_yaw_rad.abs() <= 3.2,
+        sim.initial_yaw_rad.to_string(),
+        "within ±3.2 rad",
     );
     let span = c.gps.fake_span_m;
     range(

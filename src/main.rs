@@ -62,6 +62,45 @@ altitude, i/k mass, 0 reset mass, ESC quit).")]
         #[arg(long, value_name = "FILE")]
         report: Option<PathBuf>,
     },
+    /// Simulate: fly the real code against a physics model of the uQuad (the main job).
+    #[command(
+        long_about = "Simulate: fly the real code against a physics model of the uQuad.\n\n\
+The simulated IMU sends real 30-byte frames (raw counts from the true state through the \
+inverted calibration, with noise), the simulated ESCs take the real I2C register writes, and \
+the flight goes through settle, ESC start-up ramp, IMU calibration, flight ramp and hover, as \
+`fly` does. The run folder logs/<run-id>/ is written as `fly` writes it, so \
+`uquad replay <run folder> --out DIR` reruns it to identical bytes.\n\n\
+--fast (the default) runs the flight's state machines in lock-step with the physics on a \
+simulated clock: 40 simulated seconds take well under a second. --realtime runs fly's own \
+tasks and threads against the simulated edges, paced by the wall clock.\n\n\
+With no arguments: config/uquad.toml, sim.duration_s (40 s), a summary at the end."
+    )]
+    Sim {
+        /// Configuration profile (default: config/uquad.toml under the working directory).
+        #[arg(long, value_name = "FILE")]
+        config: Option<PathBuf>,
+        #[command(flatten)]
+        sets: SetArgs,
+        /// Simulated seconds, start-up included (default: sim.duration_s).
+        #[arg(long, value_name = "S")]
+        duration: Option<f64>,
+        /// Pace the simulation to the wall clock, running fly's tasks and threads.
+        #[arg(long, conflicts_with = "fast")]
+        realtime: bool,
+        /// Run on a simulated clock, as fast as the machine can (the default).
+        #[arg(long)]
+        fast: bool,
+        /// Seed of every random draw (default: sim.seed).
+        #[arg(long, value_name = "N")]
+        seed: Option<u64>,
+        /// Write the flight report (JSON) to FILE: the fly report plus alt_rms_m,
+        /// roll_rms_rad and pitch_rms_rad over the hover window.
+        #[arg(long, value_name = "FILE")]
+        report: Option<PathBuf>,
+        /// Folder under which the run folder is created (default: log.dir of the profile).
+        #[arg(long, value_name = "DIR")]
+        log_dir: Option<PathBuf>,
+    },
     /// Print the fixes gpsd gives, one JSON object per line: a check to run before flying.
     #[command(
         long_about = "Print the fixes gpsd gives, one JSON object per line on stdout: mode (2 or 3), \
@@ -215,6 +254,46 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             } else {
                 ExitCode::SUCCESS
             })
+        }
+        Command::Sim {
+            config,
+            sets,
+            duration,
+            realtime,
+            fast: _,
+            seed,
+            report,
+            log_dir,
+        } => {
+            let path = config::resolve_path(config.as_deref()).map_err(anyhow::Error::msg)?;
+            let profile = load_profile(&path, &sets)?;
+            let opts = uquad::sim::run::SimOptions {
+                duration_s: duration,
+                seed,
+                log_dir,
+                progress: true,
+            };
+            let summary = if realtime {
+                let rt = tokio::runtime::Runtime::new().context("cannot start the runtime")?;
+                let s = rt.block_on(uquad::sim::realtime::run(&profile, &opts));
+                rt.shutdown_timeout(std::time::Duration::from_millis(200));
+                s?
+            } else {
+                uquad::sim::run::run_fast(&profile, &opts)?
+            };
+            eprintln!("{}", summary.text());
+            if let Some(path) = report {
+                let text = serde_json::to_string_pretty(&summary.report())?;
+                std::fs::write(&path, text + "\n")
+                    .with_context(|| format!("cannot write the report {}", path.display()))?;
+            }
+            Ok(
+                if summary.fly.error.is_some() || summary.fly.halt.is_some() {
+                    ExitCode::FAILURE
+                } else {
+                    ExitCode::SUCCESS
+                },
+            )
         }
         Command::Gps { gpsd, count } => {
             let rt = tokio::runtime::Runtime::new().context("cannot start the runtime")?;

@@ -95,6 +95,35 @@ pub struct FlySummary {
 }
 
 impl FlySummary {
+    /// A summary with nothing counted yet.
+    pub fn empty(run_dir: PathBuf) -> Self {
+        FlySummary {
+            run_dir,
+            frames: 0,
+            steps: 0,
+            discarded_bytes: 0,
+            rejected_frames: 0,
+            dropped_frames: 0,
+            late_feedback: 0,
+            ekf_errors: 0,
+            gps_updates: 0,
+            gpsd_connects: 0,
+            gpsd_disconnects: 0,
+            gpsd_fixes: 0,
+            saturated_commands: 0,
+            esc_writes: 0,
+            esc_failed_writes: 0,
+            esc_commands: 0,
+            esc_stop_reason: None,
+            log_drops: [0; 7],
+            log_records: [0; 7],
+            latencies_us: Vec::new(),
+            deadline_misses: 0,
+            halt: None,
+            error: None,
+        }
+    }
+
     pub fn log_drops_total(&self) -> u64 {
         self.log_drops.iter().sum()
     }

@@ -5,4 +5,5 @@
 pub mod esc;
 pub mod imu;
 pub mod physics;
+pub mod realtime;
 pub mod run;

@@ -37,7 +37,8 @@ pub enum Record {
 }
 
 impl Record {
-    fn stream(&self) -> usize {
+    /// Index of the record's stream in [`STREAMS`].
+    pub fn stream(&self) -> usize {
         match self {
             Record::ImuRaw(_) => 0,
             Record::KalmanIn(_) => 1,
@@ -49,7 +50,8 @@ impl Record {
         }
     }
 
-    fn write(&self, out: &mut String) {
+    /// Appends the record in its stream's format.
+    pub fn write(&self, out: &mut String) {
         match self {
             Record::ImuRaw(r) => r.write(out),
             Record::KalmanIn(r) => r.write(out),

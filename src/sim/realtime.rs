@@ -1,0 +1,171 @@
+//! `uquad sim --realtime`: fly's own tasks, threads and channels against the simulated edges,
+//! paced by the wall clock. A simulator thread steps the physics at `sim.physics_hz`, sends the
+//! IMU's frames through an in-memory pipe into fly's IMU reader, and the ESC writer's I2C
+//! writes reach the simulated ESCs through the bus trait.
+
+use crate::app::fly::{self, Edges, FlyOptions};
+use crate::config::Profile;
+use crate::sim::esc::{EscModel, SimBus};
+use crate::sim::imu::{ImuNoise, SimImu};
+use crate::sim::physics::{Plant, PlantParams};
+use crate::sim::run::{HoverStats, SimOptions, SimSummary};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+use tokio::io::AsyncWriteExt;
+use tokio_util::sync::CancellationToken;
+
+pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSummary> {
+    let cfg = &profile.config;
+    let sc = cfg.sim.clone();
+    let duration = Duration::from_secs_f64(opts.duration_s.unwrap_or(sc.duration_s));
+    let seed = opts.seed.unwrap_or(sc.seed);
+    let start = Instant::now();
+    let model = Arc::new(Mutex::new(EscModel::new(profile.motor_map())));
+    let (host, mut imu_end) = tokio::io::duplex(64 * 1024);
+    let stop = Arc::new(AtomicBool::new(false));
+    let hover = Arc::new(Mutex::new(HoverStats::default()));
+    let rt = tokio::runtime::Handle::current();
+    let sim_thread = {
+        let model = model.clone();
+        let stop = stop.clone();
+        let calib = profile.calib.clone();
+        let mass = cfg.vehicle.mass_kg;
+        let hover_z = cfg.control.hover_z_m;
+        let hover = hover.clone();
+        let progress = opts.progress;
+        std::thread::Builder::new()
+            .name("sim".into())
+            .spawn(move || {
+                crate::tasks::raise_priority("sim", 60);
+                let mut plant = Plant::new(
+                    PlantParams {
+                        mass_kg: mass,
+                        motor_tau_s: sc.motor_tau_s,
+                        drag_n_per_m_s: sc.drag_n_per_m_s,
+                        wind_m_s: sc.wind_m_s,
+                    },
+                    sc.initial_yaw_rad,
+                );
+                let mut imu = SimImu::new(
+                    calib,
+                    ImuNoise {
+                        acc_m_s2: sc.acc_noise_m_s2,
+                        gyro_rad_s: sc.gyro_noise_rad_s,
+                        gyro_bias_rad_s: sc.gyro_bias_rad_s,
+                        baro_pa: sc.baro_noise_pa,
+                        mag: sc.mag_noise,
+                        temp_c: 0.0,
+                    },
+                    sc.temp_c,
+                    seed,
+                );
+                let step_us = 1_000_000 / i64::from(sc.physics_hz);
+                // The IMU waits for the host's '!' before streaming (spec 1.1); the pipe buffers it.
+                let mut t_us: i64 = 0;
+                let mut k: u64 = 0;
+                let (mut se, mut n) = ([0.0f64; 3], 0u64);
+                let mut airborne_since: Option<i64> = None;
+                while !stop.load(Ordering::SeqCst) {
+                    t_us += step_us;
+                    let due = start + Duration::from_micros(t_us as u64);
+                    if let Some(wait) = due.checked_duration_since(Instant::now()) {
+                        std::thread::sleep(wait);
+                    }
+                    let now_us = start.elapsed().as_micros() as i64;
+                    plant.w_cmd_rad_s = model
+                        .lock()
+                        .map(|m| m.commands_rad_s(now_us))
+                        .unwrap_or([0.0; 4]);
+                    plant.step(step_us);
+                    if t_us % 10_000 == 5_000 {
+                        imu.first_half(&plant);
+                    }
+                    if t_us % 10_000 == 0 {
+                        let f = imu.frame(&plant, 10_000);
+                        let bytes = f.encode(if k.is_multiple_of(2) { b'C' } else { b'A' });
+                        k += 1;
+                        if rt.block_on(imu_end.write_all(&bytes)).is_err() {
+                            break;
+                        }
+                        // Hover quality: from settle_s after the vehicle is near its set point.
+                        let z = plant.position_m()[2];
+                        if airborne_since.is_none() && z > 0.8 * hover_z {
+                            airborne_since = Some(t_us);
+                        }
+                        if let Some(a) = airborne_since
+                            && t_us >= a + (sc.settle_s * 1e6) as i64
+                        {
+                            let e = plant.euler_rad();
+                            se[0] += (z - hover_z).powi(2);
+                            se[1] += e[0].powi(2);
+                            se[2] += e[1].powi(2);
+                            n += 1;
+                            if n == 1
+                                && let Ok(mut h) = hover.lock()
+                            {
+                                h.window_start_s = t_us as f64 / 1e6;
+                            }
+                        }
+                        if progress && t_us % 5_000_000 == 0 {
+                            eprintln!(
+                                "sim {:5.1} s  z {:6.3} m  roll {:+.3} pitch {:+.3} rad",
+                                t_us as f64 / 1e6,
+                                z,
+                                plant.euler_rad()[0],
+                                plant.euler_rad()[1]
+                            );
+                        }
+                    }
+                }
+                if n > 0
+                    && let Ok(mut h) = hover.lock()
+                {
+                    let m = n as f64;
+                    h.samples = n;
+                    h.alt_rms_m = (se[0] / m).sqrt();
+                    h.roll_rms_rad = (se[1] / m).sqrt();
+                    h.pitch_rms_rad = (se[2] / m).sqrt();
+                }
+                t_us
+            })?
+    };
+    let cancel = CancellationToken::new();
+    let timer = {
+        let cancel = cancel.clone();
+        tokio::spawn(async move {
+            tokio::select! {
+                _ = tokio::time::sleep(duration) => cancel.cancel(),
+                _ = cancel.cancelled() => {}
+            }
+        })
+    };
+    let mut run_profile = profile.clone();
+    run_profile.config.sim.seed = seed;
+    let summary = fly::run(
+        &run_profile,
+        Edges {
+            imu: Box::new(host),
+            bus: Box::new(SimBus { model, start }),
+        },
+        FlyOptions {
+            log_dir: opts.log_dir.clone(),
+            realtime: true,
+            handle_signals: true,
+            ..Default::default()
+        },
+        cancel,
+    )
+    .await;
+    timer.abort();
+    stop.store(true, Ordering::SeqCst);
+    let simulated_us = tokio::task::spawn_blocking(move || sim_thread.join().unwrap_or(0))
+        .await
+        .unwrap_or(0);
+    let hover = hover.lock().map(|h| *h).unwrap_or_default();
+    Ok(SimSummary {
+        fly: summary?,
+        hover,
+        simulated_s: simulated_us as f64 / 1e6,
+    })
+}

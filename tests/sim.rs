@@ -1,0 +1,125 @@
+//! `uquad sim`: the real code flown against the physics model.
+
+mod common;
+use common::*;
+use std::path::Path;
+
+/// Runs `uquad sim ARGS --report <tmp> --log-dir <tmp>`; returns the report and the log folder.
+fn sim(args: &[&str]) -> (serde_json::Value, tempfile::TempDir) {
+    let logs = tempfile::tempdir().unwrap();
+    let report = logs.path().join("report.json");
+    let mut all: Vec<&str> = vec!["sim"];
+    all.extend_from_slice(args);
+    let (r, l) = (
+        report.to_str().unwrap().to_string(),
+        logs.path().to_str().unwrap().to_string(),
+    );
+    all.extend_from_slice(&["--report", &r, "--log-dir", &l]);
+    let o = uquad(&root(), &all);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    (report, logs)
+}
+
+fn assert_hovers(report: &serde_json::Value) {
+    let f = |k: &str| report[k].as_f64().unwrap_or(f64::NAN);
+    assert_eq!(report["watchdog_trips"], 0, "{report}");
+    assert_eq!(report["halt"], serde_json::Value::Null);
+    assert!(
+        report["hover_samples"].as_u64().unwrap() >= 3_000,
+        "{report}"
+    );
+    assert!(f("alt_rms_m") <= 0.10, "altitude RMS {}", f("alt_rms_m"));
+    assert!(f("roll_rms_rad") <= 0.05, "roll RMS {}", f("roll_rms_rad"));
+    assert!(
+        f("pitch_rms_rad") <= 0.05,
+        "pitch RMS {}",
+        f("pitch_rms_rad")
+    );
+    assert_eq!(report["deadline_misses"], 0);
+    assert_eq!(report["log_drops"], 0);
+}
+
+#[test]
+fn hovers_with_the_default_profile() {
+    let (report, _logs) = sim(&[
+        "--fast",
+        "--duration",
+        "60",
+        "--config",
+        "config/uquad.toml",
+    ]);
+    assert_hovers(&report);
+    assert!(Path::new(report["run_dir"].as_str().unwrap()).is_absolute());
+}
+
+#[test]
+fn hovers_with_the_2012_gains() {
+    let (report, _logs) = sim(&[
+        "--fast",
+        "--duration",
+        "60",
+        "--config",
+        "config/flight-2012-05.toml",
+        "--set",
+        "control.integral.psi.seed=0",
+        "--set",
+        "control.integral.phi.seed=0",
+    ]);
+    assert_hovers(&report);
+}
+
+#[test]
+fn a_sim_run_replays_to_identical_bytes() {
+    let (report, _logs) = sim(&["--duration", "25", "--seed", "7"]);
+    let run = Path::new(report["run_dir"].as_str().unwrap()).to_path_buf();
+    let out = tempfile::tempdir().unwrap();
+    let o = uquad(
+        &root(),
+        &[
+            "replay",
+            run.to_str().unwrap(),
+            "--out",
+            out.path().to_str().unwrap(),
+        ],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for name in ["x_hat.log", "w.log", "int.log", "kalman_in.log"] {
+        let a = std::fs::read(run.join(name)).unwrap();
+        assert!(a.len() > 10_000, "{name} is {} bytes", a.len());
+        assert_eq!(a, std::fs::read(out.path().join(name)).unwrap(), "{name}");
+    }
+    // The same seed flies the same flight; another seed another one.
+    let (again, _l2) = sim(&["--duration", "25", "--seed", "7"]);
+    let (other, _l3) = sim(&["--duration", "25", "--seed", "8"]);
+    let x = |r: &serde_json::Value| {
+        std::fs::read(Path::new(r["run_dir"].as_str().unwrap()).join("x_hat.log")).unwrap()
+    };
+    assert_eq!(x(&report), x(&again));
+    assert_ne!(x(&report), x(&other));
+}
+
+#[test]
+fn the_main_job_runs_with_no_arguments() {
+    // As a newcomer runs it: in a checkout, `uquad sim` and nothing else.
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::create_dir(dir.path().join("config")).unwrap();
+    for e in std::fs::read_dir(root().join("config")).unwrap() {
+        let e = e.unwrap();
+        std::fs::copy(e.path(), dir.path().join("config").join(e.file_name())).unwrap();
+    }
+    let o = uquad(dir.path(), &["sim"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.contains("hover from") && err.contains("altitude RMS"),
+        "{err}"
+    );
+    assert!(err.contains("watchdog: no trip"), "{err}");
+    // The run folder went to logs/ beside config/, as the profile says.
+    let runs: Vec<_> = std::fs::read_dir(dir.path().join("logs"))
+        .unwrap()
+        .collect();
+    assert_eq!(runs.len(), 1);
+}
