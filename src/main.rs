@@ -100,6 +100,11 @@ With no arguments: config/uquad.toml, sim.duration_s (40 s), a summary at the en
         /// Folder under which the run folder is created (default: log.dir of the profile).
         #[arg(long, value_name = "DIR")]
         log_dir: Option<PathBuf>,
+        /// Inject a fault at T simulated seconds (repeatable): imu-stall (frames stop),
+        /// esc-nack (every I2C write fails), gps-loss (fixes stop), log-stall (the x_hat
+        /// logger blocks for 500 ms), thrust-loss (motor m0 loses 30 % of its thrust).
+        #[arg(long, value_name = "FAULT@T", value_parser = uquad::sim::run::parse_injection)]
+        inject: Vec<(uquad::sim::run::Fault, f64)>,
     },
     /// Print the fixes gpsd gives, one JSON object per line: a check to run before flying.
     #[command(
@@ -264,10 +269,15 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             seed,
             report,
             log_dir,
+            inject,
         } => {
             let path = config::resolve_path(config.as_deref()).map_err(anyhow::Error::msg)?;
             let profile = load_profile(&path, &sets)?;
+            if realtime && !inject.is_empty() {
+                anyhow::bail!("--inject works with --fast (the simulated clock) only");
+            }
             let opts = uquad::sim::run::SimOptions {
+                inject,
                 duration_s: duration,
                 seed,
                 log_dir,

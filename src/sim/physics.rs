@@ -5,7 +5,7 @@
 //! more). Units: m, rad, m/s, rad/s, N, s.
 
 use crate::core::ekf::{State, idx, process};
-use crate::core::model::{GRAVITY_M_S2, thrust_n};
+use crate::core::model::{F_B1, F_B2, GRAVITY_M_S2, thrust_n};
 
 /// Physical parameters beyond the model constants.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -35,6 +35,8 @@ pub struct Plant {
     /// Specific force in the body frame of the last step (what an accelerometer reads), m/s².
     pub specific_force_m_s2: [f64; 3],
     pub on_ground: bool,
+    /// Thrust of each motor relative to the model (a damaged propeller: below 1).
+    pub thrust_scale: [f64; 4],
 }
 
 /// Body-to-inertial rotation (ZYX: yaw θ, pitch φ, roll ψ), as the filter's kinematics use.
@@ -78,6 +80,7 @@ impl Plant {
             t_us: 0,
             specific_force_m_s2: [0.0, 0.0, GRAVITY_M_S2],
             on_ground: true,
+            thrust_scale: [1.0; 4],
         }
     }
 
@@ -97,13 +100,24 @@ impl Plant {
         let air: [f64; 3] = std::array::from_fn(|i| p.wind_m_s[i] - v_in[i]);
         let drag_in: [f64; 3] = std::array::from_fn(|i| p.drag_n_per_m_s * air[i] / p.mass_kg);
         let drag_body = mul_t(&r, &drag_in);
-        let thrust: f64 = self.w_rad_s.iter().map(|&w| thrust_n(w.max(0.0))).sum();
+        // A motor with a scaled thrust acts as the model's motor at the speed giving that thrust.
+        let w_eff: [f64; 4] = std::array::from_fn(|i| {
+            let w = self.w_rad_s[i].max(0.0);
+            let k = self.thrust_scale[i];
+            if k == 1.0 {
+                w
+            } else {
+                let t = k * thrust_n(w);
+                (-F_B2 + (F_B2 * F_B2 + 4.0 * F_B1 * t.max(0.0)).sqrt()) / (2.0 * F_B1)
+            }
+        });
+        let thrust: f64 = w_eff.iter().map(|&w| thrust_n(w)).sum();
         // The filter's model is the rigid body; its bias slots carry the drag here.
         let mut ext = self.x;
         ext[idx::BAX] = drag_body[0];
         ext[idx::BAY] = drag_body[1];
         ext[idx::BAZ] = drag_body[2];
-        let mut next = process(&ext, &self.w_rad_s, dt, p.mass_kg, false);
+        let mut next = process(&ext, &w_eff, dt, p.mass_kg, false);
         next[idx::BAX] = 0.0;
         next[idx::BAY] = 0.0;
         next[idx::BAZ] = 0.0;

@@ -27,9 +27,65 @@ use std::path::PathBuf;
 /// IMU frame period, µs.
 const FRAME_US: i64 = 10_000;
 
+/// A fault injected at a simulated time.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Fault {
+    /// The IMU stops sending frames.
+    ImuStall,
+    /// Every I2C write goes unacknowledged.
+    EscNack,
+    /// GPS fixes stop.
+    GpsLoss,
+    /// A logger's writes block for 500 ms.
+    LogStall,
+    /// Motor m0 loses 30 % of its thrust.
+    ThrustLoss,
+}
+
+impl Fault {
+    pub const NAMES: [(&'static str, Fault); 5] = [
+        ("imu-stall", Fault::ImuStall),
+        ("esc-nack", Fault::EscNack),
+        ("gps-loss", Fault::GpsLoss),
+        ("log-stall", Fault::LogStall),
+        ("thrust-loss", Fault::ThrustLoss),
+    ];
+
+    pub fn name(self) -> &'static str {
+        Fault::NAMES
+            .iter()
+            .find(|(_, f)| *f == self)
+            .map_or("?", |(n, _)| n)
+    }
+}
+
+/// Parses `FAULT@T` (T in simulated seconds), e.g. `imu-stall@30`.
+pub fn parse_injection(s: &str) -> Result<(Fault, f64), String> {
+    let names = Fault::NAMES.map(|(n, _)| n).join(", ");
+    let (name, at) = s
+        .split_once('@')
+        .ok_or_else(|| format!("{s:?}: expected FAULT@T, e.g. imu-stall@30 (faults: {names})"))?;
+    let fault = Fault::NAMES
+        .iter()
+        .find(|(n, _)| *n == name)
+        .map(|(_, f)| *f)
+        .ok_or_else(|| format!("{name:?} is not a fault; one of {names}"))?;
+    let t: f64 = at
+        .parse()
+        .ok()
+        .filter(|t: &f64| t.is_finite() && *t >= 0.0)
+        .ok_or_else(|| format!("{at:?} is not a time in seconds"))?;
+    Ok((fault, t))
+}
+
+/// Simulated time a stalled logger blocks, µs.
+const LOG_STALL_US: i64 = 500_000;
+
 /// How a simulation runs.
 #[derive(Debug, Clone, Default)]
 pub struct SimOptions {
+    /// Faults and when they strike, simulated seconds.
+    pub inject: Vec<(Fault, f64)>,
     /// Simulated seconds (default: `sim.duration_s`).
     pub duration_s: Option<f64>,
     /// Seed (default: `sim.seed`).
@@ -159,6 +215,9 @@ pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumma
     )));
 
     let mut cycles = Vec::with_capacity(8);
+    // Consecutive failed write cycles (the watchdog's missed acks) and when the run began.
+    let mut failed_cycles = 0u32;
+    let mut first_failure_us = 0i64;
     let mut fly = FlySummary::empty(run_dir.clone());
     let mut last_t_cmd: Option<i64> = None;
     let mut prev_stamp: Option<i64> = None;
@@ -168,8 +227,38 @@ pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumma
     let mut frame_k: u64 = 0;
     let mut halt: Option<(Trip, i64)> = None;
     let mut t: i64 = 0;
+    let fault_at = |f: Fault| {
+        opts.inject
+            .iter()
+            .filter(|(g, _)| *g == f)
+            .map(|(_, at)| (at * 1e6).round() as i64)
+            .min()
+    };
+    let imu_stall_at = fault_at(Fault::ImuStall);
+    let esc_nack_at = fault_at(Fault::EscNack);
+    let gps_loss_at = fault_at(Fault::GpsLoss);
+    let log_stall_at = fault_at(Fault::LogStall);
+    let thrust_loss_at = fault_at(Fault::ThrustLoss);
+    // The stalled logger (x_hat) takes nothing for 500 ms; its queue fills, then records drop.
+    let x_hat_stream = 2;
+    let mut stalled_queue = 0u64;
+    for (f, at) in &opts.inject {
+        logs.log(Record::Err(format!(
+            "fault injection: {} at {at} s",
+            f.name()
+        )));
+    }
     while t < duration_us {
         t += step_us;
+        if esc_nack_at.is_some_and(|a| t >= a) {
+            escs.failing = true;
+        }
+        if thrust_loss_at.is_some_and(|a| t >= a) {
+            plant.thrust_scale[0] = 0.7;
+        }
+        if gps_loss_at.is_some_and(|a| t >= a) {
+            gps = GpsFeed::Off;
+        }
         // The motors follow what the ESCs were last told, then the physics advances.
         plant.w_cmd_rad_s = escs.commands_rad_s(t);
         plant.step(step_us);
@@ -184,7 +273,8 @@ pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumma
                 pos_m: plant.position_m(),
             });
         }
-        if t % FRAME_US == 0 && halt.is_none() {
+        let imu_silent = imu_stall_at.is_some_and(|a| t >= a);
+        if t % FRAME_US == 0 && halt.is_none() && !imu_silent {
             let frame = imu.frame(&plant, FRAME_US as u32);
             bytes.extend_from_slice(&frame.encode(if frame_k.is_multiple_of(2) {
                 b'C'
@@ -263,7 +353,18 @@ pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumma
                     dt_col,
                     &est.sample,
                 )));
-                logs.log(Record::XHat(est.x.into()));
+                let stalled = log_stall_at.is_some_and(|a| t >= a && t < a + LOG_STALL_US);
+                if stalled {
+                    // Queued while the logger is stalled; beyond the queue, dropped and counted.
+                    if stalled_queue < u64::from(cfg.log.queue_records) {
+                        stalled_queue += 1;
+                        logs.log(Record::XHat(est.x.into()));
+                    } else {
+                        fly.log_drops[x_hat_stream] += 1;
+                    }
+                } else {
+                    logs.log(Record::XHat(est.x.into()));
+                }
                 if let Some(trip) = watchdog.on_estimate(
                     t,
                     est.sample.temp_c,
@@ -290,7 +391,6 @@ pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumma
             driver.stop(trip.reason.name(), &mut cycles);
         }
         driver.poll(t, &mut cycles);
-        let mut failed_cycles = 0u32;
         for (kind, cycle) in cycles.drain(..) {
             let mut ok = true;
             for (addr, reg, value) in cycle {
@@ -300,7 +400,14 @@ pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumma
                     fly.esc_failed_writes += 1;
                 }
             }
-            failed_cycles = if ok { 0 } else { failed_cycles + 1 };
+            if ok {
+                failed_cycles = 0;
+            } else {
+                if failed_cycles == 0 {
+                    first_failure_us = t;
+                }
+                failed_cycles += 1;
+            }
             match kind {
                 CycleKind::Command => {
                     fly.esc_commands += 1;
@@ -317,13 +424,30 @@ pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumma
                 _ => {}
             }
             if failed_cycles > 0
-                && let Some(trip) = watchdog.on_esc_failures(failed_cycles, t, t)
+                && let Some(trip) = watchdog.on_esc_failures(failed_cycles, first_failure_us, t)
             {
                 halt.get_or_insert((trip, t));
             }
         }
         if let Some(trip) = watchdog.tick(t) {
             halt.get_or_insert((trip, t));
+        }
+        // A decided halt is executed in the same millisecond: zero, then disable.
+        if let Some((trip, _)) = halt
+            && driver.phase() != EscPhase::Stopped
+        {
+            driver.stop(trip.reason.name(), &mut cycles);
+            for (kind, cycle) in cycles.drain(..) {
+                for (addr, reg, value) in cycle {
+                    fly.esc_writes += 1;
+                    if escs.write(addr, reg, value, t).is_err() {
+                        fly.esc_failed_writes += 1;
+                    }
+                }
+                if kind == CycleKind::StopDisable {
+                    halt = Some((trip, t));
+                }
+            }
         }
         // Hover quality over the window.
         if let Some(end) = flight_ramp_end_us
@@ -385,6 +509,14 @@ pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumma
         hover.alt_rms_m = (se_z / n).sqrt();
         hover.roll_rms_rad = (se_roll / n).sqrt();
         hover.pitch_rms_rad = (se_pitch / n).sqrt();
+    }
+    for (i, name) in STREAMS.iter().enumerate() {
+        if fly.log_drops[i] > 0 {
+            logs.log(Record::Err(format!(
+                "log stream {name}: {} records dropped",
+                fly.log_drops[i]
+            )));
+        }
     }
     logs.log(Record::Err(format!(
         "run ended: {} frames, {} steps, ESCs stopped: {}",

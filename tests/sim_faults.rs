@@ -1,0 +1,91 @@
+//! `uquad sim --inject FAULT@T` on the simulated clock: the watchdog's halts and what keeps
+//! flying.
+
+mod common;
+use common::*;
+
+/// Runs the sim and returns its report (and the folder holding its run, kept while in use).
+fn sim_report(args: &[&str]) -> (serde_json::Value, tempfile::TempDir) {
+    let logs = tempfile::tempdir().unwrap();
+    let report = logs.path().join("report.json");
+    let mut all: Vec<String> = ["sim", "--fast", "--config", "config/uquad.toml"]
+        .iter()
+        .chain(args)
+        .map(|s| s.to_string())
+        .collect();
+    all.extend([
+        "--report".to_string(),
+        report.to_str().unwrap().to_string(),
+        "--log-dir".to_string(),
+        logs.path().to_str().unwrap().to_string(),
+    ]);
+    let o = uquad(&root(), &all.iter().map(String::as_str).collect::<Vec<_>>());
+    let r: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(&report)
+            .unwrap_or_else(|_| panic!("{}", String::from_utf8_lossy(&o.stderr))),
+    )
+    .unwrap();
+    // A halt makes the command fail (motors stopped); the report is written either way.
+    assert_eq!(o.status.success(), r["halt"].is_null(), "{r}");
+    (r, logs)
+}
+
+#[test]
+fn imu_stall_halts_within_14_ms_of_the_last_frame() {
+    let (r, _logs) = sim_report(&["--duration", "40", "--inject", "imu-stall@30"]);
+    assert_eq!(r["halt"]["reason"], "imu-timeout", "{r}");
+    let ms = r["halt"]["latency_ms"].as_f64().unwrap();
+    assert!(ms <= 14.0, "{ms} ms");
+    // The last frame was just before 30 s.
+    assert!(
+        (r["halt"]["event_s"].as_f64().unwrap() - 29.99).abs() < 0.011,
+        "{r}"
+    );
+    assert_eq!(r["watchdog_trips"], 1);
+}
+
+#[test]
+fn esc_nack_halts_within_12_ms_of_the_first_failed_write() {
+    let (r, _logs) = sim_report(&["--duration", "40", "--inject", "esc-nack@30"]);
+    assert_eq!(r["halt"]["reason"], "esc-ack", "{r}");
+    let ms = r["halt"]["latency_ms"].as_f64().unwrap();
+    assert!(ms <= 12.0, "{ms} ms");
+    assert!(r["esc"]["failed_writes"].as_u64().unwrap() >= 12, "{r}");
+}
+
+#[test]
+fn gps_loss_keeps_hovering_on_the_barometer() {
+    // The loss at 29 s, the hover window from 29 s to 59 s: 30 s without GPS.
+    let (r, _logs) = sim_report(&["--duration", "59", "--inject", "gps-loss@29"]);
+    assert!(r["halt"].is_null(), "{r}");
+    let rms = r["alt_rms_m"].as_f64().unwrap();
+    assert!(rms <= 0.2, "altitude RMS {rms} m");
+    assert!(r["hover_samples"].as_u64().unwrap() >= 2_900);
+}
+
+#[test]
+fn log_stall_costs_no_deadline() {
+    let (r, _logs) = sim_report(&[
+        "--duration",
+        "40",
+        "--inject",
+        "log-stall@30",
+        "--set",
+        "log.queue_records=16",
+    ]);
+    assert!(r["halt"].is_null(), "{r}");
+    assert_eq!(r["deadline_misses"], 0);
+    // 500 ms of records with a 16-record queue: 34 of x_hat's 50 dropped and counted.
+    assert_eq!(r["log_drops"], 34, "{r}");
+    assert_eq!(r["log_drops_by_stream"]["x_hat"], 34);
+}
+
+#[test]
+fn bad_injections_are_refused() {
+    for bad in ["imu-stall", "wind@3", "imu-stall@-1", "imu-stall@soon"] {
+        let o = uquad(&root(), &["sim", "--inject", bad]);
+        assert!(!o.status.success());
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains("--inject"), "{bad}: {err}");
+    }
+}
