@@ -102,7 +102,8 @@ With no arguments: config/uquad.toml, sim.duration_s (40 s), a summary at the en
         log_dir: Option<PathBuf>,
         /// Inject a fault at T simulated seconds (repeatable): imu-stall (frames stop),
         /// esc-nack (every I2C write fails), gps-loss (fixes stop), log-stall (the x_hat
-        /// logger blocks for 500 ms), thrust-loss (motor m0 loses 30 % of its thrust).
+        /// logger blocks for 500 ms), thrust-loss (motor m0 loses 30 % of its thrust). With
+        /// --realtime: imu-stall and esc-nack.
         #[arg(long, value_name = "FAULT@T", value_parser = uquad::sim::run::parse_injection)]
         inject: Vec<(uquad::sim::run::Fault, f64)>,
     },
@@ -273,8 +274,16 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         } => {
             let path = config::resolve_path(config.as_deref()).map_err(anyhow::Error::msg)?;
             let profile = load_profile(&path, &sets)?;
-            if realtime && !inject.is_empty() {
-                anyhow::bail!("--inject works with --fast (the simulated clock) only");
+            use uquad::sim::run::Fault;
+            if realtime
+                && let Some((f, _)) = inject
+                    .iter()
+                    .find(|(f, _)| !matches!(f, Fault::ImuStall | Fault::EscNack))
+            {
+                anyhow::bail!(
+                    "--inject {}: with --realtime only imu-stall and esc-nack can be injected",
+                    f.name()
+                );
             }
             let opts = uquad::sim::run::SimOptions {
                 inject,

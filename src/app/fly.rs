@@ -508,7 +508,23 @@ pub async fn run(
         tokio::spawn(handle_signals(mailbox.clone(), cancel.clone()));
     }
 
+    // systemd: ready once the IMU delivers frames (the devices are open and talking), then
+    // watchdog pings only while the internal watchdog is healthy.
+    let notifier = crate::hw::notify::Notifier::from_env().map(Arc::new);
+    if let Some(n) = notifier.clone() {
+        tokio::spawn(notify_systemd(
+            n,
+            imu_stats.clone(),
+            wd_status.clone(),
+            beats.clone(),
+            cancel.clone(),
+        ));
+    }
+
     cancel.cancelled().await;
+    if let Some(n) = &notifier {
+        n.send("STOPPING=1");
+    }
     // Motors first: zero and disable, then wait for the writer to finish.
     mailbox.shutdown();
     wd_status.stop();
@@ -597,6 +613,44 @@ pub async fn run(
         }
     }
     Ok(summary)
+}
+
+/// READY=1 after the first IMU frame; WATCHDOG=1 every half `WatchdogSec` while the internal
+/// watchdog checks and has not tripped; the pings stop for good at a trip.
+async fn notify_systemd(
+    n: Arc<crate::hw::notify::Notifier>,
+    imu: Arc<ImuStats>,
+    wd: Arc<WatchdogStatus>,
+    beats: Arc<Heartbeats>,
+    cancel: CancellationToken,
+) {
+    let poll = Duration::from_millis(10);
+    while imu.frames.load(Ordering::Relaxed) == 0 {
+        tokio::select! {
+            _ = cancel.cancelled() => return,
+            _ = tokio::time::sleep(poll) => {}
+        }
+    }
+    n.send("READY=1\nSTATUS=IMU frames arriving; flying");
+    let Some(every) = crate::hw::notify::watchdog_interval() else {
+        return;
+    };
+    loop {
+        tokio::select! {
+            _ = cancel.cancelled() => return,
+            _ = tokio::time::sleep(every) => {}
+        }
+        if let Some(h) = wd.halt() {
+            n.send(&format!("STATUS=halted: {}", h.trip.reason.name()));
+            return;
+        }
+        let now_us = beats.us(Instant::now());
+        let checked_us = wd.last_check_us.load(Ordering::Relaxed);
+        // A watchdog that has not checked for 100 ms is not healthy either.
+        if now_us - checked_us < 100_000 {
+            n.send("WATCHDOG=1");
+        }
+    }
 }
 
 /// Reads the original's manual-mode keys (spec 5.2) from stdin, one byte at a time.

@@ -8,6 +8,7 @@
 //! selections (each row reads one state), so H·P·Hᵀ and P·Hᵀ are index gathers, not products.
 
 use crate::core::imu::calib::{ImuSample, unwrap_theta};
+use crate::core::math;
 use crate::core::model::{
     ARM_LENGTH_M, GRAVITY_M_S2, IXX_KG_M2, IYY_KG_M2, IZZ_KG_M2, IZZM_KG_M2, drag_nm, thrust_n,
 };
@@ -139,15 +140,15 @@ struct Trig {
 
 impl Trig {
     fn of(x: &State) -> Self {
-        let (s_psi, c_psi) = x[idx::PSI].sin_cos();
-        let (s_phi, c_phi) = x[idx::PHI].sin_cos();
-        let (s_th, c_th) = x[idx::THETA].sin_cos();
+        let (s_psi, c_psi) = math::sin_cos(x[idx::PSI]);
+        let (s_phi, c_phi) = math::sin_cos(x[idx::PHI]);
+        let (s_th, c_th) = math::sin_cos(x[idx::THETA]);
         Trig {
             s_psi,
             c_psi,
             s_phi,
             c_phi,
-            t_phi: x[idx::PHI].tan(),
+            t_phi: math::tan(x[idx::PHI]),
             s_th,
             c_th,
         }

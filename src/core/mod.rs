@@ -9,6 +9,7 @@ pub mod flight;
 pub mod gps;
 pub mod imu;
 pub mod lqr;
+pub mod math;
 pub mod model;
 pub mod motor;
 pub mod numfile;

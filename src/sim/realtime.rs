@@ -26,6 +26,15 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
     let stop = Arc::new(AtomicBool::new(false));
     let hover = Arc::new(Mutex::new(HoverStats::default()));
     let rt = tokio::runtime::Handle::current();
+    let fault_at = |f: crate::sim::run::Fault| {
+        opts.inject
+            .iter()
+            .filter(|(g, _)| *g == f)
+            .map(|(_, at)| (at * 1e6).round() as i64)
+            .min()
+    };
+    let imu_stall_at = fault_at(crate::sim::run::Fault::ImuStall);
+    let esc_nack_at = fault_at(crate::sim::run::Fault::EscNack);
     let sim_thread = {
         let model = model.clone();
         let stop = stop.clone();
@@ -75,13 +84,18 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
                     let now_us = start.elapsed().as_micros() as i64;
                     plant.w_cmd_rad_s = model
                         .lock()
-                        .map(|m| m.commands_rad_s(now_us))
+                        .map(|mut m| {
+                            if esc_nack_at.is_some_and(|a| t_us >= a) {
+                                m.failing = true;
+                            }
+                            m.commands_rad_s(now_us)
+                        })
                         .unwrap_or([0.0; 4]);
                     plant.step(step_us);
                     if t_us % 10_000 == 5_000 {
                         imu.first_half(&plant);
                     }
-                    if t_us % 10_000 == 0 {
+                    if t_us % 10_000 == 0 && imu_stall_at.is_none_or(|a| t_us < a) {
                         let f = imu.frame(&plant, 10_000);
                         let bytes = f.encode(if k.is_multiple_of(2) { b'C' } else { b'A' });
                         k += 1;

@@ -91,6 +91,8 @@ impl Halt {
 #[derive(Debug, Default)]
 pub struct WatchdogStatus {
     pub deadline_misses: AtomicU64,
+    /// When the watchdog last checked, µs since start: its own heartbeat.
+    pub last_check_us: std::sync::atomic::AtomicI64,
     pub halt: Mutex<Option<Halt>>,
     stop: AtomicBool,
 }
@@ -133,6 +135,7 @@ pub fn spawn(
                 // The time first, then the events: every frame that arrived before `now` is in
                 // this batch, so a preemption here cannot look like a silent IMU.
                 let now_us = beats.us(Instant::now());
+                status.last_check_us.store(now_us, Ordering::Relaxed);
                 let mut trip = None;
                 for e in beats.take() {
                     let t = match e {

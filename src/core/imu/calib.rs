@@ -7,6 +7,7 @@
 //! agree with its logs to print precision.
 
 use super::frame::RawFrame;
+use crate::core::math;
 use crate::core::numfile::{self, NumberError};
 
 /// Numbers in a complete `imu_calib.txt` (3 × 12 + 1 + 1 + 3 + 3 + 1).
@@ -209,28 +210,28 @@ impl Default for NullReference {
 
 /// Barometric altitude (spec 2.2), m.
 pub fn altitude_m(p_pa: f64, p0_pa: f64) -> f64 {
-    PRESS_K_M * (1.0 - (p_pa / p0_pa).powf(PRESS_EXP))
+    PRESS_K_M * (1.0 - math::pow(p_pa / p0_pa, PRESS_EXP))
 }
 
 /// Euler angles (ψ, φ, θ) from an acceleration and a calibrated magnetic field (spec 2.6).
 pub fn euler_from_acc_magn(a: &V3, m: &V3) -> V3 {
     let norm = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
     let (psi, phi) = if a[0].abs() < DEADLOCK_ACC_NORM * norm {
-        ((a[1]).atan2(a[2]), -(a[0] / norm).asin())
+        (math::atan2(a[1], a[2]), -math::asin(a[0] / norm))
     } else if a[0] > 0.0 {
         (0.0, -PI_ORIGINAL / 2.0)
     } else {
         (0.0, PI_ORIGINAL / 2.0)
     };
-    let (s_psi, c_psi) = psi.sin_cos();
-    let (s_phi, c_phi) = phi.sin_cos();
+    let (s_psi, c_psi) = math::sin_cos(psi);
+    let (s_phi, c_phi) = math::sin_cos(phi);
     let rot = [
         [c_phi, s_phi * s_psi, c_psi * s_phi],
         [0.0, c_psi, -s_psi],
         [-s_phi, c_phi * s_psi, c_phi * c_psi],
     ];
     let mt = mat_vec(&rot, m);
-    let theta = -(mt[1]).atan2(mt[0]) + YAW_OFFSET_RAD;
+    let theta = -math::atan2(mt[1], mt[0]) + YAW_OFFSET_RAD;
     [psi, phi, theta]
 }
 

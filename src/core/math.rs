@@ -1,0 +1,32 @@
+//! Elementary functions from a portable implementation (the `libm` crate, a port of musl's),
+//! so the estimator gives the same bits on the BeagleBoard's ARM as on x86: platform C
+//! libraries differ in the last bit of sin, cos, tan, atan2, asin and pow, and the logs print
+//! up to 15 decimals. (The spec's formulas of sections 2 and 3 use these.)
+
+pub fn sin(x: f64) -> f64 {
+    libm::sin(x)
+}
+
+pub fn cos(x: f64) -> f64 {
+    libm::cos(x)
+}
+
+pub fn sin_cos(x: f64) -> (f64, f64) {
+    libm::sincos(x)
+}
+
+pub fn tan(x: f64) -> f64 {
+    libm::tan(x)
+}
+
+pub fn atan2(y: f64, x: f64) -> f64 {
+    libm::atan2(y, x)
+}
+
+pub fn asin(x: f64) -> f64 {
+    libm::asin(x)
+}
+
+pub fn pow(x: f64, y: f64) -> f64 {
+    libm::pow(x, y)
+}
