@@ -107,6 +107,14 @@ With no arguments: config/uquad.toml, sim.duration_s (40 s), a summary at the en
         #[arg(long, value_name = "FAULT@T", value_parser = uquad::sim::run::parse_injection)]
         inject: Vec<(uquad::sim::run::Fault, f64)>,
     },
+    /// Plot a run's altitude, attitude and motor speeds over time (SVG).
+    Plot {
+        /// A run folder: ours (logs/<run-id>) or the original's (x_hat.log, w.log).
+        run_dir: PathBuf,
+        /// Output file (.svg; default RUN_DIR/plot.svg).
+        #[arg(long, value_name = "FILE")]
+        out: Option<PathBuf>,
+    },
     /// Print the fixes gpsd gives, one JSON object per line: a check to run before flying.
     #[command(
         long_about = "Print the fixes gpsd gives, one JSON object per line on stdout: mode (2 or 3), \
@@ -313,6 +321,11 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     ExitCode::SUCCESS
                 },
             )
+        }
+        Command::Plot { run_dir, out } => {
+            let path = uquad::app::plot::run(&run_dir, out.as_deref())?;
+            println!("{}", path.display());
+            Ok(ExitCode::SUCCESS)
         }
         Command::Gps { gpsd, count } => {
             let rt = tokio::runtime::Runtime::new().context("cannot start the runtime")?;

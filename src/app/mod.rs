@@ -3,4 +3,5 @@
 pub mod fly;
 pub mod gps;
 pub mod lqr;
+pub mod plot;
 pub mod replay;
