@@ -17,7 +17,8 @@ for f in "$top"/config/*; do
 done
 # The installed profile talks to the board's devices through the stable names.
 sed -i -e 's|^device = ".*"|device = "/dev/uquad-imu"|' \
-       -e 's|^dir = ".*"|dir = "/var/lib/uquad/logs"|' "$root/etc/uquad/uquad.toml"
+       -e 's|^dir = ".*"|dir = "/var/lib/uquad/logs"|' \
+       -e 's|^socket = ".*"|socket = "/var/lib/uquad/console.sock"|' "$root/etc/uquad/uquad.toml"
 install -D -m 0644 "$here/uquad.service" "$root/etc/systemd/system/uquad.service"
 install -D -m 0644 "$here/99-uquad.rules" "$root/etc/udev/rules.d/99-uquad.rules"
 install -D -m 0644 "$top/README.md" "$root/usr/local/share/doc/uquad/README.md"

@@ -28,6 +28,7 @@ pub struct Config {
     pub watchdog: WatchdogConfig,
     pub gps: Gps,
     pub sim: Sim,
+    pub console: Console,
     pub log: Log,
 }
 
@@ -47,6 +48,14 @@ pub struct Esc {
     /// by zero + disable, ms. A backup to the watchdog, which names the reason: it must leave
     /// the watchdog time to act (above its IMU timeout and its deadline + one IMU period).
     pub command_timeout_ms: u32,
+}
+
+/// The console socket served by `fly` and `sim`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Console {
+    /// Unix socket path (relative to the configuration's folder); empty = no console.
+    pub socket: PathBuf,
 }
 
 /// The simulator (`uquad sim`).
@@ -1095,6 +1104,9 @@ pub fn load(path: &Path, sets: &[(String, toml::Value)]) -> Result<Profile, Conf
     };
     c.imu.calib_file = resolve(&c.imu.calib_file);
     c.log.dir = resolve(&c.log.dir);
+    if !c.console.socket.as_os_str().is_empty() {
+        c.console.socket = resolve(&c.console.socket);
+    }
     c.control.k_prop_file = resolve(&c.control.k_prop_file);
     c.control.k_int_file = resolve(&c.control.k_int_file);
     c.control.lqr_q_file = resolve(&c.control.lqr_q_file);

@@ -115,6 +115,24 @@ With no arguments: config/uquad.toml, sim.duration_s (40 s), a summary at the en
         #[arg(long, value_name = "FILE")]
         out: Option<PathBuf>,
     },
+    /// Attach to a running fly or sim: live events, statistics, manual commands.
+    #[command(
+        long_about = "Attach to a running `uquad fly` or `uquad sim --realtime` through its console \
+socket (console.socket of its configuration). Prints the live events (filtered) and a statistics \
+line every second (latency histogram, deadline misses, log drops, the estimate and the motor \
+speeds). Type a manual-mode key and RET to send it (spec 5.2): j/g roll, y/h pitch, q/w yaw, \
+e/d altitude, i/k mass, 0 reset mass, quit; 'filter LEVEL[,TEXT]' changes the filter. Several \
+consoles can attach at once; one that stops reading only loses its own events."
+    )]
+    Console {
+        /// The console socket (default: console.socket of config/uquad.toml).
+        #[arg(long, value_name = "PATH")]
+        socket: Option<PathBuf>,
+        /// Event filter: a level (error, warn, info, debug, trace) and optional text, e.g.
+        /// "debug,esc".
+        #[arg(long, value_name = "FILTER")]
+        filter: Option<String>,
+    },
     /// Print the fixes gpsd gives, one JSON object per line: a check to run before flying.
     #[command(
         long_about = "Print the fixes gpsd gives, one JSON object per line on stdout: mode (2 or 3), \
@@ -184,14 +202,31 @@ struct SetArgs {
     sets: Vec<(String, toml::Value)>,
 }
 
+/// Logs to stderr, filtered by RUST_LOG: compact and coloured on a terminal; under systemd
+/// (JOURNAL_STREAM set) no colours and no timestamps, which the journal adds itself. Every
+/// event also reaches the attached consoles.
 fn init_tracing() {
+    use std::io::IsTerminal;
+    use tracing_subscriber::layer::SubscriberExt;
+    use tracing_subscriber::util::SubscriberInitExt;
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
-    tracing_subscriber::fmt()
-        .with_env_filter(filter)
+    let journal = std::env::var_os("JOURNAL_STREAM").is_some();
+    let terminal = std::io::stderr().is_terminal();
+    let fmt = tracing_subscriber::fmt::layer()
         .with_writer(std::io::stderr)
         .with_target(false)
-        .init();
+        .with_ansi(terminal && !journal);
+    let registry = tracing_subscriber::registry()
+        .with(filter)
+        .with(uquad::console::ConsoleLayer);
+    if journal {
+        registry.with(fmt.without_time()).init();
+    } else if terminal {
+        registry.with(fmt.compact()).init();
+    } else {
+        registry.with(fmt).init();
+    }
 }
 
 fn main() -> ExitCode {
@@ -321,6 +356,23 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     ExitCode::SUCCESS
                 },
             )
+        }
+        Command::Console { socket, filter } => {
+            let path = match socket {
+                Some(p) => p,
+                None => {
+                    let cfg = config::resolve_path(None).map_err(anyhow::Error::msg)?;
+                    load_profile(&cfg, &SetArgs { sets: vec![] })?
+                        .config
+                        .console
+                        .socket
+                }
+            };
+            let rt = tokio::runtime::Runtime::new().context("cannot start the runtime")?;
+            let r = rt.block_on(uquad::console::attach(&path, filter.as_deref()));
+            rt.shutdown_timeout(std::time::Duration::from_millis(100));
+            r?;
+            Ok(ExitCode::SUCCESS)
         }
         Command::Plot { run_dir, out } => {
             let path = uquad::app::plot::run(&run_dir, out.as_deref())?;

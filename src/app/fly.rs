@@ -32,6 +32,7 @@ use std::time::{Duration, Instant};
 use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::sync::{mpsc, watch};
 use tokio_util::sync::CancellationToken;
+use tracing::Instrument;
 
 /// The IMU byte stream: a serial port, a pty or an in-memory pipe.
 pub trait ImuIo: AsyncRead + AsyncWrite + Unpin + Send + 'static {}
@@ -396,8 +397,9 @@ pub async fn run(
     )
     .context("cannot start the watchdog thread")?;
 
-    // Manual keys from stdin.
+    // Manual keys from stdin and the console.
     let (manual_tx, manual_rx) = mpsc::channel::<ManualCommand>(16);
+    let (live_tx, live_rx) = watch::channel(None);
     if opts.stdin_keys {
         tokio::spawn(read_keys(manual_tx.clone(), cancel.clone()));
     }
@@ -432,6 +434,7 @@ pub async fn run(
         let imu_stats = imu_stats.clone();
         let beats = beats.clone();
         let control_delay = opts.control_delay;
+        let live_tx = live_tx.clone();
         let realtime = opts.realtime;
         std::thread::Builder::new()
             .name("control".into())
@@ -455,13 +458,16 @@ pub async fn run(
                             mass_kg: 0.0,
                             t_cmd_us: None,
                         });
-                        let reader = tokio::spawn(imu_reader::run(
-                            edges.imu,
-                            beats.clone(),
-                            frame_tx,
-                            imu_stats,
-                            cancel.clone(),
-                        ));
+                        let reader = tokio::spawn(
+                            imu_reader::run(
+                                edges.imu,
+                                beats.clone(),
+                                frame_tx,
+                                imu_stats,
+                                cancel.clone(),
+                            )
+                            .instrument(tracing::info_span!("imu_reader")),
+                        );
                         let controller = tokio::spawn(
                             ControllerTask {
                                 core: controller_core,
@@ -472,8 +478,10 @@ pub async fn run(
                                 logs: logs.clone(),
                                 cancel: cancel.clone(),
                                 delay: control_delay,
+                                live: live_tx,
                             }
-                            .run(),
+                            .run()
+                            .instrument(tracing::info_span!("controller")),
                         );
                         let estimator = EstimatorTask {
                             core: estimator_core,
@@ -489,6 +497,7 @@ pub async fn run(
                             cancel: cancel.clone(),
                         }
                         .run()
+                        .instrument(tracing::info_span!("estimator"))
                         .await;
                         // The estimator ends when frames stop or on cancel: end the run.
                         cancel.cancel();
@@ -506,6 +515,27 @@ pub async fn run(
     // Signals: the first stops the motors and ends the run; a second exits at once.
     if opts.handle_signals {
         tokio::spawn(handle_signals(mailbox.clone(), cancel.clone()));
+    }
+
+    // The console socket.
+    let console_drops = Arc::new(std::sync::atomic::AtomicU64::new(0));
+    if !cfg.console.socket.as_os_str().is_empty() {
+        let stats: crate::console::StatsFn = {
+            let imu = imu_stats.clone();
+            let esc = esc_status.clone();
+            let wd = wd_status.clone();
+            let logs = logs.clone();
+            let live = live_rx.clone();
+            let beats = beats.clone();
+            Arc::new(move || console_stats(&beats, &imu, &esc, &wd, &logs, &live))
+        };
+        let path = cfg.console.socket.clone();
+        let (tx, drops, cancel) = (manual_tx.clone(), console_drops.clone(), cancel.clone());
+        tokio::spawn(async move {
+            if let Err(e) = crate::console::serve(path.clone(), stats, tx, drops, cancel).await {
+                tracing::error!("console socket {}: {e}", path.display());
+            }
+        });
     }
 
     // systemd: ready once the IMU delivers frames (the devices are open and talking), then
@@ -613,6 +643,55 @@ pub async fn run(
         }
     }
     Ok(summary)
+}
+
+/// The console's statistics line: latency histogram, deadline misses, log drops, the current
+/// estimate and motor speeds.
+fn console_stats(
+    beats: &Heartbeats,
+    imu: &ImuStats,
+    esc: &EscStatus,
+    wd: &WatchdogStatus,
+    logs: &crate::tasks::logger::LogHub,
+    live: &watch::Receiver<Option<crate::tasks::controller::Live>>,
+) -> String {
+    // Latency histogram of the last second's commands (at most 100), in buckets of 100 µs.
+    let mut hist = [0u32; 6];
+    if let Ok(l) = esc.latencies_us.lock() {
+        for &v in l.iter().rev().take(100) {
+            hist[(v as usize / 100).min(5)] += 1;
+        }
+    }
+    let mut s = format!(
+        "stats t={:.1}s frames={} deadline_misses={} log_drops={} latency_us[<100,<200,<300,<400,<500,>=500]={:?}",
+        beats.us(Instant::now()) as f64 / 1e6,
+        imu.frames.load(Ordering::Relaxed),
+        wd.deadline_misses.load(Ordering::Relaxed),
+        logs.dropped().iter().sum::<u64>(),
+        hist
+    );
+    if let Some(l) = *live.borrow() {
+        let _ = std::fmt::Write::write_fmt(
+            &mut s,
+            format_args!(
+                " step={} z={:.3} setpoint_z={:.2} roll={:+.3} pitch={:+.3} yaw={:+.3} w=[{:.1}, {:.1}, {:.1}, {:.1}]",
+                l.step,
+                l.x[2],
+                l.setpoint_z_m,
+                l.x[3],
+                l.x[4],
+                l.x[5],
+                l.w_rad_s[0],
+                l.w_rad_s[1],
+                l.w_rad_s[2],
+                l.w_rad_s[3]
+            ),
+        );
+    }
+    if let Some(h) = wd.halt() {
+        let _ = std::fmt::Write::write_fmt(&mut s, format_args!(" HALT={}", h.trip.reason.name()));
+    }
+    s
 }
 
 /// READY=1 after the first IMU frame; WATCHDOG=1 every half `WatchdogSec` while the internal

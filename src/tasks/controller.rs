@@ -33,6 +33,17 @@ pub struct ControllerTask {
     pub cancel: CancellationToken,
     /// Fault injection: from this step on, each control step takes this long.
     pub delay: Option<(u32, std::time::Duration)>,
+    /// The newest estimate, command and set point, for the console.
+    pub live: watch::Sender<Option<Live>>,
+}
+
+/// What the console shows of the running flight.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Live {
+    pub step: u32,
+    pub x: [f64; 15],
+    pub w_rad_s: [f64; 4],
+    pub setpoint_z_m: f64,
 }
 
 impl ControllerTask {
@@ -88,6 +99,12 @@ impl ControllerTask {
                 mass_kg: self.core.mass_kg(),
                 t_cmd_us: Some(c.t_cmd_us),
             });
+            self.live.send_replace(Some(Live {
+                step: c.step,
+                x: est.x.into(),
+                w_rad_s: c.w_sent,
+                setpoint_z_m: self.core.planner().map_or(0.0, |p| p.sp.x[2]),
+            }));
             rep.steps += 1;
             rep.saturated += u64::from(c.saturated);
             self.logs.log(Record::Int(c.t_ctrl_us, c.x_int, c.n_int));

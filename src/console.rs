@@ -1,0 +1,245 @@
+//! The console: a Unix socket served by `fly` and `sim` that `uquad console` (run by a user who
+//! ssh-ed into the board) attaches to. It streams the live tracing events (filtered per client),
+//! a statistics line once a second, and takes the manual-mode commands of spec 5.2.
+//!
+//! A console never slows the control path: events go through a bounded broadcast queue, each
+//! client reads it at its own pace, and what a slow client misses is counted and told to it.
+
+use crate::core::control::ManualCommand;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, OnceLock};
+use std::time::Duration;
+use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
+use tokio::net::{UnixListener, UnixStream};
+use tokio::sync::{broadcast, mpsc};
+use tokio_util::sync::CancellationToken;
+
+/// Events queued for the consoles (each client has its own read position).
+const EVENT_QUEUE: usize = 1024;
+
+/// The live events, level first: "INFO target: message key=value".
+fn events() -> &'static broadcast::Sender<Arc<str>> {
+    static EVENTS: OnceLock<broadcast::Sender<Arc<str>>> = OnceLock::new();
+    EVENTS.get_or_init(|| broadcast::channel(EVENT_QUEUE).0)
+}
+
+/// A tracing layer feeding the consoles. It formats only when a console is attached.
+pub struct ConsoleLayer;
+
+struct Fields(String);
+
+impl tracing::field::Visit for Fields {
+    fn record_debug(&mut self, field: &tracing::field::Field, value: &dyn std::fmt::Debug) {
+        if field.name() == "message" {
+            let _ = write!(self.0, " {value:?}");
+        } else {
+            let _ = write!(self.0, " {}={value:?}", field.name());
+        }
+    }
+}
+
+impl<S: tracing::Subscriber> tracing_subscriber::Layer<S> for ConsoleLayer {
+    fn on_event(
+        &self,
+        event: &tracing::Event<'_>,
+        _ctx: tracing_subscriber::layer::Context<'_, S>,
+    ) {
+        let tx = events();
+        if tx.receiver_count() == 0 {
+            return;
+        }
+        let meta = event.metadata();
+        let mut f = Fields(format!("{} {}:", meta.level(), meta.target()));
+        event.record(&mut f);
+        let _ = tx.send(f.0.into());
+    }
+}
+
+/// A client's filter: a minimum level and an optional target/text part ("warn", "debug,esc").
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Filter {
+    min: tracing::Level,
+    contains: Option<String>,
+}
+
+impl Filter {
+    pub fn parse(s: &str) -> Filter {
+        let mut min = tracing::Level::INFO;
+        let mut contains = None;
+        for part in s.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+            match part.parse::<tracing::Level>() {
+                Ok(l) => min = l,
+                Err(_) => contains = Some(part.to_string()),
+            }
+        }
+        Filter { min, contains }
+    }
+
+    pub fn accepts(&self, line: &str) -> bool {
+        let level = line
+            .split_whitespace()
+            .next()
+            .and_then(|l| l.parse::<tracing::Level>().ok())
+            .unwrap_or(tracing::Level::INFO);
+        // tracing orders levels by verbosity: ERROR < WARN < INFO < DEBUG < TRACE.
+        level <= self.min
+            && self
+                .contains
+                .as_ref()
+                .is_none_or(|c| line.contains(c.as_str()))
+    }
+}
+
+/// The once-a-second statistics line, made by the run that serves the console.
+pub type StatsFn = Arc<dyn Fn() -> String + Send + Sync>;
+
+/// Serves the console socket at `path` until `cancel`. The socket is created readable and
+/// writable by its owner and group only.
+pub async fn serve(
+    path: PathBuf,
+    stats: StatsFn,
+    manual: mpsc::Sender<ManualCommand>,
+    dropped: Arc<AtomicU64>,
+    cancel: CancellationToken,
+) -> std::io::Result<()> {
+    use std::os::unix::fs::PermissionsExt;
+    if path.exists() {
+        // A socket left by a run that died; a live one would still be bound by its process.
+        std::fs::remove_file(&path)?;
+    }
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir)?;
+    }
+    let listener = UnixListener::bind(&path)?;
+    std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o660))?;
+    tracing::info!(socket = %path.display(), "console socket ready");
+    loop {
+        let conn = tokio::select! {
+            _ = cancel.cancelled() => break,
+            c = listener.accept() => c,
+        };
+        match conn {
+            Ok((stream, _)) => {
+                tokio::spawn(client(
+                    stream,
+                    stats.clone(),
+                    manual.clone(),
+                    dropped.clone(),
+                    cancel.clone(),
+                ));
+            }
+            Err(e) => tracing::warn!("console accept: {e}"),
+        }
+    }
+    let _ = std::fs::remove_file(&path);
+    Ok(())
+}
+
+async fn client(
+    stream: UnixStream,
+    stats: StatsFn,
+    manual: mpsc::Sender<ManualCommand>,
+    dropped: Arc<AtomicU64>,
+    cancel: CancellationToken,
+) {
+    let (read, mut write) = stream.into_split();
+    let mut lines = BufReader::new(read).lines();
+    let mut rx = events().subscribe();
+    let mut filter = Filter::parse("info");
+    let mut tick = tokio::time::interval(Duration::from_secs(1));
+    let _ = write
+        .write_all(b"uquad console: keys j/g roll, y/h pitch, q/w yaw, e/d altitude, i/k mass, 0 reset mass, quit; 'filter LEVEL[,TEXT]'\n")
+        .await;
+    loop {
+        let out: Option<String> = tokio::select! {
+            _ = cancel.cancelled() => None,
+            line = lines.next_line() => match line {
+                Ok(Some(l)) => Some(command(&l, &mut filter, &manual)),
+                _ => None,
+            },
+            ev = rx.recv() => match ev {
+                Ok(e) if filter.accepts(&e) => Some(format!("{e}\n")),
+                Ok(_) => Some(String::new()),
+                Err(broadcast::error::RecvError::Lagged(n)) => {
+                    dropped.fetch_add(n, Ordering::Relaxed);
+                    Some(format!("console: {n} events dropped (this console read too slowly)\n"))
+                }
+                Err(broadcast::error::RecvError::Closed) => None,
+            },
+            _ = tick.tick() => Some(format!("{}\n", stats())),
+        };
+        let Some(out) = out else { break };
+        if !out.is_empty() && write.write_all(out.as_bytes()).await.is_err() {
+            break;
+        }
+    }
+}
+
+/// One line from a client: a filter change or a manual-mode command.
+fn command(line: &str, filter: &mut Filter, manual: &mpsc::Sender<ManualCommand>) -> String {
+    let line = line.trim();
+    if let Some(f) = line.strip_prefix("filter") {
+        *filter = Filter::parse(f);
+        return format!("console: filter {filter:?}\n");
+    }
+    let key = match line {
+        "quit" | "esc" => Some(27u8),
+        l if l.len() == 1 => l.bytes().next(),
+        _ => None,
+    };
+    match key.and_then(ManualCommand::from_key) {
+        Some(cmd) => match manual.try_send(cmd) {
+            Ok(()) => format!("console: sent {cmd:?}\n"),
+            Err(_) => "console: the controller is not taking commands now\n".to_string(),
+        },
+        None if line.is_empty() => String::new(),
+        None => format!("console: unknown command {line:?}\n"),
+    }
+}
+
+/// `uquad console`: attaches to `path`, prints what arrives, sends stdin's lines.
+pub async fn attach(path: &Path, filter: Option<&str>) -> anyhow::Result<()> {
+    use anyhow::Context;
+    let stream = UnixStream::connect(path)
+        .await
+        .with_context(|| format!("cannot attach to the console at {}", path.display()))?;
+    let (read, mut write) = stream.into_split();
+    if let Some(f) = filter {
+        write.write_all(format!("filter {f}\n").as_bytes()).await?;
+    }
+    let to_socket = tokio::spawn(async move {
+        let mut stdin = BufReader::new(tokio::io::stdin()).lines();
+        while let Ok(Some(l)) = stdin.next_line().await {
+            if write.write_all(format!("{l}\n").as_bytes()).await.is_err() {
+                break;
+            }
+        }
+    });
+    let mut lines = BufReader::new(read).lines();
+    let mut out = tokio::io::stdout();
+    while let Some(l) = lines.next_line().await? {
+        out.write_all(format!("{l}\n").as_bytes()).await?;
+        out.flush().await?;
+    }
+    to_socket.abort();
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn filters() {
+        let f = Filter::parse("warn");
+        assert!(f.accepts("ERROR uquad: x"));
+        assert!(f.accepts("WARN uquad: x"));
+        assert!(!f.accepts("INFO uquad: x"));
+        let f = Filter::parse("debug,esc");
+        assert!(f.accepts("DEBUG uquad::tasks::esc_writer: y"));
+        assert!(!f.accepts("DEBUG uquad::tasks::estimator: y"));
+        assert!(!f.accepts("TRACE uquad::tasks::esc_writer: y"));
+    }
+}
