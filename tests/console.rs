@@ -63,6 +63,14 @@ fn two_consoles_watch_and_steer_a_running_flight() {
             ])
             .arg("--set")
             .arg(format!("console.socket=\"{}\"", sock.display()))
+            // The subject is the console: an IMU timeout above this shared machine's
+            // scheduling jitter (the deadline stays at its 10 ms default).
+            .args([
+                "--set",
+                "watchdog.imu_timeout_ms=100",
+                "--set",
+                "esc.command_timeout_ms=150",
+            ])
             .args(["--log-dir", dir.path().to_str().unwrap()])
             .args(["--report", report.to_str().unwrap()])
             .current_dir(root())

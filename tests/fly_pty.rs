@@ -5,7 +5,7 @@ mod common;
 use common::*;
 use std::time::Duration;
 use uquad::core::motor::{
-    EscAction, MotorMap, REG_DISABLE, REG_ENABLE, REG_SPEED, esc_startup_ramp, i2c_from_rad_s,
+    EscAction, MotorMap, REG_ENABLE, REG_SPEED, esc_startup_ramp, i2c_from_rad_s,
 };
 use uquad::hw::esc_bus::Transaction;
 
@@ -80,14 +80,7 @@ async fn fly_through_a_pty_with_a_mock_bus_then_replay() {
         );
     }
     // 4. Shutdown: zero to every ESC, then disable every ESC, and nothing after.
-    let n = tx.len();
-    let tail: Vec<(u8, u8, u8)> = tx[n - 8..]
-        .iter()
-        .map(|t| (t.addr, t.reg, t.value))
-        .collect();
-    let mut expected: Vec<(u8, u8, u8)> = addrs.map(|a| (a, REG_SPEED, 0)).to_vec();
-    expected.extend(addrs.map(|a| (a, REG_DISABLE, 0)));
-    assert_eq!(tail, expected);
+    assert_ends_zero_then_disable(&tx);
     assert_eq!(summary.esc_stop_reason.as_deref(), Some("shutdown"));
 
     // The run folder is self-contained and replays to identical bytes.

@@ -25,6 +25,12 @@ fn ready_then_pings_which_stop_after_a_fault() {
             "imu-stall@13",
             "--config",
             "config/uquad.toml",
+            // An IMU timeout above this shared machine's scheduling jitter, so only the
+            // injected stall trips it.
+            "--set",
+            "watchdog.imu_timeout_ms=100",
+            "--set",
+            "esc.command_timeout_ms=150",
             "--log-dir",
             dir.path().to_str().unwrap(),
             "--report",

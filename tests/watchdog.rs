@@ -4,7 +4,6 @@
 mod common;
 use common::*;
 use std::time::Duration;
-use uquad::core::motor::{MotorMap, REG_DISABLE, REG_SPEED};
 
 /// Frames before the flight has surely started: 5 settling, about 240 during the ESC ramp,
 /// 64 calibrating, then some flight.
@@ -39,15 +38,7 @@ async fn expect_halt(
         "halt {latency} ms after the event (limit {max_latency_ms})"
     );
     // Zero to every ESC, then disable every ESC, and nothing after.
-    let tx = bus.transactions();
-    let addrs = MotorMap::UQUAD.addresses;
-    let tail: Vec<(u8, u8, u8)> = tx[tx.len() - 8..]
-        .iter()
-        .map(|t| (t.addr, t.reg, t.value))
-        .collect();
-    let mut expected: Vec<(u8, u8, u8)> = addrs.map(|a| (a, REG_SPEED, 0)).to_vec();
-    expected.extend(addrs.map(|a| (a, REG_DISABLE, 0)));
-    assert_eq!(tail, expected);
+    assert_ends_zero_then_disable(&bus.transactions());
     assert_eq!(summary.esc_stop_reason.as_deref(), Some(reason));
     // err.log and the report say why.
     let err = std::fs::read_to_string(summary.run_dir.join("err.log")).unwrap();

@@ -357,6 +357,10 @@ pub async fn run(
     // The actuator edge first: it boots disabled and owns the bus.
     let mailbox = Arc::new(EscMailbox::default());
     let esc_status = Arc::new(EscStatus::default());
+    if let Ok(mut l) = esc_status.latencies_us.lock() {
+        // An hour of commands: the ESC writer does not allocate while flying.
+        l.reserve(360_000);
+    }
     let esc_thread = esc_writer::spawn(
         edges.bus,
         EscParams {

@@ -6,8 +6,6 @@
 use crate::app::fly::{self, Edges, FlyOptions};
 use crate::config::Profile;
 use crate::sim::esc::{EscModel, SimBus};
-use crate::sim::imu::{ImuNoise, SimImu};
-use crate::sim::physics::{Plant, PlantParams};
 use crate::sim::run::{HoverStats, SimOptions, SimSummary};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
@@ -38,8 +36,7 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
     let sim_thread = {
         let model = model.clone();
         let stop = stop.clone();
-        let calib = profile.calib.clone();
-        let mass = cfg.vehicle.mass_kg;
+        let profile = profile.clone();
         let hover_z = cfg.control.hover_z_m;
         let hover = hover.clone();
         let progress = opts.progress;
@@ -47,28 +44,7 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
             .name("sim".into())
             .spawn(move || {
                 crate::tasks::raise_priority("sim", 60);
-                let mut plant = Plant::new(
-                    PlantParams {
-                        mass_kg: mass,
-                        motor_tau_s: sc.motor_tau_s,
-                        drag_n_per_m_s: sc.drag_n_per_m_s,
-                        wind_m_s: sc.wind_m_s,
-                    },
-                    sc.initial_yaw_rad,
-                );
-                let mut imu = SimImu::new(
-                    calib,
-                    ImuNoise {
-                        acc_m_s2: sc.acc_noise_m_s2,
-                        gyro_rad_s: sc.gyro_noise_rad_s,
-                        gyro_bias_rad_s: sc.gyro_bias_rad_s,
-                        baro_pa: sc.baro_noise_pa,
-                        mag: sc.mag_noise,
-                        temp_c: 0.0,
-                    },
-                    sc.temp_c,
-                    seed,
-                );
+                let (mut plant, mut imu) = crate::sim::vehicle(&profile, seed);
                 let step_us = 1_000_000 / i64::from(sc.physics_hz);
                 // The IMU waits for the host's '!' before streaming (spec 1.1); the pipe buffers it.
                 let mut t_us: i64 = 0;

@@ -16,8 +16,6 @@ use crate::core::motor::FLIGHT_RAMP_STEPS;
 use crate::core::watchdog::{Trip, Watchdog};
 use crate::logs::{ImuRawRecord, KalmanInRecord};
 use crate::sim::esc::EscModel;
-use crate::sim::imu::{ImuNoise, SimImu};
-use crate::sim::physics::{Plant, PlantParams};
 use crate::tasks::logger::{Record, STREAMS};
 use crate::tasks::watchdog::Halt;
 use anyhow::Context;
@@ -167,28 +165,7 @@ pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumma
     profile_run.config.sim.seed = seed;
     write_run_config(&profile_run, &run_dir)?;
 
-    let mut plant = Plant::new(
-        PlantParams {
-            mass_kg: cfg.vehicle.mass_kg,
-            motor_tau_s: sc.motor_tau_s,
-            drag_n_per_m_s: sc.drag_n_per_m_s,
-            wind_m_s: sc.wind_m_s,
-        },
-        sc.initial_yaw_rad,
-    );
-    let mut imu = SimImu::new(
-        profile.calib.clone(),
-        ImuNoise {
-            acc_m_s2: sc.acc_noise_m_s2,
-            gyro_rad_s: sc.gyro_noise_rad_s,
-            gyro_bias_rad_s: sc.gyro_bias_rad_s,
-            baro_pa: sc.baro_noise_pa,
-            mag: sc.mag_noise,
-            temp_c: 0.0,
-        },
-        sc.temp_c,
-        seed,
-    );
+    let (mut plant, mut imu) = crate::sim::vehicle(profile, seed);
     let map = profile.motor_map();
     let mut escs = EscModel::new(map);
     let mut driver = EscDriver::new(

@@ -65,11 +65,13 @@ impl Heartbeats {
         }
     }
 
-    fn take(&self) -> Vec<Event> {
-        self.events
-            .lock()
-            .map(|mut v| std::mem::take(&mut *v))
-            .unwrap_or_default()
+    /// Swaps the queued events into `batch` (cleared first): both buffers keep their
+    /// capacity, so reporting an event allocates nothing once warmed up.
+    fn take_into(&self, batch: &mut Vec<Event>) {
+        batch.clear();
+        if let Ok(mut v) = self.events.lock() {
+            std::mem::swap(&mut *v, batch);
+        }
     }
 }
 
@@ -127,6 +129,7 @@ pub fn spawn(
                 crate::tasks::raise_priority("watchdog", 70);
             }
             let mut wd = Watchdog::new(params);
+            let mut batch = Vec::with_capacity(256);
             loop {
                 if status.stop.load(Ordering::SeqCst) || cancel.is_cancelled() {
                     return;
@@ -137,7 +140,8 @@ pub fn spawn(
                 let now_us = beats.us(Instant::now());
                 status.last_check_us.store(now_us, Ordering::Relaxed);
                 let mut trip = None;
-                for e in beats.take() {
+                beats.take_into(&mut batch);
+                for &e in &batch {
                     let t = match e {
                         Event::Frame(at) => {
                             wd.on_frame(at);

@@ -330,3 +330,17 @@ pub async fn fly_with<F: std::future::Future<Output = ()>>(
     let sent = feeder.stop();
     (summary, sent, bus, logs)
 }
+
+/// The bus's last transactions are zero to every ESC, then disable every ESC.
+pub fn assert_ends_zero_then_disable(tx: &[uquad::hw::esc_bus::Transaction]) {
+    use uquad::core::motor::{MotorMap, REG_DISABLE, REG_SPEED};
+    let addrs = MotorMap::UQUAD.addresses;
+    assert!(tx.len() >= 8, "{} transactions", tx.len());
+    let tail: Vec<(u8, u8, u8)> = tx[tx.len() - 8..]
+        .iter()
+        .map(|t| (t.addr, t.reg, t.value))
+        .collect();
+    let mut expected: Vec<(u8, u8, u8)> = addrs.map(|a| (a, REG_SPEED, 0)).to_vec();
+    expected.extend(addrs.map(|a| (a, REG_DISABLE, 0)));
+    assert_eq!(tail, expected);
+}
