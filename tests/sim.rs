@@ -123,3 +123,43 @@ fn the_main_job_runs_with_no_arguments() {
         .collect();
     assert_eq!(runs.len(), 1);
 }
+
+#[test]
+fn hovers_with_gains_designed_by_uquad_lqr() {
+    let gains = tempfile::tempdir().unwrap();
+    let o = uquad(
+        &root(),
+        &[
+            "lqr",
+            "--config",
+            "config/uquad.toml",
+            "--integrators",
+            "x,y,z,theta",
+            "--out",
+            gains.path().to_str().unwrap(),
+        ],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let k_prop = format!(
+        "control.k_prop_file=\"{}\"",
+        gains.path().join("K_prop.txt").display()
+    );
+    let k_int = format!(
+        "control.k_int_file=\"{}\"",
+        gains.path().join("K_int.txt").display()
+    );
+    let (report, _logs) = sim(&[
+        "--fast",
+        "--duration",
+        "60",
+        "--config",
+        "config/uquad.toml",
+        "--set",
+        &k_prop,
+        "--set",
+        &k_int,
+        "--set",
+        "control.integrators=x,y,z,theta",
+    ]);
+    assert_hovers(&report);
+}
