@@ -359,11 +359,10 @@ pub fn propagate_covariance(f: &StateMatrix, p: &StateMatrix) -> StateMatrix {
     // Column-major storage: column c is the contiguous run c·15 .. c·15 + 15.
     let g = |y: &StateMatrix| {
         let mut out = *y;
-        let src = y.as_slice();
-        let dst = out.as_mut_slice();
         for &(i, j, d) in &entries[..n] {
-            let from = &src[j * N_STATES..(j + 1) * N_STATES];
-            let to = &mut dst[i * N_STATES..(i + 1) * N_STATES];
+            // Fixed-length columns: the compiler unrolls and vectorises the update.
+            let from: [f64; N_STATES] = y.column(j).into();
+            let mut to = out.column_mut(i);
             for (t, f) in to.iter_mut().zip(from) {
                 *t += d * f;
             }
