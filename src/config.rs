@@ -563,13 +563,6 @@ impl Profile {
     }
 }
 
-impl Profile {
-    /// The resolved configuration as TOML (what a run folder stores as `config.toml`).
-    pub fn resolved_toml(&self) -> String {
-        toml::to_string(&self.config).unwrap_or_default()
-    }
-}
-
 /// Parses a `--set KEY=VALUE` argument: a dotted key and a TOML value. A value that is not
 /// valid TOML is taken as a string, so `--set gps.mode=fake-zero` works without quotes.
 pub fn parse_set(arg: &str) -> Result<(String, toml::Value), String> {

@@ -104,9 +104,16 @@ pub async fn serve(
     dropped: Arc<AtomicU64>,
     cancel: CancellationToken,
 ) -> std::io::Result<()> {
-    use std::os::unix::fs::PermissionsExt;
-    if path.exists() {
-        // A socket left by a run that died; a live one would still be bound by its process.
+    use std::os::unix::fs::{FileTypeExt, PermissionsExt};
+    if let Ok(meta) = std::fs::symlink_metadata(&path) {
+        // A socket left by a run that died is replaced; anything else at that path is not
+        // ours to delete.
+        if !meta.file_type().is_socket() {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::AlreadyExists,
+                format!("{} exists and is not a socket", path.display()),
+            ));
+        }
         std::fs::remove_file(&path)?;
     }
     if let Some(dir) = path.parent() {

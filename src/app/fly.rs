@@ -374,6 +374,8 @@ pub async fn run(
         opts.realtime,
     )
     .context("cannot start the ESC writer thread")?;
+    // Any early return from here on (a thread that cannot start) still stops the ESCs.
+    let _esc_guard = StopEscOnDrop(mailbox.clone());
 
     // The watchdog, on its own thread: it halts through the ESC writer and ends the run.
     let wd_status = Arc::new(WatchdogStatus::default());
@@ -733,6 +735,15 @@ async fn notify_systemd(
         if now_us - checked_us < 100_000 {
             n.send("WATCHDOG=1");
         }
+    }
+}
+
+/// Shuts the ESC writer down (zero, disable, end) when dropped; idempotent.
+struct StopEscOnDrop(Arc<EscMailbox>);
+
+impl Drop for StopEscOnDrop {
+    fn drop(&mut self) {
+        self.0.shutdown();
     }
 }
 
