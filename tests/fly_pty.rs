@@ -9,8 +9,12 @@ use uquad::core::motor::{
 };
 use uquad::hw::esc_bus::Transaction;
 
+/// One flight at a time: a flight shares this 2-core machine with nothing else.
+static ONE_AT_A_TIME: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn fly_through_a_pty_with_a_mock_bus_then_replay() {
+    let _one = ONE_AT_A_TIME.lock().await;
     // Settle 0.05 s + ESC ramp 2.37 s + calibration 0.64 s + flight ramp 1 s + 1 s of hover.
     let (summary, sent, bus, _logs) =
         fly_for(&[], None, tokio::time::sleep(Duration::from_millis(5_500))).await;
@@ -119,6 +123,7 @@ async fn fly_through_a_pty_with_a_mock_bus_then_replay() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_stalled_logger_loses_no_control_step() {
+    let _one = ONE_AT_A_TIME.lock().await;
     // x_hat's logger stops writing for 500 ms a little after the flight starts; its queue holds
     // 8 records, so about 40 records cannot be queued.
     let stall = uquad::tasks::logger::LogStall {

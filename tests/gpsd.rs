@@ -74,6 +74,9 @@ async fn nmea_source(listener: TcpListener) {
     }
 }
 
+/// One gpsd and one flight at a time: a flight shares this 2-core machine with nothing else.
+static ONE_AT_A_TIME: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
+
 fn free_port() -> u16 {
     std::net::TcpListener::bind("127.0.0.1:0")
         .unwrap()
@@ -120,6 +123,7 @@ async fn source() -> u16 {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn uquad_gps_prints_the_streams_fixes() {
+    let _one = ONE_AT_A_TIME.lock().await;
     let src = source().await;
     let port = free_port();
     let _gpsd = Gpsd::start(port, src);
@@ -227,6 +231,7 @@ fn fused(run_dir: &std::path::Path) -> Vec<(f64, f64, f64, f64)> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn gpsd_fixes_reach_the_estimator_and_the_run_replays() {
+    let _one = ONE_AT_A_TIME.lock().await;
     let src = source().await;
     let port = free_port();
     let _gpsd = Gpsd::start(port, src);
@@ -284,6 +289,7 @@ async fn gpsd_fixes_reach_the_estimator_and_the_run_replays() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn gpsd_restart_mid_run_reconnects_and_loses_no_control_step() {
+    let _one = ONE_AT_A_TIME.lock().await;
     let src = source().await;
     let port = free_port();
     let gpsd = Gpsd::start(port, src);
@@ -293,7 +299,7 @@ async fn gpsd_restart_mid_run_reconnects_and_loses_no_control_step() {
         drop(gpsd); // gpsd goes away mid-flight
         tokio::time::sleep(Duration::from_millis(700)).await;
         let again = Gpsd::start(port, src);
-        tokio::time::sleep(Duration::from_millis(2_300)).await;
+        tokio::time::sleep(Duration::from_millis(3_300)).await;
         drop(again);
     })
     .await;
