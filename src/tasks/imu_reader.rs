@@ -49,6 +49,7 @@ pub async fn run<IO: AsyncRead + AsyncWrite + Unpin>(
     io.flush().await?;
     let mut decoder = FrameDecoder::new();
     let mut buf = BytesMut::with_capacity(4096);
+    let mut last_stamp_us = i64::MIN;
     loop {
         let n = tokio::select! {
             _ = cancel.cancelled() => return Ok(()),
@@ -59,8 +60,13 @@ pub async fn run<IO: AsyncRead + AsyncWrite + Unpin>(
             return Ok(());
         }
         let at = Instant::now();
-        let stamp_us = beats.us(at);
+        let read_us = beats.us(at);
         while let Some(frame) = decoder.next_frame(&mut buf) {
+            // Strictly increasing stamps, even for frames decoded from one read: the logs'
+            // "applied by the first step later than t" rules (GPS samples) then pick the same
+            // step in a replay as in flight.
+            let stamp_us = read_us.max(last_stamp_us + 1);
+            last_stamp_us = stamp_us;
             stats.frames.fetch_add(1, Ordering::Relaxed);
             beats.report(Event::Frame(stamp_us));
             if tx
