@@ -3,8 +3,8 @@
 //! In: estimates from the estimator; manual-mode commands (stdin keys, console).
 //! Out: motor commands to the ESC writer; feedback (the next EKF input) to the estimator;
 //! `w` and `int` records.
-//! Rate: one control step per estimate (100 Hz). Ends: when estimates stop, on a quit
-//! command, or on cancel.
+//! Rate: one control step per estimate (100 Hz). Ends: when the estimator ends (on cancel or
+//! a quit command, which cancels), after the estimates it already sent.
 
 use crate::core::control::{ManualCommand, ManualOutcome};
 use crate::core::flight::ControllerCore;
@@ -55,14 +55,9 @@ impl ControllerTask {
             mass_kg: self.core.mass_kg(),
             t_cmd_us: None,
         });
-        loop {
-            let msg = tokio::select! {
-                _ = self.cancel.cancelled() => break,
-                m = self.estimates.recv() => match m {
-                    Some(m) => m,
-                    None => break,
-                },
-            };
+        // Ends when the estimator does (it drops its sender on cancel), after the estimates
+        // already sent: every step the estimator logged is also controlled and logged here.
+        while let Some(msg) = self.estimates.recv().await {
             while let Ok(cmd) = self.manual.try_recv() {
                 rep.manual_commands += 1;
                 match self.core.apply_manual(cmd) {
