@@ -299,6 +299,8 @@ pub struct Control {
     pub lqr_r_file: PathBuf,
     /// Hover altitude set point above the start altitude, m.
     pub hover_z_m: f64,
+    /// The horizontal position is held only while a GPS fix was fused within this long, s.
+    pub gps_hold_timeout_s: f64,
     pub integral: Integrals,
     /// Bounds on how far manual commands may move the set point (spec 5.2).
     pub manual: ManualBounds,
@@ -399,6 +401,7 @@ impl Default for Control {
             lqr_q_file: PathBuf::from("lqr-Q.txt"),
             lqr_r_file: PathBuf::from("lqr-R.txt"),
             hover_z_m: 1.0,
+            gps_hold_timeout_s: 3.0,
             integral: Integrals::default(),
         }
     }
@@ -547,6 +550,7 @@ impl Profile {
                 bounds: c.control.manual,
             },
             c.control.original_timing,
+            (c.control.gps_hold_timeout_s * 1e6).round() as i64,
         )
     }
 
@@ -710,6 +714,13 @@ pub fn load(path: &Path, sets: &[(String, toml::Value)]) -> Result<Profile, Conf
         z.is_finite() && (0.0..=10.0).contains(&z),
         z.to_string(),
         "0 to 10 m",
+    );
+    let to = c.control.gps_hold_timeout_s;
+    range(
+        "control.gps_hold_timeout_s",
+        to.is_finite() && to > 0.0 && to <= 3600.0,
+        to.to_string(),
+        "more than 0, at most 3600 s",
     );
     // Bounds relative to another key are checked only when that key is itself valid, so one
     // bad value is reported once.

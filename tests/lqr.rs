@@ -125,3 +125,38 @@ fn psi_phi_design_is_refused_with_the_reason() {
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("--integrators"));
 }
+
+#[test]
+fn the_default_profile_gains_are_its_lqr_design() {
+    // config/uquad.toml flies K_*_lqr_xyzt.txt: they must be what `uquad lqr` designs from the
+    // profile's own weights, so anyone can change the weights and regenerate them.
+    let out = tempfile::tempdir().unwrap();
+    let o = uquad(
+        &root(),
+        &[
+            "lqr",
+            "--config",
+            "config/uquad.toml",
+            "--integrators",
+            "x,y,z,theta",
+            "--out",
+            out.path().to_str().unwrap(),
+        ],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for (ours, shipped) in [
+        ("K_prop.txt", "K_prop_lqr_xyzt.txt"),
+        ("K_int.txt", "K_int_lqr_xyzt.txt"),
+    ] {
+        let a = matrix(&out.path().join(ours));
+        let b = matrix(&root().join("config").join(shipped));
+        let scale = b.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
+        assert_eq!(a.len(), b.len());
+        for (ra, rb) in a.iter().zip(&b) {
+            assert_eq!(ra.len(), rb.len());
+            for (x, y) in ra.iter().zip(rb) {
+                assert!((x - y).abs() <= 1e-12 * scale, "{shipped}: {x} vs {y}");
+            }
+        }
+    }
+}

@@ -126,6 +126,8 @@ fn the_main_job_runs_with_no_arguments() {
 
 #[test]
 fn hovers_with_gains_designed_by_uquad_lqr() {
+    // From the 2012 project's weights, with the 2012 filter noise (the default profile's own
+    // design is checked in tests/lqr.rs and flown by every default-profile test).
     let gains = tempfile::tempdir().unwrap();
     let o = uquad(
         &root(),
@@ -133,6 +135,8 @@ fn hovers_with_gains_designed_by_uquad_lqr() {
             "lqr",
             "--config",
             "config/uquad.toml",
+            "--set",
+            "control.lqr_q_file=\"lqr-Q.txt\"",
             "--integrators",
             "x,y,z,theta",
             "--out",
@@ -160,6 +164,8 @@ fn hovers_with_gains_designed_by_uquad_lqr() {
         &k_int,
         "--set",
         "control.integrators=x,y,z,theta",
+        "--set",
+        "ekf.q=[100.0, 100.0, 100.0, 0.01, 0.01, 1e-5, 100.0, 100.0, 100.0, 0.1, 0.1, 0.1, 1.0, 1.0, 1.0]",
     ]);
     assert_hovers(&report);
 }

@@ -61,6 +61,16 @@ fn gps_loss_keeps_hovering_on_the_barometer() {
     let rms = r["alt_rms_m"].as_f64().unwrap();
     assert!(rms <= 0.2, "altitude RMS {rms} m");
     assert!(r["hover_samples"].as_u64().unwrap() >= 2_900);
+    // Without fixes the horizontal position is let go (the filter's x, y drift) and said so.
+    let err = std::fs::read_to_string(
+        std::path::Path::new(r["run_dir"].as_str().unwrap()).join("err.log"),
+    )
+    .unwrap();
+    assert!(err.contains("position hold on"), "{err}");
+    assert!(
+        err.contains("position hold off: no GPS fix fused for 3 s"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -78,6 +88,43 @@ fn log_stall_costs_no_deadline() {
     // 500 ms of records with a 16-record queue: 34 of x_hat's 50 dropped and counted.
     assert_eq!(r["log_drops"], 34, "{r}");
     assert_eq!(r["log_drops_by_stream"]["x_hat"], 34);
+}
+
+#[test]
+fn thrust_loss_keeps_the_altitude_within_half_a_metre() {
+    // m0 loses 30 % of its thrust at 30 s; the hover window (29 s to 60 s) holds the loss and
+    // the 30 s after it.
+    let (r, _logs) = sim_report(&["--duration", "60", "--inject", "thrust-loss@30"]);
+    assert!(r["halt"].is_null(), "{r}");
+    let window_start = r["hover_window_start_s"].as_f64().unwrap();
+    assert!(window_start < 30.0, "{r}");
+    assert!(r["hover_samples"].as_u64().unwrap() >= 3_000, "{r}");
+    let worst = r["alt_max_err_m"].as_f64().unwrap();
+    assert!(worst <= 0.5, "altitude error up to {worst} m");
+    assert!(r["alt_rms_m"].as_f64().unwrap() <= 0.2, "{r}");
+}
+
+#[test]
+fn thrust_loss_brings_the_2012_gains_down() {
+    // The same loss with the 2012 flights' gains and filter noise: their altitude loop (8.8 rad/s
+    // per m, integral capped at 2 m s) cannot make up the lost thrust, which is why the default
+    // profile carries its own design.
+    let (r, _logs) = sim_report(&[
+        "--duration",
+        "60",
+        "--inject",
+        "thrust-loss@30",
+        "--set",
+        "control.integrators=\"psi,phi,z,theta\"",
+        "--set",
+        "control.k_prop_file=\"K_prop_full_ppzt.txt\"",
+        "--set",
+        "control.k_int_file=\"K_int_full_ppzt.txt\"",
+        "--set",
+        "ekf.q=[100.0, 100.0, 100.0, 0.01, 0.01, 1e-5, 100.0, 100.0, 100.0, 0.1, 0.1, 0.1, 1.0, 1.0, 1.0]",
+    ]);
+    let worst = r["alt_max_err_m"].as_f64().unwrap();
+    assert!(worst > 0.5, "altitude error only {worst} m: {r}");
 }
 
 #[test]

@@ -97,6 +97,9 @@ impl IntegralRule {
 /// |e_θ| ≤ 1.05 rad.
 pub const ERROR_LIMITS: [(usize, f64); 4] = [(0, 18.0), (1, 18.0), (2, 4.0), (5, 1.05)];
 
+/// The horizontal position and velocity states: x, y, vqx, vqy.
+const HORIZONTAL_STATES: [usize; 4] = [0, 1, 6, 7];
+
 /// The set point: 12 states and the motor speeds around which the controller acts.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SetPoint {
@@ -173,7 +176,7 @@ impl Controller {
                 row[state] = k_prop[m * cols.len() + j];
             }
             if integrators == Integrators::PsiPhiZTheta {
-                for state in [0, 1, 6, 7] {
+                for state in HORIZONTAL_STATES {
                     row[state] = 0.0;
                 }
             }
@@ -210,9 +213,29 @@ impl Controller {
     /// One control step (spec 4.4): e = sp − x̂; w = sp.w + K·e; integrators updated with
     /// T_s; w += K_int·x_int. Returns the raw controller output (before ramp and saturation).
     pub fn step(&mut self, x_hat: &State, sp: &SetPoint, t_s: f64) -> [f64; 4] {
+        self.step_with_hold(x_hat, sp, t_s, true)
+    }
+
+    /// [`Controller::step`], with the horizontal position held or not. Without position hold
+    /// (no GPS fix lately: x, y and the body velocities vqx, vqy are then the filter's
+    /// integration of accelerations and drift without bound) their errors count as zero and
+    /// the x, y integrators keep their values: the controller holds attitude, altitude and
+    /// yaw, and what the x, y integrators learnt (a motor's trim) stays applied.
+    pub fn step_with_hold(
+        &mut self,
+        x_hat: &State,
+        sp: &SetPoint,
+        t_s: f64,
+        hold_position: bool,
+    ) -> [f64; 4] {
         let mut e = [0.0; N_CONTROLLED];
         for (i, ei) in e.iter_mut().enumerate() {
             *ei = sp.x[i] - x_hat[i];
+        }
+        if !hold_position {
+            for i in HORIZONTAL_STATES {
+                e[i] = 0.0;
+            }
         }
         if self.error_limits {
             for (i, lim) in ERROR_LIMITS {
@@ -231,7 +254,9 @@ impl Controller {
         // its own error, so the order does not change the result.
         let states = self.integrators.states();
         for (k, &state) in states.iter().enumerate().rev() {
-            self.x_int[k] = self.rules[k].update(self.x_int[k], e[state], t_s);
+            if hold_position || !HORIZONTAL_STATES.contains(&state) {
+                self.x_int[k] = self.rules[k].update(self.x_int[k], e[state], t_s);
+            }
         }
         for (m, wm) in w.iter_mut().enumerate() {
             let mut acc = 0.0;
@@ -478,6 +503,45 @@ mod tests {
         assert_eq!(r.update(0.0, -0.2, 0.01), -1e-3);
         assert_eq!(r.update(0.01, 0.2, 0.01), 0.0105);
         assert_eq!(r.update(0.004, 0.3, 0.01), 0.004, "above the threshold");
+    }
+
+    #[test]
+    fn without_position_hold_x_y_and_their_speeds_count_as_zero() {
+        // K: 1 on every column; K_int: 1 on every integrator (x, y, z, theta).
+        let mut c = Controller::new(
+            &[1.0; 48],
+            &[1.0; 16],
+            false,
+            Integrators::XYZTheta,
+            &rules4(),
+            false,
+        )
+        .unwrap();
+        let sp = SetPoint {
+            x: [0.0; 12],
+            w_rad_s: [300.0; 4],
+        };
+        // Estimate: x, y, vqx, vqy and z off by 0.1 each.
+        let mut x_hat = State::zeros();
+        for i in [0, 1, 2, 6, 7] {
+            x_hat[i] = 0.1;
+        }
+        let held = c.clone().step_with_hold(&x_hat, &sp, 0.01, true);
+        let seeds = c.x_int().to_vec();
+        let free = c.step_with_hold(&x_hat, &sp, 0.01, false);
+        // Held: 5 errors of -0.1; not held: only z's. The integrators: x, y frozen at their
+        // seeds, z moved by e·T = -1e-3.
+        assert_eq!(c.x_int()[..2], seeds[..2]);
+        assert!((c.x_int()[2] - (seeds[2] - 1e-3)).abs() < 1e-15);
+        let int_sum: f64 = c.x_int().iter().sum();
+        assert!(
+            (free[0] - (300.0 - 0.1 + int_sum)).abs() < 1e-12,
+            "{free:?}"
+        );
+        assert!(
+            (held[0] - free[0] + 0.4 + 2e-3).abs() < 1e-12,
+            "{held:?} {free:?}"
+        );
     }
 
     #[test]

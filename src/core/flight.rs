@@ -151,6 +151,8 @@ pub struct ControlOut {
     pub n_int: usize,
     /// At least one speed was clamped to w_min or w_max.
     pub saturated: bool,
+    /// The horizontal position was held (a GPS fix fused lately).
+    pub position_hold: bool,
 }
 
 /// The controller half: planner, controller, flight ramp and saturation, and the EKF input.
@@ -162,6 +164,10 @@ pub struct ControllerCore {
     original_timing: bool,
     /// The previous step's raw output, command sent and command time.
     prev: Option<([f64; 4], [f64; 4], i64)>,
+    /// Horizontal position is held while a GPS fix was fused within this long, µs.
+    gps_hold_timeout_us: i64,
+    /// Time of the last step that fused a GPS fix, µs.
+    last_gps_us: Option<i64>,
 }
 
 /// What the hover planner is built from once the calibration yaw is known.
@@ -174,13 +180,34 @@ pub struct PlannerSpec {
 }
 
 impl ControllerCore {
-    pub fn new(controller: Controller, spec: PlannerSpec, original_timing: bool) -> Self {
+    /// `gps_hold_timeout_us`: the horizontal position is held only while a GPS fix was fused
+    /// within this long (see [`Controller::step_with_hold`]).
+    pub fn new(
+        controller: Controller,
+        spec: PlannerSpec,
+        original_timing: bool,
+        gps_hold_timeout_us: i64,
+    ) -> Self {
         ControllerCore {
             controller,
             make_planner: spec,
             planner: None,
             original_timing,
             prev: None,
+            gps_hold_timeout_us,
+            last_gps_us: None,
+        }
+    }
+
+    /// The err.log line for a change of position hold.
+    pub fn position_hold_message(&self, hold: bool) -> String {
+        if hold {
+            "position hold on: GPS fixes fused".to_string()
+        } else {
+            format!(
+                "position hold off: no GPS fix fused for {} s; holding attitude, altitude and yaw",
+                self.gps_hold_timeout_us as f64 / 1e6
+            )
         }
     }
 
@@ -238,9 +265,15 @@ impl ControllerCore {
             None if self.original_timing => t_ctrl_us.rem_euclid(1_000_000),
             None => NOMINAL_PERIOD_US,
         };
-        let w_ctrl = self
-            .controller
-            .step(&est.x, &planner.sp, t_s_us as f64 / 1e6);
+        if est.gps_used {
+            self.last_gps_us = Some(est.t_us);
+        }
+        let position_hold = self
+            .last_gps_us
+            .is_some_and(|t| est.t_us - t <= self.gps_hold_timeout_us);
+        let w_ctrl =
+            self.controller
+                .step_with_hold(&est.x, &planner.sp, t_s_us as f64 / 1e6, position_hold);
         let w_sent = command_for_step(&w_ctrl, est.step, &limits);
         let n_int = self.controller.x_int().len();
         let mut x_int = [0.0; 4];
@@ -257,6 +290,7 @@ impl ControllerCore {
             saturated: w_sent
                 .iter()
                 .any(|&w| w == limits.w_min_rad_s || w == limits.w_max_rad_s),
+            position_hold,
         }
     }
 }

@@ -6,7 +6,7 @@
 use crate::app::fly::{self, Edges, FlyOptions};
 use crate::config::Profile;
 use crate::sim::esc::{EscModel, SimBus};
-use crate::sim::run::{HoverStats, SimOptions, SimSummary};
+use crate::sim::run::{HoverAcc, HoverStats, SimOptions, SimSummary};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -49,7 +49,7 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
                 // The IMU waits for the host's '!' before streaming (spec 1.1); the pipe buffers it.
                 let mut t_us: i64 = 0;
                 let mut k: u64 = 0;
-                let (mut se, mut n) = ([0.0f64; 3], 0u64);
+                let mut acc = HoverAcc::default();
                 let mut airborne_since: Option<i64> = None;
                 while !stop.load(Ordering::SeqCst) {
                     t_us += step_us;
@@ -79,7 +79,8 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
                             break;
                         }
                         // Hover quality: from settle_s after the vehicle is near its set point.
-                        let z = plant.position_m()[2];
+                        let pos_m = plant.position_m();
+                        let z = pos_m[2];
                         if airborne_since.is_none() && z > 0.8 * hover_z {
                             airborne_since = Some(t_us);
                         }
@@ -87,15 +88,12 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
                             && t_us >= a + (sc.settle_s * 1e6) as i64
                         {
                             let e = plant.euler_rad();
-                            se[0] += (z - hover_z).powi(2);
-                            se[1] += e[0].powi(2);
-                            se[2] += e[1].powi(2);
-                            n += 1;
-                            if n == 1
-                                && let Ok(mut h) = hover.lock()
-                            {
-                                h.window_start_s = t_us as f64 / 1e6;
-                            }
+                            acc.add(
+                                t_us as f64 / 1e6,
+                                [pos_m[0], pos_m[1], z - hover_z],
+                                e[0],
+                                e[1],
+                            );
                         }
                         if progress && t_us % 5_000_000 == 0 {
                             eprintln!(
@@ -108,14 +106,8 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
                         }
                     }
                 }
-                if n > 0
-                    && let Ok(mut h) = hover.lock()
-                {
-                    let m = n as f64;
-                    h.samples = n;
-                    h.alt_rms_m = (se[0] / m).sqrt();
-                    h.roll_rms_rad = (se[1] / m).sqrt();
-                    h.pitch_rms_rad = (se[2] / m).sqrt();
+                if let Ok(mut h) = hover.lock() {
+                    *h = acc.stats();
                 }
                 t_us
             })?

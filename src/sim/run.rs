@@ -101,8 +101,50 @@ pub struct HoverStats {
     pub alt_rms_m: f64,
     pub roll_rms_rad: f64,
     pub pitch_rms_rad: f64,
+    /// Largest |altitude - set point| in the window, m.
+    pub alt_max_err_m: f64,
+    /// Largest distance from the set point (x, y and z) in the window, m.
+    pub pos_max_err_m: f64,
     /// Simulated time the window started, s.
     pub window_start_s: f64,
+}
+
+/// Sums of squares behind [`HoverStats`], one sample per IMU period of the window.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct HoverAcc {
+    stats: HoverStats,
+    se_z: f64,
+    se_roll: f64,
+    se_pitch: f64,
+}
+
+impl HoverAcc {
+    /// Adds a sample of the true state at `t_s`: position minus set point (m), roll and pitch
+    /// (rad).
+    pub fn add(&mut self, t_s: f64, pos_err_m: [f64; 3], roll_rad: f64, pitch_rad: f64) {
+        let alt_err_m = pos_err_m[2];
+        if self.stats.samples == 0 {
+            self.stats.window_start_s = t_s;
+        }
+        self.stats.samples += 1;
+        self.se_z += alt_err_m * alt_err_m;
+        self.se_roll += roll_rad * roll_rad;
+        self.se_pitch += pitch_rad * pitch_rad;
+        self.stats.alt_max_err_m = self.stats.alt_max_err_m.max(alt_err_m.abs());
+        let dist_m = pos_err_m.iter().map(|e| e * e).sum::<f64>().sqrt();
+        self.stats.pos_max_err_m = self.stats.pos_max_err_m.max(dist_m);
+    }
+
+    pub fn stats(&self) -> HoverStats {
+        let mut h = self.stats;
+        if h.samples > 0 {
+            let n = h.samples as f64;
+            h.alt_rms_m = (self.se_z / n).sqrt();
+            h.roll_rms_rad = (self.se_roll / n).sqrt();
+            h.pitch_rms_rad = (self.se_pitch / n).sqrt();
+        }
+        h
+    }
 }
 
 #[derive(Debug, Clone)]
@@ -120,6 +162,8 @@ impl SimSummary {
             o.insert("alt_rms_m".into(), self.hover.alt_rms_m.into());
             o.insert("roll_rms_rad".into(), self.hover.roll_rms_rad.into());
             o.insert("pitch_rms_rad".into(), self.hover.pitch_rms_rad.into());
+            o.insert("alt_max_err_m".into(), self.hover.alt_max_err_m.into());
+            o.insert("pos_max_err_m".into(), self.hover.pos_max_err_m.into());
             o.insert(
                 "hover_window_start_s".into(),
                 self.hover.window_start_s.into(),
@@ -131,14 +175,24 @@ impl SimSummary {
     }
 
     pub fn text(&self) -> String {
+        let h = &self.hover;
+        let hover = if h.samples == 0 {
+            "no hover window (it starts sim.settle_s after the flight ramp)".to_string()
+        } else {
+            format!(
+                "hover from {:.1} s: altitude RMS {:.3} m (largest error {:.3} m, {:.3} m in 3-D), roll RMS {:.4} rad, pitch RMS {:.4} rad",
+                h.window_start_s,
+                h.alt_rms_m,
+                h.alt_max_err_m,
+                h.pos_max_err_m,
+                h.roll_rms_rad,
+                h.pitch_rms_rad
+            )
+        };
         format!(
-            "{}\n  simulated {:.1} s; hover from {:.1} s: altitude RMS {:.3} m, roll RMS {:.4} rad, pitch RMS {:.4} rad",
+            "{}\n  simulated {:.1} s; {hover}",
             self.fly.text(),
-            self.simulated_s,
-            self.hover.window_start_s,
-            self.hover.alt_rms_m,
-            self.hover.roll_rms_rad,
-            self.hover.pitch_rms_rad
+            self.simulated_s
         )
     }
 }
@@ -199,9 +253,9 @@ pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumma
     let mut last_t_cmd: Option<i64> = None;
     let mut prev_stamp: Option<i64> = None;
     let mut flight_ramp_end_us: Option<i64> = None;
-    let mut hover = HoverStats::default();
-    let (mut se_z, mut se_roll, mut se_pitch) = (0.0, 0.0, 0.0);
+    let mut hover = HoverAcc::default();
     let mut frame_k: u64 = 0;
+    let mut position_hold = false;
     let mut halt: Option<(Trip, i64)> = None;
     let mut t: i64 = 0;
     let fault_at = |f: Fault| {
@@ -351,6 +405,10 @@ pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumma
                     halt.get_or_insert((trip, t));
                 }
                 let c = control.control(&est, t, t);
+                if c.position_hold != position_hold {
+                    position_hold = c.position_hold;
+                    logs.log(Record::Err(control.position_hold_message(position_hold)));
+                }
                 fly.saturated_commands += u64::from(c.saturated);
                 logs.log(Record::Int(c.t_ctrl_us, c.x_int, c.n_int));
                 logs.log(Record::W(c.t_cmd_us, c.w_sent));
@@ -432,17 +490,19 @@ pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumma
             && halt.is_none()
             && t % FRAME_US == 0
         {
-            if hover.samples == 0 {
-                hover.window_start_s = t as f64 / 1e6;
-            }
             let e = plant.euler_rad();
-            let z_sp = control
+            let sp_m = control
                 .planner()
-                .map_or(cfg.control.hover_z_m, |p| p.sp.x[2]);
-            se_z += (plant.position_m()[2] - z_sp).powi(2);
-            se_roll += e[0].powi(2);
-            se_pitch += e[1].powi(2);
-            hover.samples += 1;
+                .map_or([0.0, 0.0, cfg.control.hover_z_m], |p| {
+                    [p.sp.x[0], p.sp.x[1], p.sp.x[2]]
+                });
+            let pos_m = plant.position_m();
+            hover.add(
+                t as f64 / 1e6,
+                std::array::from_fn(|i| pos_m[i] - sp_m[i]),
+                e[0],
+                e[1],
+            );
         }
         if opts.progress && t % 5_000_000 == 0 {
             eprintln!(
@@ -481,12 +541,6 @@ pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumma
             h.latency_ms()
         )));
     }
-    if hover.samples > 0 {
-        let n = hover.samples as f64;
-        hover.alt_rms_m = (se_z / n).sqrt();
-        hover.roll_rms_rad = (se_roll / n).sqrt();
-        hover.pitch_rms_rad = (se_pitch / n).sqrt();
-    }
     for (i, name) in STREAMS.iter().enumerate() {
         if fly.log_drops[i] > 0 {
             logs.log(Record::Err(format!(
@@ -511,7 +565,7 @@ pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumma
     fly.rejected_frames = decoder.stats().rejected_frames;
     Ok(SimSummary {
         fly,
-        hover,
+        hover: hover.stats(),
         simulated_s: t as f64 / 1e6,
     })
 }

@@ -55,6 +55,7 @@ impl ControllerTask {
             mass_kg: self.core.mass_kg(),
             t_cmd_us: None,
         });
+        let mut position_hold = false;
         // Ends when the estimator does (it drops its sender on cancel), after the estimates
         // already sent: every step the estimator logged is also controlled and logged here.
         while let Some(msg) = self.estimates.recv().await {
@@ -84,6 +85,12 @@ impl ControllerTask {
             }
             // Control and command times are the frame's stamp: what the replay consumes.
             let c = self.core.control(est, est.t_us, est.t_us);
+            if c.position_hold != position_hold {
+                position_hold = c.position_hold;
+                let msg = self.core.position_hold_message(position_hold);
+                tracing::info!("{msg}");
+                self.logs.err(msg);
+            }
             self.esc.command(MotorCommand {
                 w_rad_s: c.w_sent,
                 frame_at: msg.frame_at,
