@@ -1,8 +1,9 @@
 //! `uquad plot`: altitude, attitude and motor speeds of a run over time, as SVG.
 //!
 //! Works on our run folders and the original's (x_hat.log, w.log; kalman_in.log for the times
-//! of the estimates). The SVG is written by hand: text is left to the viewer's fonts, so
-//! nothing here needs a font file or a rasteriser.
+//! of the estimates). The SVG is written by hand and its text is drawn, not typeset: each
+//! character is the 8 × 8 bitmap glyph of the embedded public-domain font8x8 font, drawn as
+//! filled squares, so the image looks the same on every viewer and needs no system font.
 
 use crate::logs::{self, Parsed};
 use anyhow::{Context, bail};
@@ -90,6 +91,62 @@ pub fn panels(run_dir: &Path) -> anyhow::Result<Vec<Panel>> {
     ])
 }
 
+/// Where a drawn text is anchored horizontally.
+#[derive(Clone, Copy)]
+enum Anchor {
+    Start,
+    End,
+}
+
+/// `s` drawn as a path of the font8x8 glyphs' pixels, `px` units per glyph pixel, with its
+/// baseline at `y`; the text itself is kept as the path's title (for search and screen
+/// readers). Characters without a glyph are drawn as '?'.
+fn text(x: f64, y: f64, s: &str, px: f64, anchor: Anchor) -> String {
+    use font8x8::UnicodeFonts as _;
+    let width = 8.0 * px * s.chars().count() as f64;
+    let left = match anchor {
+        Anchor::Start => x,
+        Anchor::End => x - width,
+    };
+    // The glyphs' baseline is below their 7th row.
+    let top = y - 7.0 * px;
+    let mut d = String::new();
+    for (i, ch) in s.chars().enumerate() {
+        let glyph = font8x8::BASIC_FONTS
+            .get(ch)
+            .or_else(|| font8x8::BASIC_FONTS.get('?'))
+            .unwrap_or([0; 8]);
+        let gx = left + 8.0 * px * i as f64;
+        for (r, bits) in glyph.iter().enumerate() {
+            // Runs of set pixels in the row (bit 0 is the leftmost), one rectangle each.
+            let mut c = 0;
+            while c < 8 {
+                if bits & (1 << c) == 0 {
+                    c += 1;
+                    continue;
+                }
+                let start = c;
+                while c < 8 && bits & (1 << c) != 0 {
+                    c += 1;
+                }
+                let _ = write!(
+                    d,
+                    "M{:.2} {:.2}h{:.2}v{:.2}h-{:.2}z",
+                    gx + start as f64 * px,
+                    top + r as f64 * px,
+                    (c - start) as f64 * px,
+                    px,
+                    (c - start) as f64 * px
+                );
+            }
+        }
+    }
+    format!(
+        r#"<path fill="black" d="{d}"><title>{}</title></path>"#,
+        esc(s)
+    )
+}
+
 fn esc(s: &str) -> String {
     s.replace('&', "&amp;")
         .replace('<', "&lt;")
@@ -102,15 +159,10 @@ pub fn svg(title: &str, panels: &[Panel]) -> String {
     let mut out = String::new();
     let _ = writeln!(
         out,
-        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{WIDTH}" height="{height}" viewBox="0 0 {WIDTH} {height}" font-family="sans-serif" font-size="12">"#
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{WIDTH}" height="{height}" viewBox="0 0 {WIDTH} {height}">"#
     );
     let _ = writeln!(out, r#"<rect width="100%" height="100%" fill="white"/>"#);
-    let _ = writeln!(
-        out,
-        r#"<text x="{}" y="22" font-size="15">{}</text>"#,
-        MARGIN_L,
-        esc(title)
-    );
+    let _ = writeln!(out, "{}", text(MARGIN_L, 24.0, title, 1.75, Anchor::Start));
     for (p, panel) in panels.iter().enumerate() {
         let top = 40.0 + p as f64 * PANEL_H;
         let (x0, x1) = (MARGIN_L, WIDTH - MARGIN_R);
@@ -147,23 +199,21 @@ pub fn svg(title: &str, panels: &[Panel]) -> String {
         );
         let _ = writeln!(
             out,
-            r#"<text x="{x0}" y="{}">{}</text>"#,
-            top + 14.0,
-            esc(&panel.title)
+            "{}",
+            text(x0, top + 14.0, &panel.title, 1.5, Anchor::Start)
         );
-        for (v, y) in [(vmax, y0 + 4.0), (vmin, y1)] {
+        for (v, y) in [(vmax, y0 + 8.0), (vmin, y1)] {
             let _ = writeln!(
                 out,
-                r#"<text x="{}" y="{y}" text-anchor="end">{v:.3}</text>"#,
-                x0 - 6.0
+                "{}",
+                text(x0 - 6.0, y, &format!("{v:.3}"), 1.25, Anchor::End)
             );
         }
-        for (t, anchor) in [(tmin, "start"), (tmax, "end")] {
+        for (t, anchor) in [(tmin, Anchor::Start), (tmax, Anchor::End)] {
             let _ = writeln!(
                 out,
-                r#"<text x="{}" y="{}" text-anchor="{anchor}">{t:.1} s</text>"#,
-                sx(t),
-                y1 + 16.0
+                "{}",
+                text(sx(t), y1 + 18.0, &format!("{t:.1} s"), 1.25, anchor)
             );
         }
         for (k, s) in panel.series.iter().enumerate() {
@@ -186,14 +236,12 @@ pub fn svg(title: &str, panels: &[Panel]) -> String {
             let ly = y0 + 14.0 + 18.0 * k as f64;
             let _ = writeln!(
                 out,
-                r#"<line x1="{}" y1="{}" x2="{}" y2="{}" stroke="{color}" stroke-width="2"/><text x="{}" y="{}">{}</text>"#,
+                r#"<line x1="{}" y1="{}" x2="{}" y2="{}" stroke="{color}" stroke-width="2"/>{}"#,
                 x1 + 12.0,
                 ly - 4.0,
                 x1 + 32.0,
                 ly - 4.0,
-                x1 + 38.0,
-                ly,
-                esc(&s.name)
+                text(x1 + 38.0, ly, &s.name, 1.25, Anchor::Start)
             );
         }
     }
