@@ -93,8 +93,9 @@ With no arguments: config/uquad.toml, sim.duration_s (40 s), a summary at the en
         /// Seed of every random draw (default: sim.seed).
         #[arg(long, value_name = "N")]
         seed: Option<u64>,
-        /// Write the flight report (JSON) to FILE: the fly report plus alt_rms_m,
-        /// roll_rms_rad and pitch_rms_rad over the hover window.
+        /// Write the flight report (JSON) to FILE: the fly report plus, over the hover window
+        /// (true state against the set point), alt_rms_m, alt_max_err_m, pos_max_err_m
+        /// (largest 3-D distance), roll_rms_rad and pitch_rms_rad.
         #[arg(long, value_name = "FILE")]
         report: Option<PathBuf>,
         /// Folder under which the run folder is created (default: log.dir of the profile).
