@@ -7,6 +7,18 @@ fn matrix(path: &std::path::Path) -> Vec<Vec<f64>> {
     numbers(path)
 }
 
+/// `a` and `b` have the same shape and agree to `rel` of `b`'s largest entry.
+fn assert_close(a: &[Vec<f64>], b: &[Vec<f64>], rel: f64, what: &str) {
+    assert_eq!(a.len(), b.len(), "{what}");
+    let scale = b.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
+    for (ra, rb) in a.iter().zip(b) {
+        assert_eq!(ra.len(), rb.len(), "{what}");
+        for (x, y) in ra.iter().zip(rb) {
+            assert!((x - y).abs() <= rel * scale, "{what}: {x} vs {y}");
+        }
+    }
+}
+
 #[test]
 fn xyzt_design_matches_an_independent_solution() {
     let out = tempfile::tempdir().unwrap();
@@ -39,13 +51,8 @@ fn xyzt_design_matches_an_independent_solution() {
         let a = matrix(&out.path().join(ours));
         let b = matrix(&root().join("tests/data/lqr").join(theirs));
         assert_eq!(a.len(), rows);
-        let scale = b.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
-        for (ra, rb) in a.iter().zip(&b) {
-            assert_eq!(ra.len(), cols);
-            for (x, y) in ra.iter().zip(rb) {
-                assert!((x - y).abs() <= 1e-9 * scale, "{ours}: {x} vs {y}");
-            }
-        }
+        assert!(a.iter().all(|r| r.len() == cols), "{ours}");
+        assert_close(&a, &b, 1e-9, ours);
     }
 
     // The gains load as the controller's gain files.
@@ -150,13 +157,6 @@ fn the_default_profile_gains_are_its_lqr_design() {
     ] {
         let a = matrix(&out.path().join(ours));
         let b = matrix(&root().join("config").join(shipped));
-        let scale = b.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
-        assert_eq!(a.len(), b.len());
-        for (ra, rb) in a.iter().zip(&b) {
-            assert_eq!(ra.len(), rb.len());
-            for (x, y) in ra.iter().zip(rb) {
-                assert!((x - y).abs() <= 1e-12 * scale, "{shipped}: {x} vs {y}");
-            }
-        }
+        assert_close(&a, &b, 1e-12, shipped);
     }
 }
