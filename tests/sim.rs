@@ -165,7 +165,7 @@ fn hovers_with_gains_designed_by_uquad_lqr() {
         "--set",
         "control.integrators=x,y,z,theta",
         "--set",
-        "ekf.q=[100.0, 100.0, 100.0, 0.01, 0.01, 1e-5, 100.0, 100.0, 100.0, 0.1, 0.1, 0.1, 1.0, 1.0, 1.0]",
+        EKF_Q_2012,
     ]);
     assert_hovers(&report);
 }

@@ -121,7 +121,7 @@ fn thrust_loss_brings_the_2012_gains_down() {
         "--set",
         "control.k_int_file=\"K_int_full_ppzt.txt\"",
         "--set",
-        "ekf.q=[100.0, 100.0, 100.0, 0.01, 0.01, 1e-5, 100.0, 100.0, 100.0, 0.1, 0.1, 0.1, 1.0, 1.0, 1.0]",
+        EKF_Q_2012,
     ]);
     let worst = r["alt_max_err_m"].as_f64().unwrap();
     assert!(worst > 0.5, "altitude error only {worst} m: {r}");

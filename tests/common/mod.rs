@@ -40,6 +40,10 @@ pub fn read_table(path: &Path) -> Vec<Vec<String>> {
         .collect()
 }
 
+/// `--set` value giving the default profile the 2012 flights' EKF process noise (roll and pitch
+/// 0.01 instead of the default profile's 0.001).
+pub const EKF_Q_2012: &str = "ekf.q=[100.0, 100.0, 100.0, 0.01, 0.01, 1e-5, 100.0, 100.0, 100.0, 0.1, 0.1, 0.1, 1.0, 1.0, 1.0]";
+
 /// Copies the two 2012 profile files and the data files they name into `dir`.
 pub fn copy_profile(dir: &Path) -> PathBuf {
     for f in [
