@@ -236,12 +236,16 @@ impl Ekf {
 pub struct Motor {
     /// Highest motor speed, rad/s; also sets w_min = 2·w_hover − w_max.
     pub w_max_rad_s: f64,
+    /// The motors' first-order time constant (command to speed), s, as the torque observer
+    /// models it.
+    pub tau_s: f64,
 }
 
 impl Default for Motor {
     fn default() -> Self {
         Motor {
             w_max_rad_s: crate::core::model::W_MAX_2012_RAD_S,
+            tau_s: 0.03,
         }
     }
 }
@@ -301,6 +305,8 @@ pub struct Control {
     pub hover_z_m: f64,
     /// The horizontal position is held only while a GPS fix was fused within this long, s.
     pub gps_hold_timeout_s: f64,
+    /// Time constant of the roll/pitch torque-disturbance observer, s; 0 = off (the original).
+    pub torque_observer_s: f64,
     pub integral: Integrals,
     /// Bounds on how far manual commands may move the set point (spec 5.2).
     pub manual: ManualBounds,
@@ -402,6 +408,7 @@ impl Default for Control {
             lqr_r_file: PathBuf::from("lqr-R.txt"),
             hover_z_m: 1.0,
             gps_hold_timeout_s: 3.0,
+            torque_observer_s: 0.0,
             integral: Integrals::default(),
         }
     }
@@ -541,7 +548,7 @@ impl Profile {
     /// The controller half of the flight loop.
     pub fn controller_core(&self) -> crate::core::flight::ControllerCore {
         let c = &self.config;
-        crate::core::flight::ControllerCore::new(
+        let core = crate::core::flight::ControllerCore::new(
             self.controller(),
             crate::core::flight::PlannerSpec {
                 hover_z_m: c.control.hover_z_m,
@@ -551,7 +558,12 @@ impl Profile {
             },
             c.control.original_timing,
             (c.control.gps_hold_timeout_s * 1e6).round() as i64,
-        )
+        );
+        if c.control.torque_observer_s > 0.0 {
+            core.with_torque_observer(c.control.torque_observer_s, c.motor.tau_s)
+        } else {
+            core
+        }
     }
 
     /// Positions of fake GPS samples for this profile's mode.
@@ -721,6 +733,20 @@ pub fn load(path: &Path, sets: &[(String, toml::Value)]) -> Result<Profile, Conf
         to.is_finite() && to > 0.0 && to <= 3600.0,
         to.to_string(),
         "more than 0, at most 3600 s",
+    );
+    let mt = c.motor.tau_s;
+    range(
+        "motor.tau_s",
+        mt.is_finite() && mt > 0.0 && mt <= 1.0,
+        mt.to_string(),
+        "more than 0, at most 1 s",
+    );
+    let tau = c.control.torque_observer_s;
+    range(
+        "control.torque_observer_s",
+        tau == 0.0 || (tau.is_finite() && (0.01..=10.0).contains(&tau)),
+        tau.to_string(),
+        "0 (off) or 0.01 to 10 s",
     );
     // Bounds relative to another key are checked only when that key is itself valid, so one
     // bad value is reported once.

@@ -68,7 +68,8 @@ altitude, i/k mass, 0 reset mass, ESC quit).")]
 The simulated IMU sends real 30-byte frames (raw counts from the true state through the \
 inverted calibration, with noise), the simulated ESCs take the real I2C register writes, and \
 the flight goes through settle, ESC start-up ramp, IMU calibration, flight ramp and hover, as \
-`fly` does. The run folder logs/<run-id>/ is written as `fly` writes it, so \
+`fly` does. With gps.mode = \"gpsd\" (the default profile) a fix of the true position reaches \
+the filter each simulated second, where `fly` would read gpsd. The run folder logs/<run-id>/ is written as `fly` writes it, so \
 `uquad replay <run folder> --out DIR` reruns it to identical bytes.\n\n\
 --fast (the default) runs the flight's state machines in lock-step with the physics on a \
 simulated clock: 40 simulated seconds take well under a second. --realtime runs fly's own \
@@ -279,6 +280,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     uquad::app::fly::Edges {
                         imu: Box::new(imu),
                         bus: Box::new(bus),
+                        gps_fixes: None,
                     },
                     uquad::app::fly::FlyOptions {
                         log_dir,

@@ -112,6 +112,26 @@ fn out_of_range_mass_through_set() {
 }
 
 #[test]
+fn out_of_range_observer_and_motor_lag() {
+    refused(
+        &profile_2012(),
+        &[
+            "--set",
+            "control.torque_observer_s=0.001",
+            "--set",
+            "motor.tau_s=0",
+        ],
+        &[
+            "control.torque_observer_s",
+            "0.001 is out of range",
+            "0 (off) or 0.01 to 10 s",
+            "motor.tau_s",
+            "more than 0, at most 1 s",
+        ],
+    );
+}
+
+#[test]
 fn wrong_type_and_bad_enum() {
     refused(
         &profile_2012(),

@@ -91,17 +91,39 @@ fn log_stall_costs_no_deadline() {
 }
 
 #[test]
-fn thrust_loss_keeps_the_altitude_within_half_a_metre() {
+fn thrust_loss_keeps_the_vehicle_within_half_a_metre() {
     // m0 loses 30 % of its thrust at 30 s; the hover window (29 s to 60 s) holds the loss and
-    // the 30 s after it.
+    // the 30 s after it. The default profile flies on (simulated) GPS fixes, with the torque
+    // observer on.
     let (r, _logs) = sim_report(&["--duration", "60", "--inject", "thrust-loss@30"]);
     assert!(r["halt"].is_null(), "{r}");
     let window_start = r["hover_window_start_s"].as_f64().unwrap();
     assert!(window_start < 30.0, "{r}");
     assert!(r["hover_samples"].as_u64().unwrap() >= 3_000, "{r}");
-    let worst = r["alt_max_err_m"].as_f64().unwrap();
-    assert!(worst <= 0.5, "altitude error up to {worst} m");
+    // The true position, in 3-D, never more than 0.5 m from the set point.
+    let worst = r["pos_max_err_m"].as_f64().unwrap();
+    assert!(worst <= 0.5, "up to {worst} m from the set point: {r}");
+    assert!(r["alt_max_err_m"].as_f64().unwrap() <= worst);
     assert!(r["alt_rms_m"].as_f64().unwrap() <= 0.2, "{r}");
+    // The vehicle stays level once the torque is cancelled.
+    assert!(r["pitch_rms_rad"].as_f64().unwrap() <= 0.02, "{r}");
+}
+
+#[test]
+fn thrust_loss_without_the_torque_observer_moves_the_vehicle() {
+    // The same loss cancelled only by the x, y integrators: the torque tilts the vehicle
+    // until the position error has grown enough to integrate it away.
+    let (r, _logs) = sim_report(&[
+        "--duration",
+        "60",
+        "--inject",
+        "thrust-loss@30",
+        "--set",
+        "control.torque_observer_s=0",
+    ]);
+    assert!(r["halt"].is_null(), "{r}");
+    let worst = r["pos_max_err_m"].as_f64().unwrap();
+    assert!(worst > 1.0, "only {worst} m from the set point: {r}");
 }
 
 #[test]
@@ -122,6 +144,8 @@ fn thrust_loss_brings_the_2012_gains_down() {
         "control.k_int_file=\"K_int_full_ppzt.txt\"",
         "--set",
         EKF_Q_2012,
+        "--set",
+        "control.torque_observer_s=0",
     ]);
     let worst = r["alt_max_err_m"].as_f64().unwrap();
     assert!(worst > 0.5, "altitude error only {worst} m: {r}");

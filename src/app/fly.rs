@@ -42,6 +42,9 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send + 'static> ImuIo for T {}
 pub struct Edges {
     pub imu: Box<dyn ImuIo>,
     pub bus: Box<dyn EscBus>,
+    /// Where gps.mode = "gpsd" takes its fixes from: None = a gpsd client on gps.server; Some
+    /// = fixes published by the caller (the simulator's true position).
+    pub gps_fixes: Option<watch::Receiver<Option<gps_client::LiveFix>>>,
 }
 
 /// How a run behaves beyond its configuration.
@@ -198,7 +201,7 @@ impl FlySummary {
             .map(|(s, d)| format!("{s} {d}"))
             .collect();
         format!(
-            "run {}\n  frames {} (discarded bytes {}, rejected frames {}, dropped {}), Kalman steps {}\n  \
+            "run {}\n  frames {} (discarded bytes {}, rejected frames {}, dropped {}), Kalman steps {}, GPS samples fused {}\n  \
              ESC: {} commands, {} writes, {} failed; stopped: {}\n  \
              latency frame -> ESC write: p50 {} us, p99 {} us, max {} us; deadline misses {}\n  \
              watchdog: {}\n  \
@@ -209,6 +212,7 @@ impl FlySummary {
             self.rejected_frames,
             self.dropped_frames,
             self.steps,
+            self.gps_updates,
             self.esc_commands,
             self.esc_writes,
             self.esc_failed_writes,
@@ -416,16 +420,22 @@ pub async fn run(
     let (gps, gps_live) = match cfg.gps.mode {
         crate::config::GpsMode::Off => (GpsFeed::Off, None),
         crate::config::GpsMode::Gpsd => {
-            let (tx, rx) = watch::channel(None);
             logs.log(logger::Record::GpsHeader);
-            // On the main runtime: the control path never waits on gpsd.
-            tokio::spawn(gps_client::run(
-                cfg.gps.server.clone(),
-                start,
-                tx,
-                gps_stats.clone(),
-                cancel.clone(),
-            ));
+            let rx = match edges.gps_fixes {
+                Some(rx) => rx,
+                None => {
+                    let (tx, rx) = watch::channel(None);
+                    // On the main runtime: the control path never waits on gpsd.
+                    tokio::spawn(gps_client::run(
+                        cfg.gps.server.clone(),
+                        start,
+                        tx,
+                        gps_stats.clone(),
+                        cancel.clone(),
+                    ));
+                    rx
+                }
+            };
             (GpsFeed::Live(None), Some(rx))
         }
         _ => (GpsFeed::fake(profile.fake_positions()), None),

@@ -16,6 +16,7 @@ use crate::core::imu::frame::RawFrame;
 use crate::core::imu::startup::{FrontEndEvent, ImuFrontEnd, StartupParams};
 use crate::core::model::MotorLimits;
 use crate::core::motor::{FLIGHT_RAMP_STEPS, command_for_step};
+use crate::core::torque::TorqueObserver;
 
 /// The first Kalman and control steps have no predecessor: they use the nominal period.
 pub const NOMINAL_PERIOD_US: i64 = 10_000;
@@ -168,6 +169,9 @@ pub struct ControllerCore {
     gps_hold_timeout_us: i64,
     /// Time of the last step that fused a GPS fix, µs.
     last_gps_us: Option<i64>,
+    /// Roll and pitch torque-disturbance observer (not in the original), from the end of the
+    /// flight ramp on.
+    observer: Option<TorqueObserver>,
 }
 
 /// What the hover planner is built from once the calibration yaw is known.
@@ -196,7 +200,23 @@ impl ControllerCore {
             prev: None,
             gps_hold_timeout_us,
             last_gps_us: None,
+            observer: None,
         }
+    }
+
+    /// Adds the torque-disturbance observer with low-pass time constant `tau_s`, for motors
+    /// with time constant `motor_tau_s` (see [`TorqueObserver`]); it acts from the end of the
+    /// flight ramp on.
+    pub fn with_torque_observer(mut self, tau_s: f64, motor_tau_s: f64) -> Self {
+        self.observer = Some(TorqueObserver::new(tau_s, motor_tau_s));
+        self
+    }
+
+    /// The torque observer's estimate about body x, y and z, rad/s² (None without an observer).
+    pub fn torque_disturbance_rad_s2(&self) -> Option<[f64; 3]> {
+        self.observer
+            .as_ref()
+            .map(TorqueObserver::disturbance_rad_s2)
     }
 
     /// The err.log line for a change of position hold.
@@ -271,10 +291,25 @@ impl ControllerCore {
         let position_hold = self
             .last_gps_us
             .is_some_and(|t| est.t_us - t <= self.gps_hold_timeout_us);
-        let w_ctrl =
+        let mut w_ctrl =
             self.controller
                 .step_with_hold(&est.x, &planner.sp, t_s_us as f64 / 1e6, position_hold);
+        // The observer starts once the flight ramp is over: before, the vehicle stands on the
+        // ground, which holds any torque, and the motors are far from the hover speeds the
+        // correction is linearised around.
+        if let Some(o) = &mut self.observer
+            && est.step > FLIGHT_RAMP_STEPS
+        {
+            o.observe(&est.x, est.t_us, planner.mass_kg());
+            let c = o.correction_rad_s(&limits);
+            for (w, dw) in w_ctrl.iter_mut().zip(c) {
+                *w += dw;
+            }
+        }
         let w_sent = command_for_step(&w_ctrl, est.step, &limits);
+        if let Some(o) = &mut self.observer {
+            o.sent(&est.x, est.t_us, &w_sent);
+        }
         let n_int = self.controller.x_int().len();
         let mut x_int = [0.0; 4];
         x_int[..n_int].copy_from_slice(self.controller.x_int());

@@ -13,4 +13,5 @@ pub mod math;
 pub mod model;
 pub mod motor;
 pub mod numfile;
+pub mod torque;
 pub mod watchdog;

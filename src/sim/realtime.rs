@@ -31,6 +31,10 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
             .map(|(_, at)| (at * 1e6).round() as i64)
             .min()
     };
+    // gps.mode = "gpsd": a fix of the true position each simulated second, through the
+    // channel fly's gpsd client would publish on.
+    let (gps_tx, gps_rx) = tokio::sync::watch::channel(None);
+    let gps_live = cfg.gps.mode == crate::config::GpsMode::Gpsd;
     let imu_stall_at = fault_at(crate::sim::run::Fault::ImuStall);
     let esc_nack_at = fault_at(crate::sim::run::Fault::EscNack);
     let sim_thread = {
@@ -51,6 +55,7 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
                 let mut k: u64 = 0;
                 let mut acc = HoverAcc::default();
                 let mut airborne_since: Option<i64> = None;
+                let mut gps_seq = 0u64;
                 while !stop.load(Ordering::SeqCst) {
                     t_us += step_us;
                     let due = start + Duration::from_micros(t_us as u64);
@@ -70,6 +75,11 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
                     plant.step(step_us);
                     if t_us % 10_000 == 5_000 {
                         imu.first_half(&plant);
+                    }
+                    if gps_live && t_us % 1_000_000 == 0 {
+                        let fix =
+                            crate::sim::run::sim_fix(&mut gps_seq, plant.position_m(), now_us);
+                        gps_tx.send_replace(Some(fix));
                     }
                     if t_us % 10_000 == 0 && imu_stall_at.is_none_or(|a| t_us < a) {
                         let f = imu.frame(&plant, 10_000);
@@ -129,6 +139,7 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
         Edges {
             imu: Box::new(host),
             bus: Box::new(SimBus { model, start }),
+            gps_fixes: Some(gps_rx),
         },
         FlyOptions {
             log_dir: opts.log_dir.clone(),

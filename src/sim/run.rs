@@ -9,13 +9,14 @@ use crate::app::fly::{FlySummary, create_run_dir, write_run_config};
 use crate::config::{GpsMode, Profile};
 use crate::core::esc::{CycleKind, EscDriver, EscPhase};
 use crate::core::flight::GpsFeed;
-use crate::core::gps::GpsSample;
+use crate::core::gps::{Fix, GpsSample};
 use crate::core::imu::frame::FrameDecoder;
 use crate::core::imu::startup::FrontEndEvent;
 use crate::core::motor::FLIGHT_RAMP_STEPS;
 use crate::core::watchdog::{Trip, Watchdog};
 use crate::logs::{ImuRawRecord, KalmanInRecord};
 use crate::sim::esc::EscModel;
+use crate::tasks::gps_client::LiveFix;
 use crate::tasks::logger::{Record, STREAMS};
 use crate::tasks::watchdog::Halt;
 use anyhow::Context;
@@ -74,6 +75,24 @@ pub fn parse_injection(s: &str) -> Result<(Fault, f64), String> {
         .filter(|t: &f64| t.is_finite() && *t >= 0.0)
         .ok_or_else(|| format!("{at:?} is not a time in seconds"))?;
     Ok((fault, t))
+}
+
+/// A simulated gpsd fix of `pos_m` (local frame) arriving at `t_us`. The simulator has no
+/// place on the Earth: latitude and longitude are 0; the run's gps.log carries the local
+/// position, which is what a replay fuses.
+pub(crate) fn sim_fix(seq: &mut u64, pos_m: [f64; 3], t_us: i64) -> LiveFix {
+    *seq += 1;
+    LiveFix {
+        seq: *seq,
+        fix: Fix {
+            mode: 3,
+            lat_deg: 0.0,
+            lon_deg: 0.0,
+            alt_m: pos_m[2],
+        },
+        sample: GpsSample { pos_m },
+        stamp_us: t_us,
+    }
 }
 
 /// Simulated time a stalled logger blocks, µs.
@@ -235,6 +254,9 @@ pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumma
         GpsMode::Gpsd => GpsFeed::Live(None),
         GpsMode::FakeZero | GpsMode::FakeRandom => GpsFeed::fake(profile.fake_positions()),
     };
+    // Simulated fixes are logged as fly logs gpsd's, so the run replays exactly.
+    let mut gps_seq = 0u64;
+    let mut offered: Option<LiveFix> = None;
     let mut watchdog = Watchdog::new(cfg.watchdog.params());
     let mut decoder = FrameDecoder::new();
     let mut bytes = BytesMut::with_capacity(64);
@@ -244,6 +266,9 @@ pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumma
         env!("CARGO_PKG_VERSION"),
         run_dir.display()
     )));
+    if let GpsFeed::Live(_) = gps {
+        logs.log(Record::GpsHeader);
+    }
 
     let mut cycles = Vec::with_capacity(8);
     // Consecutive failed write cycles (the watchdog's missed acks) and when the run began.
@@ -300,9 +325,9 @@ pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumma
         if t % 1_000_000 == 0
             && let GpsFeed::Live(_) = gps
         {
-            gps.offer_live(GpsSample {
-                pos_m: plant.position_m(),
-            });
+            let live = sim_fix(&mut gps_seq, plant.position_m(), t);
+            gps.offer_live(live.sample);
+            offered = Some(live);
         }
         let imu_silent = imu_stall_at.is_some_and(|a| t >= a);
         if t % FRAME_US == 0 && halt.is_none() && !imu_silent {
@@ -365,6 +390,12 @@ pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumma
                     logs.log(Record::Gps(t_cmd));
                 }
                 let fix = gps.for_step(t);
+                if fix.is_some()
+                    && let Some(live) = offered.take()
+                {
+                    // As the estimator task logs it: a time the replay fuses in this same step.
+                    logs.log(Record::GpsFix(prev_stamp.unwrap_or(t - 1), live));
+                }
                 let Some(est) = estimator.step(
                     sample,
                     t,

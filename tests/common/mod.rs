@@ -312,6 +312,7 @@ pub async fn fly_with<F: std::future::Future<Output = ()>>(
                 uquad::app::fly::Edges {
                     imu: slave,
                     bus: Box::new(bus),
+                    gps_fixes: None,
                 },
                 uquad::app::fly::FlyOptions {
                     log_dir: Some(log_dir),
