@@ -169,8 +169,8 @@ pub struct ControllerCore {
     gps_hold_timeout_us: i64,
     /// Time of the last step that fused a GPS fix, µs.
     last_gps_us: Option<i64>,
-    /// Roll and pitch torque-disturbance observer (not in the original), from the end of the
-    /// flight ramp on.
+    /// Roll, pitch and yaw torque-disturbance observer (not in the original), from the end of
+    /// the flight ramp on.
     observer: Option<TorqueObserver>,
 }
 
@@ -210,13 +210,6 @@ impl ControllerCore {
     pub fn with_torque_observer(mut self, tau_s: f64, motor_tau_s: f64) -> Self {
         self.observer = Some(TorqueObserver::new(tau_s, motor_tau_s));
         self
-    }
-
-    /// The torque observer's estimate about body x, y and z, rad/s² (None without an observer).
-    pub fn torque_disturbance_rad_s2(&self) -> Option<[f64; 3]> {
-        self.observer
-            .as_ref()
-            .map(TorqueObserver::disturbance_rad_s2)
     }
 
     /// The err.log line for a change of position hold.

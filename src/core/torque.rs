@@ -1,5 +1,6 @@
 //! Roll, pitch and yaw torque-disturbance observer: an addition to the original's controller
-//! (spec 4.4), built on the EKF's own rate model (spec 3.2–3.3, rows wqx and wqy).
+//! (spec 4.4), built on the EKF's own rate model (spec 3.2–3.3, rows wqx, wqy and wqz) and
+//! the IMU pre-filter's delay (spec 2.3).
 //!
 //! Why: the state-feedback controller integrates x, y (or ψ, φ) errors, so a steady torque —
 //! a weak motor, an off-centre payload — is cancelled only after it has tilted the vehicle
