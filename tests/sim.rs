@@ -4,21 +4,10 @@ mod common;
 use common::*;
 use std::path::Path;
 
-/// Runs `uquad sim ARGS --report <tmp> --log-dir <tmp>`; returns the report and the log folder.
+/// Runs `uquad sim ARGS`, which must succeed; returns the report and the log folder.
 fn sim(args: &[&str]) -> (serde_json::Value, tempfile::TempDir) {
-    let logs = tempfile::tempdir().unwrap();
-    let report = logs.path().join("report.json");
-    let mut all: Vec<&str> = vec!["sim"];
-    all.extend_from_slice(args);
-    let (r, l) = (
-        report.to_str().unwrap().to_string(),
-        logs.path().to_str().unwrap().to_string(),
-    );
-    all.extend_from_slice(&["--report", &r, "--log-dir", &l]);
-    let o = uquad(&root(), &all);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    let (status, report, logs) = sim_report(args);
+    assert!(status.success(), "{report}");
     (report, logs)
 }
 
@@ -152,7 +141,7 @@ fn hovers_with_gains_designed_by_uquad_lqr() {
         "control.k_int_file=\"{}\"",
         gains.path().join("K_int.txt").display()
     );
-    let (report, _logs) = sim(&[
+    let designed = [
         "--fast",
         "--duration",
         "60",
@@ -164,9 +153,16 @@ fn hovers_with_gains_designed_by_uquad_lqr() {
         &k_int,
         "--set",
         "control.integrators=x,y,z,theta",
+    ];
+    let with = |extra: &[&'static str]| {
+        let mut args = designed.to_vec();
+        args.extend_from_slice(extra);
+        sim_report(&args)
+    };
+    // As the 2012 flights: their filter noise, fake GPS at the origin, no torque observer.
+    let (_, report, _logs) = with(&[
         "--set",
         EKF_Q_2012,
-        // As the 2012 flights: fake GPS at the origin, no torque observer.
         "--set",
         "gps.mode=fake-zero",
         "--set",
@@ -176,43 +172,9 @@ fn hovers_with_gains_designed_by_uquad_lqr() {
     // The same gains on GPS fixes: with the 2012 filter noise (x, y forget their velocity every
     // step) each fix jumps the position and the stiff x, y feedback tips the vehicle over;
     // with this profile's noise the fixes correct the velocity too and it holds its place.
-    let on_fixes = |q: Option<&str>| {
-        let mut args = vec![
-            "sim",
-            "--fast",
-            "--duration",
-            "60",
-            "--config",
-            "config/uquad.toml",
-            "--set",
-            &k_prop,
-            "--set",
-            &k_int,
-            "--set",
-            "control.integrators=x,y,z,theta",
-        ];
-        if let Some(q) = q {
-            args.extend(["--set", q]);
-        }
-        let logs = tempfile::tempdir().unwrap();
-        let report = logs.path().join("report.json");
-        args.extend([
-            "--report",
-            report.to_str().unwrap(),
-            "--log-dir",
-            logs.path().to_str().unwrap(),
-        ]);
-        let o = uquad(&root(), &args);
-        let r: serde_json::Value = serde_json::from_str(
-            &std::fs::read_to_string(&report)
-                .unwrap_or_else(|_| panic!("{}", String::from_utf8_lossy(&o.stderr))),
-        )
-        .unwrap();
-        r
-    };
-    let r = on_fixes(Some(EKF_Q_2012));
+    let (_, r, _logs) = with(&["--set", EKF_Q_2012]);
     assert_eq!(r["halt"]["reason"], "sanity-tilt", "{r}");
-    let r = on_fixes(None);
+    let (_, r, _logs) = with(&[]);
     assert_hovers(&r);
     assert!(r["pos_max_err_m"].as_f64().unwrap() <= 0.2, "{r}");
 }

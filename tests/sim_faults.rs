@@ -4,29 +4,14 @@
 mod common;
 use common::*;
 
-/// Runs the sim and returns its report (and the folder holding its run, kept while in use).
+/// Runs the sim on the default profile and returns its report (and the folder holding its
+/// run, kept while in use).
 fn sim_report(args: &[&str]) -> (serde_json::Value, tempfile::TempDir) {
-    let logs = tempfile::tempdir().unwrap();
-    let report = logs.path().join("report.json");
-    let mut all: Vec<String> = ["sim", "--fast", "--config", "config/uquad.toml"]
-        .iter()
-        .chain(args)
-        .map(|s| s.to_string())
-        .collect();
-    all.extend([
-        "--report".to_string(),
-        report.to_str().unwrap().to_string(),
-        "--log-dir".to_string(),
-        logs.path().to_str().unwrap().to_string(),
-    ]);
-    let o = uquad(&root(), &all.iter().map(String::as_str).collect::<Vec<_>>());
-    let r: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(&report)
-            .unwrap_or_else(|_| panic!("{}", String::from_utf8_lossy(&o.stderr))),
-    )
-    .unwrap();
+    let mut all = vec!["--fast", "--config", "config/uquad.toml"];
+    all.extend_from_slice(args);
+    let (status, r, logs) = common::sim_report(&all);
     // A halt makes the command fail (motors stopped); the report is written either way.
-    assert_eq!(o.status.success(), r["halt"].is_null(), "{r}");
+    assert_eq!(status.success(), r["halt"].is_null(), "{r}");
     (r, logs)
 }
 

@@ -31,6 +31,31 @@ pub fn uquad(cwd: &Path, args: &[&str]) -> Output {
         .expect("the uquad binary runs")
 }
 
+/// Runs `uquad sim ARGS --report <tmp> --log-dir <tmp>` and returns its exit status, its report
+/// (written also when a halt ends the run) and the folder holding the run.
+#[allow(dead_code)]
+pub fn sim_report(
+    args: &[&str],
+) -> (
+    std::process::ExitStatus,
+    serde_json::Value,
+    tempfile::TempDir,
+) {
+    let logs = tempfile::tempdir().unwrap();
+    let report = logs.path().join("report.json");
+    let (r, l) = (
+        report.to_str().unwrap().to_string(),
+        logs.path().to_str().unwrap().to_string(),
+    );
+    let mut all = vec!["sim"];
+    all.extend_from_slice(args);
+    all.extend_from_slice(&["--report", &r, "--log-dir", &l]);
+    let o = uquad(&root(), &all);
+    let text = std::fs::read_to_string(&report)
+        .unwrap_or_else(|_| panic!("no report: {}", String::from_utf8_lossy(&o.stderr)));
+    (o.status, serde_json::from_str(&text).unwrap(), logs)
+}
+
 /// Reads a whitespace-separated numeric log, accepting every line-end style.
 pub fn read_table(path: &Path) -> Vec<Vec<String>> {
     let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
