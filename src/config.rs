@@ -305,7 +305,8 @@ pub struct Control {
     pub hover_z_m: f64,
     /// The horizontal position is held only while a GPS fix was fused within this long, s.
     pub gps_hold_timeout_s: f64,
-    /// Time constant of the roll/pitch torque-disturbance observer, s; 0 = off (the original).
+    /// Time constant of the roll, pitch and yaw torque-disturbance observer, s; 0 = off (the
+    /// original).
     pub torque_observer_s: f64,
     pub integral: Integrals,
     /// Bounds on how far manual commands may move the set point (spec 5.2).

@@ -15,6 +15,13 @@ fn sim_report(args: &[&str]) -> (serde_json::Value, tempfile::TempDir) {
     (r, logs)
 }
 
+/// A 60-second flight in which m0 loses 30 % of its thrust at 30 s, with `extra` arguments.
+fn thrust_loss_report(extra: &[&str]) -> (serde_json::Value, tempfile::TempDir) {
+    let mut args = vec!["--duration", "60", "--inject", "thrust-loss@30"];
+    args.extend_from_slice(extra);
+    sim_report(&args)
+}
+
 #[test]
 fn imu_stall_halts_within_14_ms_of_the_last_frame() {
     let (r, _logs) = sim_report(&["--duration", "40", "--inject", "imu-stall@30"]);
@@ -80,7 +87,7 @@ fn thrust_loss_keeps_the_vehicle_within_half_a_metre() {
     // m0 loses 30 % of its thrust at 30 s; the hover window (29 s to 60 s) holds the loss and
     // the 30 s after it. The default profile flies on (simulated) GPS fixes, with the torque
     // observer on.
-    let (r, _logs) = sim_report(&["--duration", "60", "--inject", "thrust-loss@30"]);
+    let (r, _logs) = thrust_loss_report(&[]);
     assert!(r["halt"].is_null(), "{r}");
     let window_start = r["hover_window_start_s"].as_f64().unwrap();
     assert!(window_start < 30.0, "{r}");
@@ -98,14 +105,7 @@ fn thrust_loss_keeps_the_vehicle_within_half_a_metre() {
 fn thrust_loss_without_the_torque_observer_moves_the_vehicle() {
     // The same loss cancelled only by the x, y integrators: the torque tilts the vehicle
     // until the position error has grown enough to integrate it away.
-    let (r, _logs) = sim_report(&[
-        "--duration",
-        "60",
-        "--inject",
-        "thrust-loss@30",
-        "--set",
-        "control.torque_observer_s=0",
-    ]);
+    let (r, _logs) = thrust_loss_report(&["--set", "control.torque_observer_s=0"]);
     assert!(r["halt"].is_null(), "{r}");
     let worst = r["pos_max_err_m"].as_f64().unwrap();
     assert!(worst > 1.0, "only {worst} m from the set point: {r}");
@@ -116,11 +116,7 @@ fn thrust_loss_brings_the_2012_gains_down() {
     // The same loss with the 2012 flights' gains and filter noise: their altitude loop (8.8 rad/s
     // per m, integral capped at 2 m s) cannot make up the lost thrust, which is why the default
     // profile carries its own design.
-    let (r, _logs) = sim_report(&[
-        "--duration",
-        "60",
-        "--inject",
-        "thrust-loss@30",
+    let (r, _logs) = thrust_loss_report(&[
         "--set",
         "control.integrators=\"psi,phi,z,theta\"",
         "--set",
