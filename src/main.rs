@@ -106,8 +106,8 @@ With no arguments: config/uquad.toml, sim.duration_s (40 s), a summary at the en
         /// esc-nack (every I2C write fails), gps-loss (fixes stop), log-stall (the x_hat
         /// logger blocks for 500 ms), thrust-loss (motor m0 loses 30 % of its thrust). With
         /// --realtime: imu-stall and esc-nack.
-        #[arg(long, value_name = "FAULT@T", value_parser = uquad::sim::run::parse_injection)]
-        inject: Vec<(uquad::sim::run::Fault, f64)>,
+        #[arg(long, value_name = "FAULT@T", value_parser = uquad::sim::faults::parse_injection)]
+        inject: Vec<(uquad::sim::faults::Fault, f64)>,
     },
     /// Plot a run's altitude, attitude and motor speeds over time (SVG).
     Plot {
@@ -281,6 +281,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                         imu: Box::new(imu),
                         bus: Box::new(bus),
                         gps_fixes: None,
+                        live: None,
                     },
                     uquad::app::fly::FlyOptions {
                         log_dir,
@@ -320,7 +321,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         } => {
             let path = config::resolve_path(config.as_deref()).map_err(anyhow::Error::msg)?;
             let profile = load_profile(&path, &sets)?;
-            use uquad::sim::run::Fault;
+            use uquad::sim::faults::Fault;
             if realtime
                 && let Some((f, _)) = inject
                     .iter()
@@ -331,7 +332,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     f.name()
                 );
             }
-            let opts = uquad::sim::run::SimOptions {
+            let opts = uquad::app::sim::SimOptions {
                 inject,
                 duration_s: duration,
                 seed,
@@ -340,17 +341,15 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             };
             let summary = if realtime {
                 let rt = tokio::runtime::Runtime::new().context("cannot start the runtime")?;
-                let s = rt.block_on(uquad::sim::realtime::run(&profile, &opts));
+                let s = rt.block_on(uquad::app::sim_realtime::run(&profile, &opts));
                 rt.shutdown_timeout(std::time::Duration::from_millis(200));
                 s?
             } else {
-                uquad::sim::run::run_fast(&profile, &opts)?
+                uquad::app::sim_fast::run_fast(&profile, &opts)?
             };
             eprintln!("{}", summary.text());
             if let Some(path) = report {
-                let text = serde_json::to_string_pretty(&summary.report())?;
-                std::fs::write(&path, text + "\n")
-                    .with_context(|| format!("cannot write the report {}", path.display()))?;
+                uquad::app::report::write_json(&summary.report(), &path)?;
             }
             Ok(
                 if summary.fly.error.is_some() || summary.fly.halt.is_some() {

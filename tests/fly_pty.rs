@@ -127,7 +127,7 @@ async fn a_stalled_logger_loses_no_control_step() {
     // x_hat's logger stops writing for 500 ms a little after the flight starts; its queue holds
     // 8 records, so about 40 records cannot be queued.
     let stall = uquad::tasks::logger::LogStall {
-        stream: 2,
+        stream: uquad::logs::Stream::XHat,
         after_records: 20,
         duration: Duration::from_millis(500),
     };
@@ -156,7 +156,7 @@ async fn a_stalled_logger_loses_no_control_step() {
         summary.esc_commands
     );
     // The stalled stream lost records, counted, and said so in err.log.
-    let dropped = summary.log_drops[2];
+    let dropped = summary.log_drops[uquad::logs::Stream::XHat];
     assert!(dropped > 20, "dropped {dropped}");
     assert_eq!(summary.log_drops_total(), dropped);
     assert_eq!(

@@ -25,7 +25,7 @@ async fn expect_halt(
     ) -> std::pin::Pin<Box<dyn std::future::Future<Output = ()> + Send>>,
     reason: &str,
     max_latency_ms: f64,
-) -> uquad::app::fly::FlySummary {
+) -> uquad::app::report::FlySummary {
     let _one = ONE_AT_A_TIME.lock().await;
     let (summary, _, bus, _logs) = fly_with(extra, opts, Link::Pipe, plan, during).await;
     let halt = summary

@@ -1,6 +1,7 @@
 //! `uquad replay`: runs the core on a run folder as the original wrote it.
 //!
-//! The whole loop runs closed, as in flight: measurement → EKF → controller → flight ramp and
+//! The flight sequence (`core::flight::sequence`) runs here as in flight, on the run's recorded
+//! clock, with no ESCs and no watchdog. The whole loop runs closed, as in flight: measurement → EKF → controller → flight ramp and
 //! saturation → the motor speeds fed back as the EKF input (ERRATA 6). No recorded motor speed
 //! is fed in; only the run's recorded clock is: the time columns of `kalman_in.log` (Kalman
 //! step times, ERRATA 3), `int.log` (control step times) and `w.log` (motor command times,
@@ -13,9 +14,12 @@
 
 use crate::config::{GpsMode, Profile};
 use crate::core::ekf::Ekf;
-use crate::core::flight::GpsFeed;
+use crate::core::flight::{
+    ControllerSide, EscState, EstimatorSide, FlightRecord, FrameAction, FrameTimes, GpsFeed,
+    Outputs, RecordedClock,
+};
 use crate::core::gps::{GpsSample, LocalFrame, RecordedGps};
-use crate::core::imu::startup::FrontEndEvent;
+use crate::core::watchdog::Event;
 use crate::logs::{self, GpsLogRecord, ImuRawRecord, KalmanInRecord, Parsed};
 use anyhow::{Context, bail};
 use std::path::{Path, PathBuf};
@@ -49,6 +53,34 @@ struct Records {
     /// Time and integrators; only the first `n_int` values are meaningful.
     int: Vec<(i64, [f64; 4])>,
     n_int: usize,
+}
+
+impl Outputs for Records {
+    /// Keeps the four streams a replay writes; the others (imu_raw, gps, err) are the run's.
+    fn record(&mut self, r: FlightRecord) {
+        match r {
+            FlightRecord::KalmanIn {
+                t_us,
+                dt_us,
+                sample,
+            } => self
+                .kalman_in
+                .push(KalmanInRecord::from_sample(t_us, dt_us, &sample)),
+            FlightRecord::XHat(x) => self.x_hat.push(x),
+            FlightRecord::Command { t_us, w_rad_s } => self.w.push((t_us, w_rad_s)),
+            FlightRecord::Int { t_us, x_int, n_int } => {
+                self.n_int = n_int;
+                self.int.push((t_us, x_int));
+            }
+            FlightRecord::Frame { .. }
+            | FlightRecord::FakeGps(_)
+            | FlightRecord::GpsFix { .. }
+            | FlightRecord::Halt(_)
+            | FlightRecord::Note(_) => {}
+        }
+    }
+
+    fn watchdog(&mut self, _: Event) {}
 }
 
 impl Records {
@@ -235,66 +267,48 @@ pub fn run_observed(
     let cfg = &profile.config;
     let local_positions = std::fs::read_to_string(run_dir.join("gps.log"))
         .is_ok_and(|t| t.starts_with(logs::UQUAD_GPS_HEADER));
-    let mut gps = gps_source(profile, recorded_gps, local_positions)?;
+    let gps = gps_source(profile, recorded_gps, local_positions)?;
     // The original's imu_raw.log holds no settling frames (spec 1.6): start with calibration.
-    let mut estimator = profile.estimator_core(true);
-    let mut control = profile.controller_core();
+    let mut estimator =
+        EstimatorSide::new(profile.estimator_core(true), gps).with_clock(RecordedClock {
+            kalman_us: recorded_times,
+            ctrl_us: ctrl_times,
+            cmd_us: cmd_times,
+        });
+    let mut controller = ControllerSide::new(profile.controller_core());
+    let mut feedback = controller.first_feedback();
     let mut out = Records::default();
     let mut summary = ReplaySummary {
         raw_frames: raw.len(),
         ..ReplaySummary::default()
     };
-    let mut prev_frame_us: Option<i64> = None;
     for rec in &raw {
-        let sample = match estimator.on_frame(&rec.frame, rec.t_frame_us) {
-            FrontEndEvent::Settling { .. }
-            | FrontEndEvent::Holding
-            | FrontEndEvent::Calibrating { .. } => continue,
-            FrontEndEvent::Failed(e) => bail!("start-up failed: {e}"),
-            FrontEndEvent::Calibrated(null) => null.sample,
-            FrontEndEvent::Sample(s) => s,
+        let times = FrameTimes {
+            t_main_us: rec.t_main_us,
+            t_frame_us: rec.t_frame_us,
         };
-        let row = estimator.steps() as usize; // 0-based Kalman step
-        let step = estimator.steps() + 1;
-        // The recorded clock when the run has one, else the frames' own times.
-        let (t_us, dt_col_us) = match recorded_times.get(row) {
-            Some(&(t, dt)) => (t, dt),
-            None => (
-                rec.t_main_us,
-                prev_frame_us.map_or(0, |p| rec.t_frame_us - p),
-            ),
+        let sample = match estimator.on_frame(&rec.frame, times, EscState::ABSENT, &mut out) {
+            FrameAction::Step(s) => s,
+            FrameAction::Abort(why) => bail!("{why}"),
+            FrameAction::Wait | FrameAction::StartEscs | FrameAction::Ended => continue,
         };
-        prev_frame_us = Some(rec.t_frame_us);
-        let t_cmd_us = cmd_times.get(row).copied().unwrap_or(t_us);
-        let t_ctrl_us = ctrl_times.get(row).copied().unwrap_or(t_cmd_us);
-
-        let u_rad_s = control.input_for_step(step);
-        let gps_sample = gps.for_step(t_us);
-        let Some(est) = estimator.step(sample, t_us, u_rad_s, control.mass_kg(), gps_sample) else {
+        let Some(est) = estimator.estimate(sample, times, &feedback, None, &mut out) else {
             continue;
         };
         if let Some(e) = est.ekf_error {
-            summary.ekf_errors += 1;
-            tracing::warn!(step, "{e}");
+            tracing::warn!(step = est.step, "{e}");
         }
-        summary.gps_updates += usize::from(est.gps_used);
-        summary.dt_clamped += usize::from(est.dt_clamped);
-        out.kalman_in
-            .push(KalmanInRecord::from_sample(t_us, dt_col_us, &est.sample));
-        out.x_hat.push(est.x.into());
         if let Some(ekf) = estimator.ekf() {
             on_step(ekf);
         }
-
-        let c = control.control(&est, t_ctrl_us, t_cmd_us);
-        summary.saturated_commands += usize::from(c.saturated);
-        out.n_int = c.n_int;
-        out.int.push((c.t_ctrl_us, c.x_int));
-        out.w.push((c.t_cmd_us, c.w_sent));
-        // After the motor command, the fake-GPS check (ERRATA 10).
-        gps.after_command(t_cmd_us);
-        summary.kalman_steps += 1;
+        feedback = controller.control(&est, &mut out).feedback;
     }
+    let (e, c) = (estimator.counts(), controller.counts());
+    summary.kalman_steps = e.steps as usize;
+    summary.gps_updates = e.gps_updates as usize;
+    summary.dt_clamped = e.dt_clamped as usize;
+    summary.ekf_errors = e.ekf_errors as usize;
+    summary.saturated_commands = c.saturated as usize;
     if summary.kalman_steps == 0 {
         bail!(
             "{}: {} frames are not enough to finish the {}-frame calibration",

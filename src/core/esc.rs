@@ -7,6 +7,7 @@ use crate::core::motor::{
     EscAction, I2C_IDLE, MotorMap, REG_DISABLE, REG_ENABLE, REG_SPEED, esc_startup_ramp,
     i2c_from_rad_s,
 };
+use crate::core::watchdog::Event;
 
 /// Where the ESCs are.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -186,6 +187,79 @@ impl EscDriver {
                 }
             }
             EscPhase::Disabled | EscPhase::Stopped => {}
+        }
+    }
+}
+
+/// One write cycle as executed, for the caller's bookkeeping.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CycleDone {
+    pub kind: CycleKind,
+    /// Every write of the cycle was acknowledged.
+    pub ok: bool,
+    /// When the cycle's writes were done, µs since start.
+    pub at_us: i64,
+    /// After a failed cycle: the run of consecutive failed cycles, for the watchdog.
+    pub failures: Option<Event>,
+}
+
+/// The one ESC write loop of every mode: executes the driver's cycles through `write` (one
+/// SMBus write; the bus is the caller's) and keeps the write counts and the run of failed
+/// cycles the watchdog's missed-ack rule reads.
+#[derive(Debug, Clone, Default)]
+pub struct CycleRunner {
+    pub writes: u64,
+    pub failed_writes: u64,
+    /// Consecutive failed cycles, and when the first of them was done.
+    failed_cycles: u32,
+    first_failure_us: i64,
+}
+
+impl CycleRunner {
+    /// Executes and drains `cycles` in order. `now_us` is read after each cycle's writes;
+    /// `done` hears of each cycle and, first, of the first failed write of a failing run (to
+    /// be logged once, not per write).
+    pub fn execute<E>(
+        &mut self,
+        cycles: &mut Vec<(CycleKind, Cycle)>,
+        mut write: impl FnMut(u8, u8, u8) -> Result<(), E>,
+        mut now_us: impl FnMut() -> i64,
+        mut done: impl FnMut(CycleDone, Option<E>),
+    ) {
+        for (kind, cycle) in cycles.drain(..) {
+            let mut ok = true;
+            let mut first_error = None;
+            for (addr, reg, value) in cycle {
+                self.writes += 1;
+                if let Err(e) = write(addr, reg, value) {
+                    self.failed_writes += 1;
+                    if ok && self.failed_cycles == 0 {
+                        first_error = Some(e);
+                    }
+                    ok = false;
+                }
+            }
+            let at_us = now_us();
+            let failures = if ok {
+                self.failed_cycles = 0;
+                None
+            } else {
+                if self.failed_cycles == 0 {
+                    self.first_failure_us = at_us;
+                }
+                self.failed_cycles += 1;
+                Some(Event::EscFailures {
+                    cycles: self.failed_cycles,
+                    first_us: self.first_failure_us,
+                })
+            };
+            let cycle_done = CycleDone {
+                kind,
+                ok,
+                at_us,
+                failures,
+            };
+            done(cycle_done, first_error);
         }
     }
 }

@@ -122,6 +122,17 @@ pub fn parse_report(line: &str) -> Result<Report, ReportError> {
     Ok(serde_json::from_str(line)?)
 }
 
+/// A fix as it reaches the estimator.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LiveFix {
+    /// Increases with every fix.
+    pub seq: u64,
+    pub fix: Fix,
+    pub sample: GpsSample,
+    /// Arrival, µs since the run's start.
+    pub stamp_us: i64,
+}
+
 /// One GPS sample for the filter: position in the local frame, m.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct GpsSample {

@@ -38,6 +38,41 @@ pub struct Trip {
     pub decided_us: i64,
 }
 
+/// A halt as it happened: the decision and when the ESCs were zeroed and disabled.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Halt {
+    pub trip: Trip,
+    /// When the ESCs were zeroed and disabled, µs since start.
+    pub halt_us: i64,
+}
+
+impl Halt {
+    /// From the triggering event to the halt, ms.
+    pub fn latency_ms(&self) -> f64 {
+        (self.halt_us - self.trip.event_us) as f64 / 1000.0
+    }
+}
+
+/// What the flight's parts report to the watchdog (times in µs since the run's start). `fly`
+/// queues them from several threads; `sim --fast` hands them over at once; both dispatch them
+/// through [`Watchdog::on_event`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Event {
+    /// A frame arrived.
+    Frame(i64),
+    /// The command for the frame that arrived at `frame_us` was written at `written_us`.
+    Command { frame_us: i64, written_us: i64 },
+    /// A Kalman step's sanity inputs.
+    Estimate {
+        step_us: i64,
+        temp_c: f64,
+        psi_rad: f64,
+        phi_rad: f64,
+    },
+    /// `cycles` consecutive failed ESC write cycles, the first at `first_us`.
+    EscFailures { cycles: u32, first_us: i64 },
+}
+
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct WatchdogParams {
     pub deadline_us: i64,
@@ -178,6 +213,29 @@ impl Watchdog {
             return self.decide(reason, step_us, step_us);
         }
         None
+    }
+
+    /// Dispatches one reported event, handled at `now_us`.
+    pub fn on_event(&mut self, e: Event, now_us: i64) -> Option<Trip> {
+        match e {
+            Event::Frame(at) => {
+                self.on_frame(at);
+                None
+            }
+            Event::Command {
+                frame_us,
+                written_us,
+            } => self.on_command(frame_us, written_us),
+            Event::Estimate {
+                step_us,
+                temp_c,
+                psi_rad,
+                phi_rad,
+            } => self.on_estimate(step_us, temp_c, psi_rad, phi_rad),
+            Event::EscFailures { cycles, first_us } => {
+                self.on_esc_failures(cycles, first_us, now_us.max(first_us))
+            }
+        }
     }
 
     /// Time passes: a frame left without command past the deadline, or no frame for the IMU

@@ -1,14 +1,16 @@
-//! The software-in-the-loop simulator: a physics model of the uQuad, a simulated IMU that
-//! emits the real 30-byte frames, simulated ESCs behind the same bus trait, and the two ways of
-//! flying the real code against them (`--fast` lock-step, `--realtime` with fly's tasks).
+//! The software-in-the-loop simulator's models: the uQuad's physics, a simulated IMU that
+//! emits the real 30-byte frames, simulated ESCs behind the same bus trait, simulated gpsd
+//! fixes, the faults and their schedule, and the hover window. The two ways of flying the real
+//! code against them are composition roots in `app` (`sim_fast`, `sim_realtime`).
 
 pub mod esc;
+pub mod faults;
+pub mod hover;
 pub mod imu;
 pub mod physics;
-pub mod realtime;
-pub mod run;
 
 use crate::config::Profile;
+use crate::core::gps::{Fix, GpsSample, LiveFix};
 
 /// The vehicle and its IMU as the profile's `[sim]` section describes them, with `seed`.
 pub fn vehicle(profile: &Profile, seed: u64) -> (physics::Plant, imu::SimImu) {
@@ -36,4 +38,30 @@ pub fn vehicle(profile: &Profile, seed: u64) -> (physics::Plant, imu::SimImu) {
         seed,
     );
     (plant, imu)
+}
+
+/// Simulated gpsd: a fix of the true position `pos_m` (local frame) arriving at `t_us`, the
+/// next in `seq`. The simulator has no place on the Earth: latitude and longitude are 0; the
+/// run's gps.log carries the local position, which is what a replay fuses.
+pub fn gps_fix(seq: &mut u64, pos_m: [f64; 3], t_us: i64) -> LiveFix {
+    *seq += 1;
+    LiveFix {
+        seq: *seq,
+        fix: Fix {
+            mode: 3,
+            lat_deg: 0.0,
+            lon_deg: 0.0,
+            alt_m: pos_m[2],
+        },
+        sample: GpsSample { pos_m },
+        stamp_us: t_us,
+    }
+}
+
+/// The IMU's frame period, µs (spec 1.1).
+pub const FRAME_US: i64 = 10_000;
+
+/// The start byte of the `k`-th frame: the simulated IMU alternates its two, as the real one.
+pub fn frame_start_byte(k: u64) -> u8 {
+    if k.is_multiple_of(2) { b'C' } else { b'A' }
 }

@@ -12,10 +12,10 @@
 //! with the run of consecutive failures exposed for the watchdog.
 
 pub use crate::core::esc::EscPhase;
-use crate::core::esc::{Cycle, CycleKind, EscDriver};
+use crate::core::esc::{Cycle, CycleKind, CycleRunner, EscDriver};
 use crate::core::motor::MotorMap;
 use crate::hw::esc_bus::EscBus;
-use crate::tasks::watchdog::{Event, Heartbeats};
+use crate::tasks::heartbeats::{Event, Heartbeats};
 use std::sync::atomic::{AtomicU8, AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
@@ -85,8 +85,6 @@ pub struct EscStatus {
     phase: AtomicU8,
     pub writes: AtomicU64,
     pub failed_writes: AtomicU64,
-    /// Consecutive failed writes (0 after any success): the watchdog's missed acks.
-    pub consecutive_failures: AtomicU64,
     /// Flight commands written.
     pub commands: AtomicU64,
     /// Commands refused as stale or not finite.
@@ -95,8 +93,8 @@ pub struct EscStatus {
     pub stop_reason: Mutex<Option<String>>,
     /// Frame-arrival → ESC-write latency of each flight command, µs (newest last).
     pub latencies_us: Mutex<Vec<u32>>,
-    /// When the ESCs were zeroed and disabled.
-    stopped_at: Mutex<Option<Instant>>,
+    /// When the ESCs were zeroed and disabled, µs since the run's start.
+    stopped_at: Mutex<Option<i64>>,
 }
 
 impl EscStatus {
@@ -117,7 +115,8 @@ impl EscStatus {
         self.stop_reason.lock().ok().and_then(|g| g.clone())
     }
 
-    pub fn stopped_at(&self) -> Option<Instant> {
+    /// When the ESCs were zeroed and disabled, µs since the run's start.
+    pub fn stopped_at_us(&self) -> Option<i64> {
         self.stopped_at.lock().ok().and_then(|g| *g)
     }
 }
@@ -138,76 +137,65 @@ struct Writer {
     params: EscParams,
     status: Arc<EscStatus>,
     beats: Arc<Heartbeats>,
-    /// Consecutive write cycles with a failed write, and when the first of them was.
-    failed_cycles: u32,
-    first_failure: Option<Instant>,
+    runner: CycleRunner,
 }
 
 impl Writer {
-    /// Executes the driver's cycles on the bus: counts failed writes and failed cycles (the
-    /// watchdog's missed acks), notes the stop time and the command latency.
+    /// Executes the driver's cycles on the bus through the one write loop of every mode, then
+    /// publishes the counts, the watchdog's events, the stop time and the command latency.
     fn execute(&mut self, cycles: &mut Vec<(CycleKind, Cycle)>, command_frame_at: Option<Instant>) {
-        for (kind, cycle) in cycles.drain(..) {
-            let mut ok = true;
-            for (addr, reg, value) in cycle {
-                self.status.writes.fetch_add(1, Ordering::Relaxed);
-                match self.bus.write_byte_data(addr, reg, value) {
-                    Ok(()) => {
-                        self.status.consecutive_failures.store(0, Ordering::SeqCst);
-                    }
-                    Err(e) => {
-                        ok = false;
-                        self.status.failed_writes.fetch_add(1, Ordering::Relaxed);
-                        let n = self
-                            .status
-                            .consecutive_failures
-                            .fetch_add(1, Ordering::SeqCst)
-                            + 1;
-                        if n == 1 {
-                            tracing::warn!("{e}");
+        let (bus, beats, status) = (&mut self.bus, &self.beats, &self.status);
+        self.runner.execute(
+            cycles,
+            |addr, reg, value| bus.write_byte_data(addr, reg, value),
+            || beats.us(Instant::now()),
+            |done, first_error| {
+                if let Some(e) = first_error {
+                    tracing::warn!("{e}");
+                }
+                if let Some(e) = done.failures {
+                    beats.report(e);
+                }
+                match done.kind {
+                    CycleKind::Command => {
+                        if let Some(frame_at) = command_frame_at {
+                            record_command(status, beats, frame_at, done.at_us);
                         }
                     }
-                }
-            }
-            let now = Instant::now();
-            if ok {
-                self.failed_cycles = 0;
-                self.first_failure = None;
-            } else {
-                self.failed_cycles += 1;
-                let first = *self.first_failure.get_or_insert(now);
-                self.beats.report(Event::EscFailures {
-                    cycles: self.failed_cycles,
-                    first_us: self.beats.us(first),
-                });
-            }
-            match kind {
-                CycleKind::Command => {
-                    if let Some(frame_at) = command_frame_at {
-                        self.beats.report(Event::Command {
-                            frame_us: self.beats.us(frame_at),
-                            written_us: self.beats.us(now),
-                        });
-                        self.status.commands.fetch_add(1, Ordering::Relaxed);
-                        let latency = now
-                            .duration_since(frame_at)
-                            .as_micros()
-                            .min(u128::from(u32::MAX)) as u32;
-                        if let Ok(mut l) = self.status.latencies_us.lock()
-                            && l.len() < MAX_LATENCY_SAMPLES
-                        {
-                            l.push(latency);
+                    CycleKind::StopDisable => {
+                        if let Ok(mut at) = status.stopped_at.lock() {
+                            at.get_or_insert(done.at_us);
                         }
                     }
+                    CycleKind::Enable
+                    | CycleKind::Ramp
+                    | CycleKind::Speeds
+                    | CycleKind::StopZero => {}
                 }
-                CycleKind::StopDisable => {
-                    if let Ok(mut at) = self.status.stopped_at.lock() {
-                        at.get_or_insert(now);
-                    }
-                }
-                CycleKind::Enable | CycleKind::Ramp | CycleKind::Speeds | CycleKind::StopZero => {}
-            }
-        }
+            },
+        );
+        self.status
+            .writes
+            .store(self.runner.writes, Ordering::Relaxed);
+        self.status
+            .failed_writes
+            .store(self.runner.failed_writes, Ordering::Relaxed);
+    }
+}
+
+/// A flight command written at `written_us`: the watchdog's deadline event and the latency.
+fn record_command(status: &EscStatus, beats: &Heartbeats, frame_at: Instant, written_us: i64) {
+    let frame_us = beats.us(frame_at);
+    beats.report(Event::Command {
+        frame_us,
+        written_us,
+    });
+    status.commands.fetch_add(1, Ordering::Relaxed);
+    let latency = (written_us - frame_us).clamp(0, i64::from(u32::MAX)) as u32;
+    if let Ok(mut l) = status.latencies_us.lock()
+        && l.len() < MAX_LATENCY_SAMPLES
+    {
+        l.push(latency);
     }
 }
 
@@ -232,8 +220,7 @@ pub fn spawn(
                     params,
                     status,
                     beats,
-                    failed_cycles: 0,
-                    first_failure: None,
+                    runner: CycleRunner::default(),
                 },
                 &mailbox,
             )

@@ -6,7 +6,7 @@
 //! Rate: as gpsd reports (about 1 Hz). Ends: on cancel. When gpsd is unreachable or goes away
 //! it reconnects with a capped, logged backoff while the filter goes on without GPS.
 
-use crate::core::gps::{Fix, GpsSample, LocalFrame, Report, parse_report};
+use crate::core::gps::{GpsSample, LiveFix, LocalFrame, Report, parse_report};
 use futures_util::StreamExt;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -24,17 +24,6 @@ const MAX_LINE: usize = 64 * 1024;
 const CONNECT_TIMEOUT: Duration = Duration::from_secs(2);
 const BACKOFF_START: Duration = Duration::from_millis(100);
 const BACKOFF_CAP: Duration = Duration::from_secs(5);
-
-/// A fix as it reaches the estimator.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct LiveFix {
-    /// Increases with every fix.
-    pub seq: u64,
-    pub fix: Fix,
-    pub sample: GpsSample,
-    /// Arrival, µs since the run's start.
-    pub stamp_us: i64,
-}
 
 #[derive(Debug, Default)]
 pub struct GpsStats {

@@ -14,7 +14,7 @@ use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::mpsc;
 use tokio_util::sync::CancellationToken;
 
-use crate::tasks::watchdog::{Event, Heartbeats};
+use crate::tasks::heartbeats::{Event, Heartbeats};
 
 /// A decoded frame and when its last byte arrived.
 #[derive(Debug, Clone, Copy)]

@@ -300,7 +300,12 @@ pub async fn fly_for(
     extra: &[&str],
     stall: Option<uquad::tasks::logger::LogStall>,
     during: impl std::future::Future<Output = ()>,
-) -> (uquad::app::fly::FlySummary, u64, MockBus, tempfile::TempDir) {
+) -> (
+    uquad::app::report::FlySummary,
+    u64,
+    MockBus,
+    tempfile::TempDir,
+) {
     fly_with(
         extra,
         uquad::app::fly::FlyOptions {
@@ -321,7 +326,12 @@ pub async fn fly_with<F: std::future::Future<Output = ()>>(
     link: Link,
     plan: FramePlan,
     during: impl FnOnce(MockBus) -> F,
-) -> (uquad::app::fly::FlySummary, u64, MockBus, tempfile::TempDir) {
+) -> (
+    uquad::app::report::FlySummary,
+    u64,
+    MockBus,
+    tempfile::TempDir,
+) {
     let profile = uquad::config::load(&profile_2012(), &sets(extra)).unwrap();
     let logs = tempfile::tempdir().unwrap();
     let (feeder, slave) = ImuFeeder::start(plan, link);
@@ -338,6 +348,7 @@ pub async fn fly_with<F: std::future::Future<Output = ()>>(
                     imu: slave,
                     bus: Box::new(bus),
                     gps_fixes: None,
+                    live: None,
                 },
                 uquad::app::fly::FlyOptions {
                     log_dir: Some(log_dir),

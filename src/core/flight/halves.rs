@@ -1,6 +1,6 @@
-//! The flight loop's two halves as pure state machines, shared by `fly`, `sim` and `replay`:
-//! the estimator (measurement front end + EKF) and the controller (hover planner + P + I
-//! controller + flight ramp and saturation), and the GPS feed between them.
+//! The flight loop's two halves as pure state machines: the estimator (measurement front end +
+//! EKF) and the controller (hover planner + P + I controller + flight ramp and saturation).
+//! [`super::sequence`] drives them in the order every mode follows.
 //!
 //! Spec section 8.3 steps 6–11 with ERRATA 3–8 and 10: one Kalman step per filtered frame; the
 //! EKF input u is w_hover on step 1, the previous raw controller output while the flight ramp
@@ -10,7 +10,7 @@
 
 use crate::core::control::{Controller, HoverPlanner, ManualCommand, ManualOutcome};
 use crate::core::ekf::{Ekf, EkfError, EkfParams, Input, State, StepInput};
-use crate::core::gps::{FakeGpsClock, FakePositions, GpsSample, RecordedGps};
+use crate::core::gps::GpsSample;
 use crate::core::imu::calib::{Calibration, ImuSample};
 use crate::core::imu::frame::RawFrame;
 use crate::core::imu::startup::{FrontEndEvent, ImuFrontEnd, StartupParams};
@@ -28,6 +28,10 @@ pub struct Estimate {
     pub step: u32,
     /// Time of the step, µs since start.
     pub t_us: i64,
+    /// The times its control step and motor command run at (the step's own time except in
+    /// replay, which takes them from the run's logs).
+    pub t_ctrl_us: i64,
+    pub t_cmd_us: i64,
     /// The measurement the filter used (θ unwrapped), for kalman_in.log.
     pub sample: ImuSample,
     /// The state after the step.
@@ -126,6 +130,8 @@ impl EstimatorCore {
         Some(Estimate {
             step: self.steps,
             t_us,
+            t_ctrl_us: t_us,
+            t_cmd_us: t_us,
             sample,
             x: ekf.x,
             theta_cal_rad: self.theta_cal_rad,
@@ -319,65 +325,6 @@ impl ControllerCore {
                 .iter()
                 .any(|&w| w == limits.w_min_rad_s || w == limits.w_max_rad_s),
             position_hold,
-        }
-    }
-}
-
-/// Where the filter's GPS samples come from.
-#[derive(Debug, Clone)]
-pub enum GpsFeed {
-    Off,
-    /// Samples stamped in a log, fused by the first later Kalman step (ERRATA 5).
-    Recorded(RecordedGps),
-    /// The fake-GPS rule on the motor-command clock (ERRATA 10): a sample produced after
-    /// command k is fused by Kalman step k + 1.
-    Clock {
-        clock: FakeGpsClock,
-        positions: FakePositions,
-        pending: Option<GpsSample>,
-    },
-    /// Live samples (gpsd): whatever arrived since the previous step.
-    Live(Option<GpsSample>),
-}
-
-impl GpsFeed {
-    pub fn fake(positions: FakePositions) -> Self {
-        GpsFeed::Clock {
-            clock: FakeGpsClock::default(),
-            positions,
-            pending: None,
-        }
-    }
-
-    /// After the motor command at `t_cmd_us`; `true` when a fake sample was produced.
-    pub fn after_command(&mut self, t_cmd_us: i64) -> bool {
-        if let GpsFeed::Clock {
-            clock,
-            positions,
-            pending,
-        } = self
-            && clock.on_motor_command(t_cmd_us)
-        {
-            *pending = Some(positions.next_sample());
-            return true;
-        }
-        false
-    }
-
-    /// A live sample arrived (gpsd): it is fused by the next step.
-    pub fn offer_live(&mut self, sample: GpsSample) {
-        if let GpsFeed::Live(slot) = self {
-            *slot = Some(sample);
-        }
-    }
-
-    /// The sample to fuse in the Kalman step at `t_us`, if any.
-    pub fn for_step(&mut self, t_us: i64) -> Option<GpsSample> {
-        match self {
-            GpsFeed::Off => None,
-            GpsFeed::Recorded(r) => r.take_before(t_us),
-            GpsFeed::Clock { pending, .. } => pending.take(),
-            GpsFeed::Live(s) => s.take(),
         }
     }
 }

@@ -1,0 +1,24 @@
+//! The flight sequence's two sides as a profile builds them for a live run (`fly` and both
+//! ways of simulating): settle, then hold for the ESC start-up ramp before calibrating; the
+//! GPS feed the profile's `gps.mode` asks for.
+
+use crate::config::{GpsMode, Profile};
+use crate::core::flight::{ControllerSide, EstimatorSide, GpsFeed};
+
+/// The GPS feed of a live run: gpsd's (or the simulator's) fixes, the fake-GPS rule, or none.
+pub fn live_gps_feed(profile: &Profile) -> GpsFeed {
+    match profile.config.gps.mode {
+        GpsMode::Off => GpsFeed::Off,
+        GpsMode::Gpsd => GpsFeed::Live(None),
+        GpsMode::FakeZero | GpsMode::FakeRandom => GpsFeed::fake(profile.fake_positions()),
+    }
+}
+
+/// The estimator and controller sides of a live run.
+pub fn live_sides(profile: &Profile) -> (EstimatorSide, ControllerSide) {
+    let estimator = EstimatorSide::new(
+        profile.estimator_core(false).hold_after_settle(),
+        live_gps_feed(profile),
+    );
+    (estimator, ControllerSide::new(profile.controller_core()))
+}

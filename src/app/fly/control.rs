@@ -1,0 +1,139 @@
+//! The control path of a `fly` run on its own OS thread: a current-thread runtime (SCHED_FIFO
+//! when permitted) running the IMU reader, the estimator task and the controller task, which
+//! carry messages into the flight sequence's two sides (`core::flight::sequence`).
+
+use super::{FlyOptions, RunHandles};
+use crate::app::flight::live_sides;
+use crate::config::{GpsMode, Profile};
+use crate::core::control::ManualCommand;
+use crate::core::gps::LiveFix;
+use crate::logs::Record;
+use crate::tasks::TaskOutputs;
+use crate::tasks::controller::{ControllerReport, ControllerTask, Live};
+use crate::tasks::estimator::{EstimatorReport, EstimatorTask};
+use crate::tasks::{gps_client, imu_reader};
+use anyhow::Context;
+use std::thread::JoinHandle;
+use tokio::sync::{mpsc, watch};
+use tracing::Instrument;
+
+/// What the control path reads from and publishes to, beyond the shared handles.
+pub(super) struct Inputs {
+    pub imu: Box<dyn super::ImuIo>,
+    pub gps_fixes: Option<watch::Receiver<Option<LiveFix>>>,
+    pub manual: mpsc::Receiver<ManualCommand>,
+    pub live: watch::Sender<Option<Live>>,
+}
+
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct Reports {
+    pub estimator: EstimatorReport,
+    pub controller: ControllerReport,
+}
+
+/// Spawns the control thread; whatever ends it (an error, a panic) ends the run.
+pub(super) fn spawn(
+    profile: &Profile,
+    inputs: Inputs,
+    opts: &FlyOptions,
+    h: &RunHandles,
+) -> anyhow::Result<JoinHandle<anyhow::Result<Reports>>> {
+    let gps_live = live_fixes(profile, inputs.gps_fixes, h);
+    let (estimator, controller) = live_sides(profile);
+    let h = h.clone();
+    let (realtime, delay) = (opts.realtime, opts.control_delay);
+    std::thread::Builder::new()
+        .name("control".into())
+        .spawn(move || {
+            let _end_run = h.cancel.clone().drop_guard();
+            if realtime {
+                crate::tasks::raise_priority("control", 50);
+            }
+            let rt = tokio::runtime::Builder::new_current_thread()
+                .enable_all()
+                .build()
+                .context("cannot build the control runtime")?;
+            let out = TaskOutputs {
+                logs: h.logs.clone(),
+                beats: h.beats.clone(),
+            };
+            let (fb_tx, fb_rx) = watch::channel(controller.first_feedback());
+            let (est_tx, est_rx) = mpsc::channel(1);
+            let controller = ControllerTask {
+                side: controller,
+                estimates: est_rx,
+                manual: inputs.manual,
+                feedback: fb_tx,
+                esc: h.mailbox.clone(),
+                out: out.clone(),
+                cancel: h.cancel.clone(),
+                delay,
+                live: inputs.live,
+            };
+            rt.block_on(async move {
+                let (frame_tx, frame_rx) = mpsc::channel(8);
+                let reader = imu_reader::run(
+                    inputs.imu,
+                    h.beats.clone(),
+                    frame_tx,
+                    h.imu_stats.clone(),
+                    h.cancel.clone(),
+                );
+                let reader = tokio::spawn(reader.instrument(tracing::info_span!("imu_reader")));
+                let controller = tokio::spawn(
+                    controller
+                        .run()
+                        .instrument(tracing::info_span!("controller")),
+                );
+                let estimator = EstimatorTask {
+                    side: estimator,
+                    gps_live,
+                    frames: frame_rx,
+                    feedback: fb_rx,
+                    estimates: est_tx,
+                    esc: h.mailbox.clone(),
+                    esc_status: h.esc_status.clone(),
+                    out,
+                    cancel: h.cancel.clone(),
+                }
+                .run()
+                .instrument(tracing::info_span!("estimator"))
+                .await;
+                // The estimator ends when frames stop, on an abort or on cancel: end the run.
+                h.cancel.cancel();
+                if let Ok(Err(e)) = reader.await {
+                    tracing::warn!("IMU read error: {e}");
+                }
+                let controller = controller.await.unwrap_or_default();
+                Ok(Reports {
+                    estimator: estimator?,
+                    controller,
+                })
+            })
+        })
+        .context("cannot start the control thread")
+}
+
+/// gps.mode = "gpsd": the caller's fixes (the simulator) or a gpsd client on the main runtime,
+/// so the control path never waits on gpsd. The gps.log header says the log holds fixes.
+fn live_fixes(
+    profile: &Profile,
+    given: Option<watch::Receiver<Option<LiveFix>>>,
+    h: &RunHandles,
+) -> Option<watch::Receiver<Option<LiveFix>>> {
+    if profile.config.gps.mode != GpsMode::Gpsd {
+        return None;
+    }
+    h.logs.log(Record::GpsHeader);
+    Some(given.unwrap_or_else(|| {
+        let (tx, rx) = watch::channel(None);
+        tokio::spawn(gps_client::run(
+            profile.config.gps.server.clone(),
+            h.beats.start(),
+            tx,
+            h.gps_stats.clone(),
+            h.cancel.clone(),
+        ));
+        rx
+    }))
+}

@@ -1,0 +1,354 @@
+//! `uquad fly`: the flight program as Tokio tasks over bounded channels, in named phases.
+//!
+//! ```text
+//! imu_reader --frames (mpsc)--> estimator --estimates (mpsc 1)--> controller --command--> esc_writer
+//!                                  ^                                  |        (mailbox)   (own thread)
+//!                                  +------ feedback: next u (watch) --+
+//! stdin keys, console --manual (mpsc)---------------------------------^
+//! every stream --records (try_send, drops counted)--> logger[stream] --> <run>/<stream>.log
+//! ```
+//!
+//! Phases: open the run folder → start the actuator (the ESC writer boots disabled) → start
+//! the watchdog → spawn the control thread (IMU reader, estimator, controller on a
+//! current-thread runtime, SCHED_FIFO when permitted) → serve the operator (signals, stdin
+//! keys, console, systemd) → shut down. Shutdown flows from the motors: zero and disable
+//! first, then the control path stops, then the loggers drain and flush.
+
+mod control;
+mod operators;
+
+use crate::app::report::FlySummary;
+use crate::app::run_dir::{create_run_dir, write_run_config};
+use crate::config::Profile;
+use crate::core::control::ManualCommand;
+use crate::core::flight::FlightRecord;
+use crate::core::gps::LiveFix;
+use crate::hw::esc_bus::EscBus;
+use crate::logs::{Record, halt_line};
+use crate::tasks::controller::Live;
+use crate::tasks::esc_writer::{self, EscMailbox, EscParams, EscStatus};
+use crate::tasks::gps_client::GpsStats;
+use crate::tasks::heartbeats::Heartbeats;
+use crate::tasks::imu_reader::ImuStats;
+use crate::tasks::logger::{self, LogHub, LogStall, LoggerReport};
+use crate::tasks::watchdog::{self, WatchdogStatus};
+use anyhow::Context;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+use tokio::io::{AsyncRead, AsyncWrite};
+use tokio::sync::{mpsc, watch};
+use tokio_util::sync::CancellationToken;
+
+/// The IMU byte stream: a serial port, a pty or an in-memory pipe.
+pub trait ImuIo: AsyncRead + AsyncWrite + Unpin + Send + 'static {}
+impl<T: AsyncRead + AsyncWrite + Unpin + Send + 'static> ImuIo for T {}
+
+/// The edges a run is wired to.
+pub struct Edges {
+    pub imu: Box<dyn ImuIo>,
+    pub bus: Box<dyn EscBus>,
+    /// Where gps.mode = "gpsd" takes its fixes from: None = a gpsd client on gps.server; Some
+    /// = fixes published by the caller (the simulator's true position).
+    pub gps_fixes: Option<watch::Receiver<Option<LiveFix>>>,
+    /// Where the controller publishes its newest step (the console reads it); a caller that
+    /// passes its own sender watches the flight too (the simulator's hover window).
+    pub live: Option<watch::Sender<Option<Live>>>,
+}
+
+/// How a run behaves beyond its configuration.
+#[derive(Debug, Clone, Default)]
+pub struct FlyOptions {
+    /// Folder under which the run folder is created (default: the profile's `log.dir`).
+    pub log_dir: Option<PathBuf>,
+    /// Ask for SCHED_FIFO on the control thread and lock memory (warns when not permitted).
+    pub realtime: bool,
+    /// Read the original's manual-mode keys from stdin.
+    pub stdin_keys: bool,
+    /// Fault injection: a logger stalls.
+    pub log_stall: Option<LogStall>,
+    /// Handle SIGINT/SIGTERM (the command does; tests cancel instead).
+    pub handle_signals: bool,
+    /// Fault injection: from this control step on, each control step takes this long.
+    pub control_delay: Option<(u32, Duration)>,
+}
+
+/// The handles every phase of a run shares; cheap to clone.
+#[derive(Clone)]
+struct RunHandles {
+    run_dir: PathBuf,
+    logs: LogHub,
+    /// The run's clock and the watchdog's inbox.
+    beats: Arc<Heartbeats>,
+    mailbox: Arc<EscMailbox>,
+    esc_status: Arc<EscStatus>,
+    wd_status: Arc<WatchdogStatus>,
+    imu_stats: Arc<ImuStats>,
+    gps_stats: Arc<GpsStats>,
+    live: watch::Receiver<Option<Live>>,
+    /// systemd's notification socket, when run as a `Type=notify` service.
+    notifier: Option<Arc<crate::hw::notify::Notifier>>,
+    cancel: CancellationToken,
+}
+
+/// The threads to join at shutdown, motors first.
+struct Threads {
+    esc: JoinHandle<()>,
+    watchdog: JoinHandle<()>,
+    control: JoinHandle<anyhow::Result<control::Reports>>,
+}
+
+/// Runs a flight until `cancel` fires (a signal, a quit key, the IMU stream ending, a start-up
+/// failure, a halt) and returns its summary. The motors are stopped on every path out.
+pub async fn run(
+    profile: &Profile,
+    mut edges: Edges,
+    opts: FlyOptions,
+    cancel: CancellationToken,
+) -> anyhow::Result<FlySummary> {
+    let (run_dir, logs, loggers) = open_run_folder(profile, &opts).await?;
+    let live_tx = edges.live.take().unwrap_or_else(|| watch::channel(None).0);
+    let h = RunHandles {
+        run_dir,
+        logs,
+        beats: Arc::new(Heartbeats::new(Instant::now())),
+        mailbox: Arc::new(EscMailbox::default()),
+        esc_status: Arc::new(EscStatus::default()),
+        wd_status: Arc::new(WatchdogStatus::default()),
+        imu_stats: Arc::new(ImuStats::default()),
+        gps_stats: Arc::new(GpsStats::default()),
+        live: live_tx.subscribe(),
+        notifier: crate::hw::notify::Notifier::from_env().map(Arc::new),
+        cancel,
+    };
+    let esc = start_actuator(profile, edges.bus, &h, opts.realtime)?;
+    // Any early return from here on (a thread that cannot start) still stops the ESCs.
+    let _esc_guard = operators::StopEscOnDrop(h.mailbox.clone());
+    let watchdog = start_watchdog(profile, &h, opts.realtime)?;
+    let (manual_tx, manual_rx) = mpsc::channel::<ManualCommand>(16);
+    let control = control::spawn(
+        profile,
+        control::Inputs {
+            imu: edges.imu,
+            gps_fixes: edges.gps_fixes,
+            manual: manual_rx,
+            live: live_tx,
+        },
+        &opts,
+        &h,
+    )?;
+    serve_operator(profile, &opts, &h, &manual_tx);
+    h.cancel.cancelled().await;
+    drop(manual_tx);
+    let threads = Threads {
+        esc,
+        watchdog,
+        control,
+    };
+    Ok(shut_down(h, threads, loggers).await)
+}
+
+type Loggers = Vec<tokio::task::JoinHandle<std::io::Result<LoggerReport>>>;
+
+/// Phase 1: the run folder, its self-contained configuration and one logger per stream.
+async fn open_run_folder(
+    profile: &Profile,
+    opts: &FlyOptions,
+) -> anyhow::Result<(PathBuf, LogHub, Loggers)> {
+    let cfg = &profile.config;
+    let parent = opts.log_dir.clone().unwrap_or_else(|| cfg.log.dir.clone());
+    let run_dir = create_run_dir(&parent)?;
+    write_run_config(profile, &run_dir)?;
+    let (logs, loggers) =
+        logger::spawn_all(&run_dir, cfg.log.queue_records as usize, opts.log_stall)
+            .await
+            .with_context(|| format!("cannot create the logs in {}", run_dir.display()))?;
+    logs.err(format!(
+        "uquad {} run {}",
+        env!("CARGO_PKG_VERSION"),
+        run_dir.display()
+    ));
+    tracing::info!(run_dir = %run_dir.display(), "run started");
+    if opts.realtime {
+        lock_memory();
+    }
+    Ok((run_dir, logs, loggers))
+}
+
+/// Phase 2: the ESC writer's thread; it boots disabled and owns the bus.
+fn start_actuator(
+    profile: &Profile,
+    bus: Box<dyn EscBus>,
+    h: &RunHandles,
+    realtime: bool,
+) -> anyhow::Result<JoinHandle<()>> {
+    let cfg = &profile.config;
+    if let Ok(mut l) = h.esc_status.latencies_us.lock() {
+        // An hour of commands: the ESC writer does not allocate while flying.
+        l.reserve(360_000);
+    }
+    esc_writer::spawn(
+        bus,
+        EscParams {
+            map: profile.motor_map(),
+            resend: Duration::from_millis(u64::from(cfg.esc.resend_ms)),
+            command_timeout: Duration::from_millis(u64::from(cfg.esc.command_timeout_ms)),
+        },
+        h.mailbox.clone(),
+        h.esc_status.clone(),
+        h.beats.clone(),
+        realtime,
+    )
+    .context("cannot start the ESC writer thread")
+}
+
+/// Phase 3: the watchdog's thread; it halts through the ESC writer and ends the run.
+fn start_watchdog(
+    profile: &Profile,
+    h: &RunHandles,
+    realtime: bool,
+) -> anyhow::Result<JoinHandle<()>> {
+    let logs = h.logs.clone();
+    let on_halt = move |halt| {
+        tracing::error!("{}", halt_line(&halt));
+        logs.log(Record::Flight(FlightRecord::Halt(halt)));
+    };
+    watchdog::spawn(
+        profile.config.watchdog.params(),
+        h.beats.clone(),
+        h.wd_status.clone(),
+        (h.mailbox.clone(), h.esc_status.clone()),
+        on_halt,
+        h.cancel.clone(),
+        realtime,
+    )
+    .context("cannot start the watchdog thread")
+}
+
+/// Phase 5: signals, stdin keys, the console socket and systemd, on the main runtime.
+fn serve_operator(
+    profile: &Profile,
+    opts: &FlyOptions,
+    h: &RunHandles,
+    manual_tx: &mpsc::Sender<ManualCommand>,
+) {
+    let cfg = &profile.config;
+    if opts.stdin_keys {
+        tokio::spawn(operators::read_keys(manual_tx.clone(), h.cancel.clone()));
+    }
+    // The first signal stops the motors and ends the run; a second exits at once.
+    if opts.handle_signals {
+        tokio::spawn(operators::handle_signals(
+            h.mailbox.clone(),
+            h.cancel.clone(),
+        ));
+    }
+    if !cfg.console.socket.as_os_str().is_empty() {
+        let stats: crate::console::StatsFn = {
+            let h = h.clone();
+            Arc::new(move || operators::console_stats(&h))
+        };
+        let path = cfg.console.socket.clone();
+        let drops = Arc::new(std::sync::atomic::AtomicU64::new(0));
+        let (tx, cancel) = (manual_tx.clone(), h.cancel.clone());
+        tokio::spawn(async move {
+            if let Err(e) = crate::console::serve(path.clone(), stats, tx, drops, cancel).await {
+                tracing::error!("console socket {}: {e}", path.display());
+            }
+        });
+    }
+    // systemd: ready once the IMU delivers frames (the devices are open and talking), then
+    // watchdog pings only while the internal watchdog is healthy.
+    if let Some(n) = h.notifier.clone() {
+        tokio::spawn(operators::notify_systemd(n, h.clone()));
+    }
+}
+
+/// Phase 6: motors first (zero and disable, then wait for the writer), then the watchdog and
+/// the control path; the closing lines into err.log; then the loggers drain and flush.
+async fn shut_down(h: RunHandles, threads: Threads, loggers: Loggers) -> FlySummary {
+    if let Some(n) = &h.notifier {
+        n.send("STOPPING=1");
+    }
+    h.mailbox.shutdown();
+    h.wd_status.stop();
+    let _ = tokio::task::spawn_blocking(move || threads.watchdog.join()).await;
+    let esc_joined = tokio::task::spawn_blocking(move || threads.esc.join()).await;
+    if !matches!(esc_joined, Ok(Ok(()))) {
+        tracing::error!("the ESC writer thread did not end cleanly");
+    }
+    let control = tokio::task::spawn_blocking(move || threads.control.join()).await;
+    let (reports, error) = match control {
+        Ok(Ok(Ok(r))) => (r, None),
+        Ok(Ok(Err(e))) => (control::Reports::default(), Some(format!("{e:#}"))),
+        _ => (
+            control::Reports::default(),
+            Some("the control thread panicked".to_string()),
+        ),
+    };
+    if let Some(e) = &error {
+        tracing::error!("{e}");
+    }
+    let mut summary = summarise(&h, reports, error);
+    for r in summary.closing_records() {
+        h.logs.log(r);
+    }
+    drop(h);
+    for l in loggers {
+        match l.await {
+            Ok(Ok(rep)) => summary.log_records[rep.stream] = rep.records,
+            Ok(Err(e)) => tracing::error!("a logger failed: {e}"),
+            Err(e) => tracing::error!("a logger task failed: {e}"),
+        }
+    }
+    summary
+}
+
+/// The run's counters, gathered from every part.
+fn summarise(h: &RunHandles, r: control::Reports, error: Option<String>) -> FlySummary {
+    let load = |a: &std::sync::atomic::AtomicU64| a.load(Ordering::Relaxed);
+    let latencies_us = h
+        .esc_status
+        .latencies_us
+        .lock()
+        .map(|l| l.clone())
+        .unwrap_or_default();
+    FlySummary {
+        run_dir: h.run_dir.clone(),
+        frames: load(&h.imu_stats.frames),
+        steps: r.estimator.steps,
+        discarded_bytes: load(&h.imu_stats.discarded_bytes),
+        rejected_frames: load(&h.imu_stats.rejected_frames),
+        dropped_frames: load(&h.imu_stats.dropped_frames),
+        late_feedback: r.estimator.late_feedback,
+        ekf_errors: r.estimator.ekf_errors,
+        gps_updates: r.estimator.gps_updates,
+        gpsd_connects: load(&h.gps_stats.connects),
+        gpsd_disconnects: load(&h.gps_stats.disconnects),
+        gpsd_fixes: load(&h.gps_stats.fixes),
+        saturated_commands: r.controller.saturated,
+        esc_writes: load(&h.esc_status.writes),
+        esc_failed_writes: load(&h.esc_status.failed_writes),
+        esc_commands: load(&h.esc_status.commands),
+        esc_stop_reason: h.esc_status.stop_reason(),
+        log_drops: h.logs.dropped(),
+        log_records: Default::default(),
+        latencies_us,
+        deadline_misses: load(&h.wd_status.deadline_misses),
+        halt: h.wd_status.halt(),
+        error,
+    }
+}
+
+fn lock_memory() {
+    // SAFETY: mlockall takes flags only.
+    let rc = unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) };
+    if rc != 0 {
+        tracing::warn!(
+            "mlockall not permitted ({}); memory may be paged",
+            std::io::Error::last_os_error()
+        );
+    }
+}

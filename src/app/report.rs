@@ -1,0 +1,303 @@
+//! What a run did: the counters every mode fills ([`FlySummary`]), the closing lines of its
+//! err.log, the exit summary for a person, and the JSON report (`--report FILE`) as types.
+
+use crate::core::watchdog::Halt;
+use crate::logs::{PerStream, Record};
+use crate::sim::hover::HoverStats;
+use anyhow::Context;
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+
+/// What a run did.
+#[derive(Debug, Clone, Default)]
+pub struct FlySummary {
+    pub run_dir: PathBuf,
+    pub frames: u64,
+    pub steps: u64,
+    pub discarded_bytes: u64,
+    pub rejected_frames: u64,
+    pub dropped_frames: u64,
+    pub late_feedback: u64,
+    pub ekf_errors: u64,
+    pub gps_updates: u64,
+    /// gpsd sessions opened and lost, and fixes received.
+    pub gpsd_connects: u64,
+    pub gpsd_disconnects: u64,
+    pub gpsd_fixes: u64,
+    pub saturated_commands: u64,
+    pub esc_writes: u64,
+    pub esc_failed_writes: u64,
+    pub esc_commands: u64,
+    pub esc_stop_reason: Option<String>,
+    /// Records dropped per stream (a logger could not keep up).
+    pub log_drops: PerStream<u64>,
+    /// Records written per stream.
+    pub log_records: PerStream<u64>,
+    /// Frame arrival → ESC write, µs.
+    pub latencies_us: Vec<u32>,
+    pub deadline_misses: u64,
+    /// The watchdog's halt, if it tripped.
+    pub halt: Option<Halt>,
+    /// Why the run ended with an error, if it did (motors were stopped first).
+    pub error: Option<String>,
+}
+
+/// Frame → ESC write latency percentiles, µs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct Percentiles {
+    pub p50: u32,
+    pub p99: u32,
+    pub max: u32,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct HaltReport {
+    pub reason: &'static str,
+    pub latency_ms: f64,
+    pub event_s: f64,
+    pub halt_s: f64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct EscReport {
+    pub commands: u64,
+    pub writes: u64,
+    pub failed_writes: u64,
+    pub stop_reason: Option<String>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ImuReport {
+    pub discarded_bytes: u64,
+    pub rejected_frames: u64,
+    pub dropped_frames: u64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct GpsReport {
+    pub updates: u64,
+    pub gpsd_connects: u64,
+    pub gpsd_disconnects: u64,
+    pub gpsd_fixes: u64,
+}
+
+/// The flight report (`uquad fly --report FILE`).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FlyReport {
+    pub frames: u64,
+    pub steps: u64,
+    pub latency_us: Percentiles,
+    pub deadline_misses: u64,
+    pub log_drops: u64,
+    pub watchdog_trips: u64,
+    pub halt: Option<HaltReport>,
+    pub run_dir: PathBuf,
+    pub log_drops_by_stream: PerStream<u64>,
+    pub esc: EscReport,
+    pub imu: ImuReport,
+    pub gps: GpsReport,
+    pub error: Option<String>,
+}
+
+/// The simulator's report: the flight report plus the hover figures.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SimReport {
+    #[serde(flatten)]
+    pub fly: FlyReport,
+    #[serde(flatten)]
+    pub hover: HoverStats,
+    pub simulated_s: f64,
+}
+
+/// Writes a report as pretty JSON to `path`.
+pub fn write_json(report: &impl Serialize, path: &Path) -> anyhow::Result<()> {
+    let text = serde_json::to_string_pretty(report)?;
+    std::fs::write(path, text + "\n")
+        .with_context(|| format!("cannot write the report {}", path.display()))
+}
+
+impl FlySummary {
+    /// A summary with nothing counted yet.
+    pub fn empty(run_dir: PathBuf) -> Self {
+        FlySummary {
+            run_dir,
+            ..FlySummary::default()
+        }
+    }
+
+    pub fn log_drops_total(&self) -> u64 {
+        self.log_drops.total()
+    }
+
+    /// Latency percentiles (p50, p99, max), µs.
+    pub fn latency_percentiles(&self) -> Percentiles {
+        let mut lat = self.latencies_us.clone();
+        lat.sort_unstable();
+        let pct = |q: f64| {
+            lat.get(((lat.len() as f64 - 1.0) * q).round() as usize)
+                .copied()
+                .unwrap_or(0)
+        };
+        Percentiles {
+            p50: pct(0.5),
+            p99: pct(0.99),
+            max: lat.last().copied().unwrap_or(0),
+        }
+    }
+
+    /// The flight report (`--report FILE`).
+    pub fn report(&self) -> FlyReport {
+        FlyReport {
+            frames: self.frames,
+            steps: self.steps,
+            latency_us: self.latency_percentiles(),
+            deadline_misses: self.deadline_misses,
+            log_drops: self.log_drops_total(),
+            watchdog_trips: u64::from(self.halt.is_some()),
+            halt: self.halt.map(|h| HaltReport {
+                reason: h.trip.reason.name(),
+                latency_ms: h.latency_ms(),
+                event_s: h.trip.event_us as f64 / 1e6,
+                halt_s: h.halt_us as f64 / 1e6,
+            }),
+            run_dir: std::fs::canonicalize(&self.run_dir).unwrap_or_else(|_| self.run_dir.clone()),
+            log_drops_by_stream: self.log_drops,
+            esc: EscReport {
+                commands: self.esc_commands,
+                writes: self.esc_writes,
+                failed_writes: self.esc_failed_writes,
+                stop_reason: self.esc_stop_reason.clone(),
+            },
+            imu: ImuReport {
+                discarded_bytes: self.discarded_bytes,
+                rejected_frames: self.rejected_frames,
+                dropped_frames: self.dropped_frames,
+            },
+            gps: GpsReport {
+                updates: self.gps_updates,
+                gpsd_connects: self.gpsd_connects,
+                gpsd_disconnects: self.gpsd_disconnects,
+                gpsd_fixes: self.gpsd_fixes,
+            },
+            error: self.error.clone(),
+        }
+    }
+
+    /// Writes the report as JSON to `path`.
+    pub fn write_report(&self, path: &Path) -> anyhow::Result<()> {
+        write_json(&self.report(), path)
+    }
+
+    /// The last lines of the run's err.log, the same in every mode: the error that ended it,
+    /// the records each stream dropped, the counts and how the ESCs stopped.
+    pub fn closing_records(&self) -> Vec<Record> {
+        let mut lines = Vec::new();
+        if let Some(e) = &self.error {
+            lines.push(Record::note(format!("error: {e}")));
+        }
+        for (s, n) in self.log_drops.iter().filter(|(_, n)| *n > 0) {
+            lines.push(Record::note(format!(
+                "log stream {}: {n} records dropped",
+                s.name()
+            )));
+        }
+        lines.push(Record::note(format!(
+            "run ended: {} frames, {} steps, ESCs stopped: {}",
+            self.frames,
+            self.steps,
+            self.esc_stop_reason.as_deref().unwrap_or("never started")
+        )));
+        lines
+    }
+
+    /// The exit summary, a few lines for a person.
+    pub fn text(&self) -> String {
+        let lat = self.latency_percentiles();
+        let drops: Vec<String> = self
+            .log_drops
+            .iter()
+            .filter(|(_, d)| *d > 0)
+            .map(|(s, d)| format!("{} {d}", s.name()))
+            .collect();
+        let watchdog = match self.halt {
+            Some(h) => format!(
+                "HALT, reason {}, {:.3} ms after the event",
+                h.trip.reason.name(),
+                h.latency_ms()
+            ),
+            None => "no trip".to_string(),
+        };
+        format!(
+            "run {}\n  frames {} (discarded bytes {}, rejected frames {}, dropped {}), Kalman steps {}, GPS samples fused {}\n  \
+             ESC: {} commands, {} writes, {} failed; stopped: {}\n  \
+             latency frame -> ESC write: p50 {} us, p99 {} us, max {} us; deadline misses {}\n  \
+             watchdog: {watchdog}\n  \
+             log drops: {}{}",
+            self.run_dir.display(),
+            self.frames,
+            self.discarded_bytes,
+            self.rejected_frames,
+            self.dropped_frames,
+            self.steps,
+            self.gps_updates,
+            self.esc_commands,
+            self.esc_writes,
+            self.esc_failed_writes,
+            self.esc_stop_reason.as_deref().unwrap_or("never started"),
+            lat.p50,
+            lat.p99,
+            lat.max,
+            self.deadline_misses,
+            if drops.is_empty() {
+                "none".to_string()
+            } else {
+                drops.join(", ")
+            },
+            self.error
+                .as_ref()
+                .map(|e| format!("\n  error: {e}"))
+                .unwrap_or_default()
+        )
+    }
+}
+
+/// What a simulation did.
+#[derive(Debug, Clone)]
+pub struct SimSummary {
+    pub fly: FlySummary,
+    pub hover: HoverStats,
+    pub simulated_s: f64,
+}
+
+impl SimSummary {
+    /// The flight report plus the hover figures.
+    pub fn report(&self) -> SimReport {
+        SimReport {
+            fly: self.fly.report(),
+            hover: self.hover,
+            simulated_s: self.simulated_s,
+        }
+    }
+
+    pub fn text(&self) -> String {
+        let h = &self.hover;
+        let hover = if h.samples == 0 {
+            "no hover window (it starts sim.settle_s after the flight ramp)".to_string()
+        } else {
+            format!(
+                "hover from {:.1} s: altitude RMS {:.3} m (largest error {:.3} m, {:.3} m in 3-D), roll RMS {:.4} rad, pitch RMS {:.4} rad",
+                h.window_start_s,
+                h.alt_rms_m,
+                h.alt_max_err_m,
+                h.pos_max_err_m,
+                h.roll_rms_rad,
+                h.pitch_rms_rad
+            )
+        };
+        format!(
+            "{}\n  simulated {:.1} s; {hover}",
+            self.fly.text(),
+            self.simulated_s
+        )
+    }
+}

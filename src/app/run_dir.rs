@@ -1,0 +1,107 @@
+//! The run folder: a new, unique `<UTC time>` folder per run, made self-contained with the
+//! resolved configuration and copies of the data files it names.
+
+use crate::config::{Config, Profile};
+use anyhow::Context;
+use std::path::{Path, PathBuf};
+
+/// Seconds since the Unix epoch as a UTC `YYYYMMDD-HHMMSS` (no time-zone database needed).
+fn utc_stamp(secs: u64) -> String {
+    let days = (secs / 86_400) as i64;
+    let rem = secs % 86_400;
+    // Civil from days (H. Hinnant's algorithm).
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    format!(
+        "{y:04}{m:02}{d:02}-{:02}{:02}{:02}",
+        rem / 3600,
+        rem % 3600 / 60,
+        rem % 60
+    )
+}
+
+/// Creates a new, unique run folder under `parent`: `<UTC time>`, or `<UTC time>-N` when runs
+/// start in the same second (creation is atomic, so concurrent runs never share one).
+pub fn create_run_dir(parent: &Path) -> anyhow::Result<PathBuf> {
+    std::fs::create_dir_all(parent)
+        .with_context(|| format!("cannot create the log folder {}", parent.display()))?;
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    let base = utc_stamp(secs);
+    for n in 0..10_000u32 {
+        let name = if n == 0 {
+            base.clone()
+        } else {
+            format!("{base}-{n}")
+        };
+        let dir = parent.join(name);
+        match std::fs::create_dir(&dir) {
+            Ok(()) => return Ok(dir),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            Err(e) => {
+                return Err(e).with_context(|| format!("cannot create {}", dir.display()));
+            }
+        }
+    }
+    anyhow::bail!("no free run folder name under {}", parent.display())
+}
+
+/// Makes the run folder self-contained: copies the data files the profile names and writes
+/// the resolved configuration pointing at the copies, so `uquad replay <run>` works anywhere.
+pub fn write_run_config(profile: &Profile, run_dir: &Path) -> anyhow::Result<()> {
+    let mut c: Config = profile.config.clone();
+    let copy = |p: &mut PathBuf| -> anyhow::Result<()> {
+        let name = p
+            .file_name()
+            .map(PathBuf::from)
+            .with_context(|| format!("{} has no file name", p.display()))?;
+        std::fs::copy(&*p, run_dir.join(&name))
+            .with_context(|| format!("cannot copy {} into {}", p.display(), run_dir.display()))?;
+        *p = name;
+        Ok(())
+    };
+    copy(&mut c.imu.calib_file)?;
+    copy(&mut c.control.k_prop_file)?;
+    copy(&mut c.control.k_int_file)?;
+    copy(&mut c.control.lqr_q_file)?;
+    copy(&mut c.control.lqr_r_file)?;
+    c.log.dir = PathBuf::from("..");
+    let text = toml::to_string(&c).context("cannot serialise the configuration")?;
+    let header = "# The resolved configuration of this run (uquad writes it; paths are relative \
+                  to this folder).\n";
+    std::fs::write(run_dir.join("config.toml"), format!("{header}{text}"))
+        .with_context(|| format!("cannot write {}", run_dir.join("config.toml").display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn utc_stamps() {
+        assert_eq!(utc_stamp(0), "19700101-000000");
+        assert_eq!(utc_stamp(1_327_662_538), "20120127-110858");
+        assert_eq!(utc_stamp(951_782_400), "20000229-000000");
+    }
+
+    #[test]
+    fn run_dirs_are_unique_in_the_same_second() {
+        let d = tempfile::tempdir().unwrap();
+        let dirs: Vec<PathBuf> = (0..5).map(|_| create_run_dir(d.path()).unwrap()).collect();
+        let mut names: Vec<_> = dirs
+            .iter()
+            .map(|p| p.file_name().unwrap().to_owned())
+            .collect();
+        names.sort();
+        names.dedup();
+        assert_eq!(names.len(), 5);
+    }
+}

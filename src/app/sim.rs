@@ -1,0 +1,39 @@
+//! What both ways of simulating share: their options and the choice between them.
+
+use crate::sim::faults::Fault;
+use std::path::PathBuf;
+
+/// How a simulation runs.
+#[derive(Debug, Clone, Default)]
+pub struct SimOptions {
+    /// Faults and when they strike, simulated seconds.
+    pub inject: Vec<(Fault, f64)>,
+    /// Simulated seconds (default: `sim.duration_s`).
+    pub duration_s: Option<f64>,
+    /// Seed (default: `sim.seed`).
+    pub seed: Option<u64>,
+    /// Folder under which the run folder is created (default: `log.dir`).
+    pub log_dir: Option<PathBuf>,
+    /// Print a progress line on stderr every 5 simulated seconds.
+    pub progress: bool,
+}
+
+/// The two ways of flying the real code against the models.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum SimMode {
+    /// The flight's state machines in lock-step with the physics on a simulated clock.
+    #[default]
+    Fast,
+    /// `fly`'s own tasks and threads against the simulated edges, on the wall clock.
+    Realtime,
+}
+
+impl SimMode {
+    /// The faults a mode can inject (`--realtime` has no logger or GPS or thrust faults).
+    pub fn supports(self, fault: Fault) -> bool {
+        match self {
+            SimMode::Fast => true,
+            SimMode::Realtime => matches!(fault, Fault::ImuStall | Fault::EscNack),
+        }
+    }
+}

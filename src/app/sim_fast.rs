@@ -1,0 +1,392 @@
+//! `uquad sim --fast`: the flight sequence (`core::flight::sequence`), the ESC driver and its
+//! write loop, and the watchdog policy driven in lock-step with the physics on a simulated
+//! clock, so a minute of flight takes a fraction of a second and every run with the same seed
+//! is the same. The frames go through the real byte decoder; the ESC writes go through the
+//! simulated ESCs; the logs and the run folder are written as `fly` writes them, so
+//! `uquad replay` reruns a simulated flight to identical bytes.
+//!
+//! Each simulated step (`sim.physics_hz`) runs, in this order: faults, physics, the IMU (a
+//! frame every 10 ms through the flight sequence), simulated gpsd (a fix each second), the ESC
+//! driver's due work, the watchdog's clock, a decided halt (zero, then disable, in the same
+//! step), the hover window.
+
+use crate::app::flight::live_sides;
+use crate::app::report::{FlySummary, SimSummary};
+use crate::app::run_dir::{create_run_dir, write_run_config};
+use crate::app::sim::SimOptions;
+use crate::config::{GpsMode, Profile};
+use crate::core::esc::{CycleKind, CycleRunner, EscDriver, EscPhase};
+use crate::core::flight::{
+    ControllerSide, EscState, EstimatorSide, Feedback, FlightRecord, FrameAction, FrameTimes,
+    Outputs,
+};
+use crate::core::gps::LiveFix;
+use crate::core::imu::frame::{FrameDecoder, RawFrame};
+use crate::core::motor::FLIGHT_RAMP_STEPS;
+use crate::core::watchdog::{Event, Halt, Trip, Watchdog};
+use crate::logs::{PerStream, Record, Stream};
+use crate::sim::esc::EscModel;
+use crate::sim::faults::{Fault, FaultSchedule};
+use crate::sim::hover::{FlightView, HoverWindow, TrueState, progress_line};
+use crate::sim::{FRAME_US, frame_start_byte, gps_fix, imu::SimImu, physics::Plant};
+use anyhow::Context;
+use bytes::BytesMut;
+use std::path::PathBuf;
+
+/// Simulated time a stalled logger blocks, µs.
+const LOG_STALL_US: i64 = 500_000;
+
+/// The streams, kept in memory and written at the end as the loggers would write them. The
+/// x_hat logger can be stalled (`log-stall`): its queue fills, then records drop and count.
+struct FastOutputs {
+    text: PerStream<String>,
+    records: PerStream<u64>,
+    drops: PerStream<u64>,
+    /// Watchdog events of the current frame, dispatched by the loop.
+    events: Vec<Event>,
+    now_us: i64,
+    stall_from_us: Option<i64>,
+    stalled_queue: u64,
+    queue_cap: u64,
+}
+
+impl FastOutputs {
+    fn log(&mut self, r: Record) {
+        let s = r.stream();
+        let stalled = s == Stream::XHat
+            && self
+                .stall_from_us
+                .is_some_and(|a| self.now_us >= a && self.now_us < a + LOG_STALL_US);
+        if stalled {
+            // Queued while the logger is stalled; beyond the queue, dropped and counted.
+            if self.stalled_queue >= self.queue_cap {
+                self.drops[s] += 1;
+                return;
+            }
+            self.stalled_queue += 1;
+        }
+        r.write(&mut self.text[s]);
+        self.records[s] += 1;
+    }
+}
+
+impl Outputs for FastOutputs {
+    fn record(&mut self, r: FlightRecord) {
+        self.log(Record::Flight(r));
+    }
+
+    fn watchdog(&mut self, e: Event) {
+        self.events.push(e);
+    }
+}
+
+/// The vehicle, its edges and the flight, on one simulated clock.
+struct FastSim<'a> {
+    opts: &'a SimOptions,
+    faults: FaultSchedule,
+    step_us: i64,
+    gps_live: bool,
+    t_us: i64,
+    plant: Plant,
+    imu: SimImu,
+    frames_sent: u64,
+    decoder: FrameDecoder,
+    bytes: BytesMut,
+    gps_seq: u64,
+    pending_fix: Option<LiveFix>,
+    estimator: EstimatorSide,
+    controller: ControllerSide,
+    feedback: Feedback,
+    escs: EscModel,
+    driver: EscDriver,
+    runner: CycleRunner,
+    cycles: Vec<(CycleKind, crate::core::esc::Cycle)>,
+    watchdog: Watchdog,
+    /// The decided halt and, once the ESCs are disabled, when.
+    halt: Option<(Trip, i64)>,
+    out: FastOutputs,
+    fly: FlySummary,
+    hover: HoverWindow,
+}
+
+pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSummary> {
+    let cfg = &profile.config;
+    let duration_us = (opts.duration_s.unwrap_or(cfg.sim.duration_s) * 1e6).round() as i64;
+    let seed = opts.seed.unwrap_or(cfg.sim.seed);
+    let run_dir = create_run_dir(&opts.log_dir.clone().unwrap_or_else(|| cfg.log.dir.clone()))?;
+    let mut profile_run = profile.clone();
+    profile_run.config.sim.seed = seed;
+    write_run_config(&profile_run, &run_dir)?;
+    let mut sim = FastSim::new(profile, opts, seed, run_dir);
+    while sim.t_us < duration_us {
+        sim.t_us += sim.step_us;
+        if !sim.step() {
+            break;
+        }
+    }
+    sim.finish()
+}
+
+impl<'a> FastSim<'a> {
+    fn new(profile: &Profile, opts: &'a SimOptions, seed: u64, run_dir: PathBuf) -> Self {
+        let cfg = &profile.config;
+        let (plant, imu) = crate::sim::vehicle(profile, seed);
+        let map = profile.motor_map();
+        let (estimator, controller) = live_sides(profile);
+        let faults = FaultSchedule::new(&opts.inject);
+        let mut out = FastOutputs {
+            text: PerStream::default(),
+            records: PerStream::default(),
+            drops: PerStream::default(),
+            events: Vec::with_capacity(8),
+            now_us: 0,
+            stall_from_us: faults.at_us(Fault::LogStall),
+            stalled_queue: 0,
+            queue_cap: u64::from(cfg.log.queue_records),
+        };
+        out.log(Record::note(format!(
+            "uquad {} simulation, seed {seed}, run {}",
+            env!("CARGO_PKG_VERSION"),
+            run_dir.display()
+        )));
+        let gps_live = cfg.gps.mode == GpsMode::Gpsd;
+        if gps_live {
+            out.log(Record::GpsHeader);
+        }
+        for line in faults.notes() {
+            out.log(Record::note(line));
+        }
+        FastSim {
+            opts,
+            step_us: 1_000_000 / i64::from(cfg.sim.physics_hz),
+            gps_live,
+            t_us: 0,
+            plant,
+            imu,
+            frames_sent: 0,
+            decoder: FrameDecoder::new(),
+            bytes: BytesMut::with_capacity(64),
+            gps_seq: 0,
+            pending_fix: None,
+            feedback: controller.first_feedback(),
+            estimator,
+            controller,
+            escs: EscModel::new(map),
+            driver: EscDriver::new(
+                map,
+                i64::from(cfg.esc.resend_ms) * 1000,
+                i64::from(cfg.esc.command_timeout_ms) * 1000,
+            ),
+            runner: CycleRunner::default(),
+            cycles: Vec::with_capacity(8),
+            watchdog: Watchdog::new(cfg.watchdog.params()),
+            halt: None,
+            out,
+            fly: FlySummary::empty(run_dir),
+            hover: HoverWindow::new(cfg.sim.settle_s),
+            faults,
+        }
+    }
+
+    /// One physics step; `false` when the run is over (a halt or an abort, motors stopped).
+    fn step(&mut self) -> bool {
+        let t = self.t_us;
+        self.out.now_us = t;
+        self.escs.failing = self.faults.active(Fault::EscNack, t);
+        if self.faults.active(Fault::ThrustLoss, t) {
+            self.plant.thrust_scale[0] = 0.7;
+        }
+        // The motors follow what the ESCs were last told, then the physics advances.
+        self.plant.w_cmd_rad_s = self.escs.commands_rad_s(t);
+        self.plant.step(self.step_us);
+        if t % FRAME_US == FRAME_US / 2 {
+            self.imu.first_half(&self.plant);
+        }
+        if self.gps_live && t % 1_000_000 == 0 && !self.faults.active(Fault::GpsLoss, t) {
+            self.pending_fix = Some(gps_fix(&mut self.gps_seq, self.plant.position_m(), t));
+        }
+        if self.faults.active(Fault::GpsLoss, t) {
+            self.pending_fix = None;
+        }
+        let imu_silent = self.faults.active(Fault::ImuStall, t);
+        if t % FRAME_US == 0 && self.halt.is_none() && self.fly.error.is_none() && !imu_silent {
+            self.send_frame();
+        }
+        self.run_escs();
+        self.decide(|wd, t| wd.tick(t));
+        self.execute_halt();
+        self.sample_hover();
+        if self.opts.progress && t % 5_000_000 == 0 {
+            let phase = format!("{:?}", self.estimator.phase());
+            eprintln!("{}", progress_line(t, &self.plant, &phase, self.fly.steps));
+        }
+        let ended = self.halt.is_some() || self.fly.error.is_some();
+        !(ended && self.driver.phase() == EscPhase::Stopped)
+    }
+
+    /// The IMU's next frame, through the byte decoder, into the flight sequence.
+    fn send_frame(&mut self) {
+        let frame = self.imu.frame(&self.plant, FRAME_US as u32);
+        let start = frame_start_byte(self.frames_sent);
+        self.bytes.extend_from_slice(&frame.encode(start));
+        self.frames_sent += 1;
+        while let Some(frame) = self.decoder.next_frame(&mut self.bytes) {
+            self.fly.frames += 1;
+            let t = self.t_us;
+            self.decide(|wd, t| wd.on_event(Event::Frame(t), t));
+            self.on_frame(&frame, FrameTimes::at(t));
+        }
+    }
+
+    /// The flight step's order (`core::flight::sequence`), in lock-step.
+    fn on_frame(&mut self, frame: &RawFrame, times: FrameTimes) {
+        let esc = EscState {
+            phase: self.driver.phase(),
+            stop_reason: self.driver.stop_reason(),
+        };
+        let sample = match self.estimator.on_frame(frame, times, esc, &mut self.out) {
+            FrameAction::Wait | FrameAction::Ended => return,
+            FrameAction::StartEscs => return self.driver.start(self.t_us),
+            FrameAction::Abort(why) => {
+                self.fly.error = Some(why.to_string());
+                return self.driver.stop("shutdown", &mut self.cycles);
+            }
+            FrameAction::Step(sample) => sample,
+        };
+        let live = self.pending_fix.take();
+        let Some(est) = self
+            .estimator
+            .estimate(sample, times, &self.feedback, live, &mut self.out)
+        else {
+            return;
+        };
+        self.dispatch_events();
+        let c = self.controller.control(&est, &mut self.out);
+        self.feedback = c.feedback;
+        let t = self.t_us;
+        self.driver.command(&c.w_rad_s, t, t, &mut self.cycles);
+    }
+
+    /// The ESC driver's due work, executed on the simulated ESCs.
+    fn run_escs(&mut self) {
+        if let Some((trip, _)) = self.halt
+            && self.driver.phase() != EscPhase::Stopped
+        {
+            self.driver.stop(trip.reason.name(), &mut self.cycles);
+        }
+        self.driver.poll(self.t_us, &mut self.cycles);
+        self.execute_cycles();
+    }
+
+    /// The one ESC write loop, with its results reported as `fly`'s writer reports them.
+    fn execute_cycles(&mut self) {
+        let t = self.t_us;
+        let mut done_cycles = Vec::new();
+        let escs = &mut self.escs;
+        self.runner.execute(
+            &mut self.cycles,
+            |addr, reg, value| escs.write(addr, reg, value, t),
+            || t,
+            |done, _| done_cycles.push(done),
+        );
+        for done in done_cycles {
+            if let Some(e) = done.failures {
+                self.decide(|wd, t| wd.on_event(e, t));
+            }
+            match done.kind {
+                CycleKind::Command => {
+                    self.fly.esc_commands += 1;
+                    self.fly.latencies_us.push(0);
+                    let e = Event::Command {
+                        frame_us: t,
+                        written_us: t,
+                    };
+                    self.decide(|wd, t| wd.on_event(e, t));
+                }
+                CycleKind::StopDisable => {
+                    if let Some((_, halt_us)) = &mut self.halt {
+                        *halt_us = t;
+                    }
+                }
+                CycleKind::Enable | CycleKind::Ramp | CycleKind::Speeds | CycleKind::StopZero => {}
+            }
+        }
+    }
+
+    /// The watchdog events the flight reported during this frame.
+    fn dispatch_events(&mut self) {
+        for e in std::mem::take(&mut self.out.events) {
+            self.decide(|wd, t| wd.on_event(e, t));
+        }
+    }
+
+    /// Asks the watchdog policy; a trip is kept (the first one decides).
+    fn decide(&mut self, ask: impl FnOnce(&mut Watchdog, i64) -> Option<Trip>) {
+        if let Some(trip) = ask(&mut self.watchdog, self.t_us) {
+            self.halt.get_or_insert((trip, self.t_us));
+        }
+    }
+
+    /// A decided halt is executed in the same step: zero, then disable; then it is recorded.
+    fn execute_halt(&mut self) {
+        let Some((trip, _)) = self.halt else {
+            return;
+        };
+        if self.driver.phase() != EscPhase::Stopped {
+            self.driver.stop(trip.reason.name(), &mut self.cycles);
+            self.execute_cycles();
+        }
+        if let Some((trip, halt_us)) = self.halt {
+            self.estimator
+                .on_halt(Halt { trip, halt_us }, &mut self.out);
+        }
+    }
+
+    fn sample_hover(&mut self) {
+        if self.t_us % FRAME_US != 0 {
+            return;
+        }
+        let flight = FlightView {
+            ramp_done: self.controller.counts().steps >= u64::from(FLIGHT_RAMP_STEPS),
+            setpoint_m: self.controller.setpoint_m().unwrap_or_default(),
+            flying: self.halt.is_none(),
+        };
+        self.hover
+            .sample(self.t_us, flight, TrueState::of(&self.plant));
+    }
+
+    /// The end of the run: zero and disable, as fly's shutdown does; the closing lines; the
+    /// streams written into the run folder.
+    fn finish(mut self) -> anyhow::Result<SimSummary> {
+        self.driver.stop("shutdown", &mut self.cycles);
+        self.execute_cycles();
+        let est = self.estimator.counts();
+        let fly = &mut self.fly;
+        fly.steps = est.steps;
+        fly.gps_updates = est.gps_updates;
+        fly.ekf_errors = est.ekf_errors;
+        fly.saturated_commands = self.controller.counts().saturated;
+        fly.esc_writes = self.runner.writes;
+        fly.esc_failed_writes = self.runner.failed_writes;
+        fly.esc_stop_reason = self.driver.stop_reason().map(str::to_string);
+        fly.deadline_misses = self.watchdog.deadline_misses();
+        fly.halt = self.halt.map(|(trip, halt_us)| Halt { trip, halt_us });
+        fly.log_drops = self.out.drops;
+        fly.discarded_bytes = self.decoder.stats().discarded_bytes;
+        fly.rejected_frames = self.decoder.stats().rejected_frames;
+        for r in fly.closing_records() {
+            self.out.log(r);
+        }
+        for s in Stream::ALL {
+            let path = fly.run_dir.join(format!("{}.log", s.name()));
+            std::fs::write(&path, &self.out.text[s])
+                .with_context(|| format!("cannot write {}", path.display()))?;
+        }
+        fly.log_records = self.out.records;
+        Ok(SimSummary {
+            fly: self.fly,
+            hover: self.hover.stats(),
+            simulated_s: self.t_us as f64 / 1e6,
+        })
+    }
+}

@@ -1,0 +1,177 @@
+//! `uquad sim --realtime`: fly's own tasks, threads and channels against the simulated edges,
+//! paced by the wall clock. A simulator thread steps the physics at `sim.physics_hz`, sends the
+//! IMU's frames through an in-memory pipe into fly's IMU reader, publishes simulated gpsd fixes
+//! where fly's gpsd client would, and reads fly's newest step for the hover window; the ESC
+//! writer's I2C writes reach the simulated ESCs through the bus trait.
+
+use crate::app::fly::{self, Edges, FlyOptions};
+use crate::app::report::SimSummary;
+use crate::app::sim::SimOptions;
+use crate::config::{GpsMode, Profile};
+use crate::core::gps::LiveFix;
+use crate::core::motor::FLIGHT_RAMP_STEPS;
+use crate::sim::esc::{EscModel, SimBus};
+use crate::sim::faults::{Fault, FaultSchedule};
+use crate::sim::hover::{FlightView, HoverStats, HoverWindow, TrueState, progress_line};
+use crate::sim::{FRAME_US, frame_start_byte, gps_fix};
+use crate::tasks::controller::Live;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+use tokio::io::{AsyncWriteExt, DuplexStream};
+use tokio::sync::watch;
+use tokio_util::sync::CancellationToken;
+
+/// What the simulator thread needs; it owns the plant and the IMU.
+struct SimThread {
+    profile: Profile,
+    seed: u64,
+    faults: FaultSchedule,
+    progress: bool,
+    start: Instant,
+    model: Arc<Mutex<EscModel>>,
+    imu_end: DuplexStream,
+    gps_tx: Option<watch::Sender<Option<LiveFix>>>,
+    live: watch::Receiver<Option<Live>>,
+    stop: Arc<AtomicBool>,
+    rt: tokio::runtime::Handle,
+}
+
+pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSummary> {
+    let cfg = &profile.config;
+    let duration = Duration::from_secs_f64(opts.duration_s.unwrap_or(cfg.sim.duration_s));
+    let seed = opts.seed.unwrap_or(cfg.sim.seed);
+    let start = Instant::now();
+    let model = Arc::new(Mutex::new(EscModel::new(profile.motor_map())));
+    let (host, imu_end) = tokio::io::duplex(64 * 1024);
+    let stop = Arc::new(AtomicBool::new(false));
+    // gps.mode = "gpsd": fixes through the channel fly's gpsd client would publish on.
+    let (gps_tx, gps_rx) = watch::channel(None);
+    let gps_live = cfg.gps.mode == GpsMode::Gpsd;
+    let (live_tx, live_rx) = watch::channel(None);
+    let thread = SimThread {
+        profile: profile.clone(),
+        seed,
+        faults: FaultSchedule::new(&opts.inject),
+        progress: opts.progress,
+        start,
+        model: model.clone(),
+        imu_end,
+        gps_tx: gps_live.then_some(gps_tx),
+        live: live_rx,
+        stop: stop.clone(),
+        rt: tokio::runtime::Handle::current(),
+    };
+    let sim_thread = std::thread::Builder::new()
+        .name("sim".into())
+        .spawn(move || thread.run())?;
+    let cancel = CancellationToken::new();
+    let timer = {
+        let cancel = cancel.clone();
+        tokio::spawn(async move {
+            tokio::select! {
+                _ = tokio::time::sleep(duration) => cancel.cancel(),
+                _ = cancel.cancelled() => {}
+            }
+        })
+    };
+    let mut run_profile = profile.clone();
+    run_profile.config.sim.seed = seed;
+    let edges = Edges {
+        imu: Box::new(host),
+        bus: Box::new(SimBus { model, start }),
+        gps_fixes: Some(gps_rx),
+        live: Some(live_tx),
+    };
+    let opts = FlyOptions {
+        log_dir: opts.log_dir.clone(),
+        realtime: true,
+        handle_signals: true,
+        ..Default::default()
+    };
+    let summary = fly::run(&run_profile, edges, opts, cancel).await;
+    timer.abort();
+    stop.store(true, Ordering::SeqCst);
+    let (simulated_us, hover) = tokio::task::spawn_blocking(move || sim_thread.join())
+        .await
+        .ok()
+        .and_then(Result::ok)
+        .unwrap_or_default();
+    Ok(SimSummary {
+        fly: summary?,
+        hover,
+        simulated_s: simulated_us as f64 / 1e6,
+    })
+}
+
+impl SimThread {
+    /// Steps the physics on the wall clock until told to stop; returns the simulated time and
+    /// the hover figures.
+    fn run(mut self) -> (i64, HoverStats) {
+        crate::tasks::raise_priority("sim", 60);
+        let sc = self.profile.config.sim.clone();
+        let (mut plant, mut imu) = crate::sim::vehicle(&self.profile, self.seed);
+        let step_us = 1_000_000 / i64::from(sc.physics_hz);
+        let mut hover = HoverWindow::new(sc.settle_s);
+        let (mut t_us, mut frames_sent, mut gps_seq) = (0i64, 0u64, 0u64);
+        // The IMU waits for the host's '!' before streaming (spec 1.1); the pipe buffers it.
+        while !self.stop.load(Ordering::SeqCst) {
+            t_us += step_us;
+            let due = self.start + Duration::from_micros(t_us as u64);
+            if let Some(wait) = due.checked_duration_since(Instant::now()) {
+                std::thread::sleep(wait);
+            }
+            let now_us = self.start.elapsed().as_micros() as i64;
+            plant.w_cmd_rad_s = self.motor_commands(t_us, now_us);
+            plant.step(step_us);
+            if t_us % FRAME_US == FRAME_US / 2 {
+                imu.first_half(&plant);
+            }
+            if let Some(tx) = &self.gps_tx
+                && t_us % 1_000_000 == 0
+            {
+                tx.send_replace(Some(gps_fix(&mut gps_seq, plant.position_m(), now_us)));
+            }
+            if t_us % FRAME_US != 0 || self.faults.active(Fault::ImuStall, t_us) {
+                continue;
+            }
+            let bytes = imu
+                .frame(&plant, FRAME_US as u32)
+                .encode(frame_start_byte(frames_sent));
+            frames_sent += 1;
+            if self.rt.block_on(self.imu_end.write_all(&bytes)).is_err() {
+                break;
+            }
+            let view = self.flight_view();
+            hover.sample(t_us, view, TrueState::of(&plant));
+            if self.progress && t_us % 5_000_000 == 0 {
+                let phase = if view.ramp_done { "Flight" } else { "start-up" };
+                let steps = self.live.borrow().map_or(0, |l| u64::from(l.step));
+                eprintln!("{}", progress_line(t_us, &plant, phase, steps));
+            }
+        }
+        (t_us, hover.stats())
+    }
+
+    /// What the simulated ESCs make of the writes so far (all refused after `esc-nack`).
+    fn motor_commands(&self, t_us: i64, now_us: i64) -> [f64; 4] {
+        self.model
+            .lock()
+            .map(|mut m| {
+                m.failing = self.faults.active(Fault::EscNack, t_us);
+                m.commands_rad_s(now_us)
+            })
+            .unwrap_or([0.0; 4])
+    }
+
+    /// The flight's newest step, as the hover window reads it.
+    fn flight_view(&self) -> FlightView {
+        let live = *self.live.borrow();
+        FlightView {
+            ramp_done: live.is_some_and(|l| l.step >= FLIGHT_RAMP_STEPS),
+            setpoint_m: live.map_or([0.0; 3], |l| l.setpoint_m),
+            // A halt ends the run, and with it the window.
+            flying: true,
+        }
+    }
+}

@@ -1,0 +1,16 @@
+//! The flight: its two halves (estimator, controller), the GPS feed between them, and the
+//! sequence that orders them into one flight step for every mode (spec 8.3; see
+//! [`sequence`] for the order, written once).
+
+pub mod gps_feed;
+pub mod halves;
+pub mod sequence;
+
+pub use gps_feed::GpsFeed;
+pub use halves::{
+    ControlOut, ControllerCore, Estimate, EstimatorCore, NOMINAL_PERIOD_US, PlannerSpec,
+};
+pub use sequence::{
+    Abort, Command, ControllerCounts, ControllerSide, EscState, EstimatorCounts, EstimatorSide,
+    Feedback, FlightRecord, FrameAction, FrameTimes, Outputs, Phase, RecordedClock,
+};

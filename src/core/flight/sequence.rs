@@ -1,0 +1,500 @@
+//! The flight step, written once: the start-up sequence (settle → ESC start → calibration →
+//! flight ramp → flight), the reactions to the ESCs' and the watchdog's states, the GPS feed,
+//! and one step (frame → estimate → control → motor command), as a pure state machine: time
+//! and data in, actions and records out (spec 8.3 steps 3–11 with ERRATA 3–10; spec 6.4 for
+//! the ESC start).
+//!
+//! It has two sides because `fly` runs the estimator and the controller as separate tasks:
+//! [`EstimatorSide`] and [`ControllerSide`]. Every driver (`fly`'s tasks, `sim --fast`,
+//! `sim --realtime` through `fly`, `replay`) follows the same order:
+//!
+//! 1. [`EstimatorSide::on_frame`] with the frame's times and the ESC driver's state →
+//!    [`FrameAction`]: wait, start the ESCs, abort, or a Kalman step is due.
+//! 2. On a due step: the controller's [`Feedback`] of the previous step (`fly` waits for it)
+//!    and the newest live GPS fix, then [`EstimatorSide::estimate`] → [`Estimate`]. The fake-GPS
+//!    clock runs on the previous command's time here (ERRATA 10).
+//! 3. [`ControllerSide::control`] on the estimate → [`Command`]: the speeds for the ESC driver
+//!    and the feedback for step 2 of the next frame.
+//!
+//! A watchdog halt at any point: [`EstimatorSide::on_halt`]; the ESCs are zeroed then disabled
+//! and the run ends. Records (what the log streams hold) and watchdog events go to the
+//! driver's [`Outputs`].
+
+use super::gps_feed::GpsFeed;
+use super::halves::{ControllerCore, Estimate, EstimatorCore};
+use crate::core::control::{ManualCommand, ManualOutcome};
+use crate::core::ekf::{Ekf, Input, idx};
+use crate::core::esc::EscPhase;
+use crate::core::gps::LiveFix;
+use crate::core::imu::calib::ImuSample;
+use crate::core::imu::frame::RawFrame;
+use crate::core::imu::startup::{FrontEndEvent, StartupError};
+use crate::core::motor::FLIGHT_RAMP_STEPS;
+use crate::core::watchdog::{Event, Halt};
+
+/// What the flight produces for the log streams; the `logs` module formats it.
+#[derive(Debug, Clone, PartialEq)]
+pub enum FlightRecord {
+    /// A frame the flight consumed (imu_raw), with its times.
+    Frame { times: FrameTimes, frame: RawFrame },
+    /// The measurement a Kalman step used (kalman_in); `dt_us` is the column the original
+    /// printed (0 on the first step).
+    KalmanIn {
+        t_us: i64,
+        dt_us: i64,
+        sample: ImuSample,
+    },
+    /// The state after a Kalman step (x_hat).
+    XHat([f64; 15]),
+    /// The integrators after a control step (int); the first `n_int` are meaningful.
+    Int {
+        t_us: i64,
+        x_int: [f64; 4],
+        n_int: usize,
+    },
+    /// The motor speeds sent (w).
+    Command { t_us: i64, w_rad_s: [f64; 4] },
+    /// A fake-GPS sample was produced after the command at this time (gps).
+    FakeGps(i64),
+    /// A live fix fused by the step after `t_us` (gps).
+    GpsFix { t_us: i64, fix: LiveFix },
+    /// The watchdog halted the motors (err).
+    Halt(Halt),
+    /// A line for the operator (err).
+    Note(String),
+}
+
+/// Where the flight's records and watchdog events go: loggers and the watchdog thread in
+/// `fly`, buffers and the policy itself in `sim --fast`, vectors in `replay`.
+pub trait Outputs {
+    fn record(&mut self, r: FlightRecord);
+    fn watchdog(&mut self, e: Event);
+}
+
+/// When a frame arrived: the main loop's time and the frame's own stamp, µs since start.
+/// Both are the decode stamp in `fly` and `sim`; the original's logs hold two clocks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FrameTimes {
+    pub t_main_us: i64,
+    pub t_frame_us: i64,
+}
+
+impl FrameTimes {
+    /// Both clocks at one stamp.
+    pub fn at(stamp_us: i64) -> Self {
+        FrameTimes {
+            t_main_us: stamp_us,
+            t_frame_us: stamp_us,
+        }
+    }
+}
+
+/// The ESC driver's state as the estimator side sees it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct EscState<'a> {
+    pub phase: EscPhase,
+    /// Why the ESCs stopped, once they did.
+    pub stop_reason: Option<&'a str>,
+}
+
+impl EscState<'_> {
+    /// A run without ESCs (replay): nothing to wait for.
+    pub const ABSENT: EscState<'static> = EscState {
+        phase: EscPhase::Running,
+        stop_reason: None,
+    };
+}
+
+/// Where the flight is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Phase {
+    /// Waiting for a stable IMU sampling period; motors off.
+    Settle,
+    /// The ESCs' enable and start-up ramp.
+    EscStart,
+    /// Averaging the null sample with the motors idling.
+    Calibration,
+    /// The first [`FLIGHT_RAMP_STEPS`] control steps ramp the motors up.
+    FlightRamp,
+    Flight,
+    /// Halted or aborted: nothing more is stepped.
+    Ended,
+}
+
+/// Why a run cannot go on; the motors must be stopped.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum Abort {
+    #[error("the ESCs stopped during their start-up ramp: {0}")]
+    EscStopped(String),
+    #[error("IMU start-up failed: {0}")]
+    Startup(StartupError),
+}
+
+/// What the driver does after a frame.
+#[derive(Debug, Clone, PartialEq)]
+pub enum FrameAction {
+    /// Nothing more for this frame.
+    Wait,
+    /// Ask the ESC driver to enable the ESCs and run their start-up ramp.
+    StartEscs,
+    /// A Kalman step is due on this sample: get the previous step's [`Feedback`], then call
+    /// [`EstimatorSide::estimate`].
+    Step(ImuSample),
+    /// Stop the motors and end the run with this error.
+    Abort(Abort),
+    /// The run has ended (a halt or an abort): stop feeding frames.
+    Ended,
+}
+
+/// What the controller side hands back to the estimator side after each step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Feedback {
+    /// The step this feedback follows (0 before the first).
+    pub step: u32,
+    /// EKF input for step `step + 1` (ERRATA 6).
+    pub u_next: Input,
+    pub mass_kg: f64,
+    /// Time of the command of `step`, µs since start.
+    pub t_cmd_us: Option<i64>,
+}
+
+/// A recorded run's clock (replay): Kalman step times and dt columns, control and command
+/// times, by 0-based step. Empty: the frames' own times.
+#[derive(Debug, Clone, Default)]
+pub struct RecordedClock {
+    pub kalman_us: Vec<(i64, i64)>,
+    pub ctrl_us: Vec<i64>,
+    pub cmd_us: Vec<i64>,
+}
+
+/// The times of one step, µs since start.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct StepTimes {
+    t_us: i64,
+    dt_col_us: i64,
+    t_ctrl_us: i64,
+    t_cmd_us: i64,
+}
+
+impl RecordedClock {
+    fn times(&self, row: usize, frame: FrameTimes, prev_frame_us: Option<i64>) -> StepTimes {
+        let (t_us, dt_col_us) = self.kalman_us.get(row).copied().unwrap_or((
+            frame.t_main_us,
+            prev_frame_us.map_or(0, |p| frame.t_frame_us - p),
+        ));
+        let t_cmd_us = self.cmd_us.get(row).copied().unwrap_or(t_us);
+        let t_ctrl_us = self.ctrl_us.get(row).copied().unwrap_or(t_cmd_us);
+        StepTimes {
+            t_us,
+            dt_col_us,
+            t_ctrl_us,
+            t_cmd_us,
+        }
+    }
+}
+
+/// Counters of the estimator side.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct EstimatorCounts {
+    pub frames: u64,
+    pub steps: u64,
+    pub ekf_errors: u64,
+    pub gps_updates: u64,
+    pub dt_clamped: u64,
+}
+
+/// The estimator side: start-up sequence, GPS feed, EKF step.
+#[derive(Debug, Clone)]
+pub struct EstimatorSide {
+    core: EstimatorCore,
+    gps: GpsFeed,
+    clock: RecordedClock,
+    phase: Phase,
+    esc_start_asked: bool,
+    /// The previous step's frame stamp.
+    prev_frame_us: Option<i64>,
+    /// The live fix offered to the feed and not yet fused.
+    offered: Option<LiveFix>,
+    counts: EstimatorCounts,
+}
+
+impl EstimatorSide {
+    pub fn new(core: EstimatorCore, gps: GpsFeed) -> Self {
+        EstimatorSide {
+            core,
+            gps,
+            clock: RecordedClock::default(),
+            phase: Phase::Settle,
+            esc_start_asked: false,
+            prev_frame_us: None,
+            offered: None,
+            counts: EstimatorCounts::default(),
+        }
+    }
+
+    /// Steps on a recorded clock instead of the frames' times (replay).
+    pub fn with_clock(mut self, clock: RecordedClock) -> Self {
+        self.clock = clock;
+        self
+    }
+
+    pub fn phase(&self) -> Phase {
+        self.phase
+    }
+
+    pub fn counts(&self) -> EstimatorCounts {
+        self.counts
+    }
+
+    pub fn ekf(&self) -> Option<&Ekf> {
+        self.core.ekf()
+    }
+
+    /// Step 1: one decoded frame.
+    pub fn on_frame(
+        &mut self,
+        frame: &RawFrame,
+        times: FrameTimes,
+        esc: EscState<'_>,
+        out: &mut impl Outputs,
+    ) -> FrameAction {
+        if self.phase == Phase::Ended {
+            return FrameAction::Ended;
+        }
+        self.counts.frames += 1;
+        let record = FlightRecord::Frame {
+            times,
+            frame: *frame,
+        };
+        match self.core.on_frame(frame, times.t_frame_us) {
+            FrontEndEvent::Settling { .. } => FrameAction::Wait,
+            FrontEndEvent::Holding => self.esc_start(esc, out),
+            FrontEndEvent::Calibrating { .. } => {
+                self.phase = Phase::Calibration;
+                out.record(record);
+                FrameAction::Wait
+            }
+            FrontEndEvent::Failed(e) => self.abort(Abort::Startup(e)),
+            FrontEndEvent::Calibrated(null) => {
+                out.record(record);
+                out.record(FlightRecord::Note(format!(
+                    "IMU calibration completed: acc {:?} m/s2, euler {:?} rad, temp {} C",
+                    null.sample.acc_m_s2, null.sample.euler_rad, null.sample.temp_c
+                )));
+                self.phase = Phase::FlightRamp;
+                FrameAction::Step(null.sample)
+            }
+            FrontEndEvent::Sample(s) => {
+                out.record(record);
+                FrameAction::Step(s)
+            }
+        }
+    }
+
+    /// Settled: start the ESCs once, calibrate when their ramp is done, abort if they stopped.
+    fn esc_start(&mut self, esc: EscState<'_>, out: &mut impl Outputs) -> FrameAction {
+        self.phase = Phase::EscStart;
+        if !self.esc_start_asked {
+            self.esc_start_asked = true;
+            out.record(FlightRecord::Note(
+                "IMU sampling period stable; ESC start-up ramp".into(),
+            ));
+            return FrameAction::StartEscs;
+        }
+        match esc.phase {
+            EscPhase::Running => {
+                out.record(FlightRecord::Note("ESC ramp done; IMU calibration".into()));
+                self.core.begin_calibration();
+                self.phase = Phase::Calibration;
+                FrameAction::Wait
+            }
+            EscPhase::Stopped => self.abort(Abort::EscStopped(
+                esc.stop_reason.unwrap_or("no reason given").to_string(),
+            )),
+            EscPhase::Disabled | EscPhase::Ramping => FrameAction::Wait,
+        }
+    }
+
+    fn abort(&mut self, why: Abort) -> FrameAction {
+        self.phase = Phase::Ended;
+        FrameAction::Abort(why)
+    }
+
+    /// Step 2: the Kalman step on `sample`, with the controller's feedback of the previous step
+    /// and the live fix that arrived since (gpsd), if any.
+    pub fn estimate(
+        &mut self,
+        sample: ImuSample,
+        times: FrameTimes,
+        fb: &Feedback,
+        live: Option<LiveFix>,
+        out: &mut impl Outputs,
+    ) -> Option<Estimate> {
+        if let Some(t_cmd) = fb.t_cmd_us
+            && self.gps.after_command(t_cmd)
+        {
+            out.record(FlightRecord::FakeGps(t_cmd));
+        }
+        if let Some(l) = live {
+            self.gps.offer_live(l.sample);
+            self.offered = Some(l);
+        }
+        let row = self.core.steps() as usize;
+        let st = self.clock.times(row, times, self.prev_frame_us);
+        let gps = self.gps.for_step(st.t_us);
+        if gps.is_some()
+            && let Some(fix) = self.offered.take()
+        {
+            // Logged with a time the replay fuses in this same step.
+            let t_us = self.prev_frame_us.unwrap_or(times.t_frame_us - 1);
+            out.record(FlightRecord::GpsFix { t_us, fix });
+        }
+        self.prev_frame_us = Some(times.t_frame_us);
+        let mut est = self
+            .core
+            .step(sample, st.t_us, fb.u_next, fb.mass_kg, gps)?;
+        est.t_ctrl_us = st.t_ctrl_us;
+        est.t_cmd_us = st.t_cmd_us;
+        self.count(&est);
+        out.watchdog(Event::Estimate {
+            step_us: est.t_us,
+            temp_c: est.sample.temp_c,
+            psi_rad: est.x[idx::PSI],
+            phi_rad: est.x[idx::PHI],
+        });
+        out.record(FlightRecord::KalmanIn {
+            t_us: est.t_us,
+            dt_us: st.dt_col_us,
+            sample: est.sample,
+        });
+        out.record(FlightRecord::XHat(est.x.into()));
+        Some(est)
+    }
+
+    fn count(&mut self, est: &Estimate) {
+        self.counts.steps += 1;
+        self.counts.gps_updates += u64::from(est.gps_used);
+        self.counts.ekf_errors += u64::from(est.ekf_error.is_some());
+        self.counts.dt_clamped += u64::from(est.dt_clamped);
+        self.phase = if est.step < FLIGHT_RAMP_STEPS {
+            Phase::FlightRamp
+        } else {
+            Phase::Flight
+        };
+    }
+
+    /// The watchdog halted the motors: record it once; nothing more is stepped.
+    pub fn on_halt(&mut self, halt: Halt, out: &mut impl Outputs) {
+        if self.phase != Phase::Ended {
+            self.phase = Phase::Ended;
+            out.record(FlightRecord::Halt(halt));
+        }
+    }
+}
+
+/// One control step's result for the driver.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Command {
+    pub step: u32,
+    /// The speeds for the ESC driver, rad/s (flight ramp and saturation applied).
+    pub w_rad_s: [f64; 4],
+    /// For the estimator side's next step.
+    pub feedback: Feedback,
+    pub saturated: bool,
+}
+
+/// Counters of the controller side.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ControllerCounts {
+    pub steps: u64,
+    pub saturated: u64,
+    pub manual_commands: u64,
+}
+
+/// The controller side: manual commands, the control step, position-hold changes.
+#[derive(Debug, Clone)]
+pub struct ControllerSide {
+    core: ControllerCore,
+    position_hold: bool,
+    counts: ControllerCounts,
+}
+
+impl ControllerSide {
+    pub fn new(core: ControllerCore) -> Self {
+        ControllerSide {
+            core,
+            position_hold: false,
+            counts: ControllerCounts::default(),
+        }
+    }
+
+    pub fn counts(&self) -> ControllerCounts {
+        self.counts
+    }
+
+    /// The feedback before the first step.
+    pub fn first_feedback(&self) -> Feedback {
+        Feedback {
+            step: 0,
+            u_next: self.core.input_for_step(1),
+            mass_kg: self.core.mass_kg(),
+            t_cmd_us: None,
+        }
+    }
+
+    /// The set point (x, y, z), m, once flying.
+    pub fn setpoint_m(&self) -> Option<[f64; 3]> {
+        self.core
+            .planner()
+            .map(|p| [p.sp.x[0], p.sp.x[1], p.sp.x[2]])
+    }
+
+    /// A manual set-point command (spec 5.2); `true` when it asks to quit.
+    pub fn manual(&mut self, cmd: ManualCommand, out: &mut impl Outputs) -> bool {
+        self.counts.manual_commands += 1;
+        let outcome = self.core.apply_manual(cmd);
+        let note = match outcome {
+            Some(ManualOutcome::Quit) => "manual quit: stopping".to_string(),
+            Some(o) => format!(
+                "manual {cmd:?}: {o:?}; set point {:?}",
+                self.core.planner().map(|p| p.sp.x)
+            ),
+            None => format!("manual {cmd:?} ignored before flight"),
+        };
+        out.record(FlightRecord::Note(note));
+        outcome == Some(ManualOutcome::Quit)
+    }
+
+    /// Step 3: one control step on `est`.
+    pub fn control(&mut self, est: &Estimate, out: &mut impl Outputs) -> Command {
+        let c = self.core.control(est, est.t_ctrl_us, est.t_cmd_us);
+        if c.position_hold != self.position_hold {
+            self.position_hold = c.position_hold;
+            out.record(FlightRecord::Note(
+                self.core.position_hold_message(c.position_hold),
+            ));
+        }
+        self.counts.steps += 1;
+        self.counts.saturated += u64::from(c.saturated);
+        out.record(FlightRecord::Int {
+            t_us: c.t_ctrl_us,
+            x_int: c.x_int,
+            n_int: c.n_int,
+        });
+        out.record(FlightRecord::Command {
+            t_us: c.t_cmd_us,
+            w_rad_s: c.w_sent,
+        });
+        Command {
+            step: c.step,
+            w_rad_s: c.w_sent,
+            feedback: Feedback {
+                step: c.step,
+                u_next: self.core.input_for_step(c.step + 1),
+                mass_kg: self.core.mass_kg(),
+                t_cmd_us: Some(c.t_cmd_us),
+            },
+            saturated: c.saturated,
+        }
+    }
+}
