@@ -1,11 +1,15 @@
-//! The `uquad` command: parses the command line, sets up tracing, loads the configuration and
-//! dispatches to the modes in `uquad::app`.
+//! The `uquad` command: parses the command line (one argument struct per command, each with
+//! its `run`), sets up tracing, loads the profile and hands over to the modes in `uquad::app`.
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use uquad::config;
+use std::time::Duration;
+use uquad::app::report::{FlySummary, write_json};
+use uquad::app::sim::{SimMode, SimOptions};
+use uquad::config::{self, Profile};
+use uquad::sim::faults::{Fault, parse_injection};
 
 #[derive(Parser, Debug)]
 #[command(
@@ -32,12 +36,7 @@ enum Command {
 Exits 0 when everything is valid. Otherwise prints one line per problem, naming the file, the key \
 (or the position of a malformed number in a data file) and the problem, and exits 1."
     )]
-    CheckConfig {
-        /// The configuration file (TOML), e.g. config/uquad.toml.
-        file: PathBuf,
-        #[command(flatten)]
-        sets: SetArgs,
-    },
+    CheckConfig(CheckConfigArgs),
     /// Fly: the flight program (serial IMU, EKF, controller, ESCs over I2C, loggers).
     #[command(long_about = "Fly: the flight program the BeagleBoard runs.\n\n\
 Opens the IMU on imu.device (115200 8N1 raw) and the ESCs on esc.bus (Linux I2C). Start-up: \
@@ -48,20 +47,7 @@ config.toml with copies of its data files, so `uquad replay <run folder>` reruns
 SIGINT/SIGTERM zero and disable the motors, then the logs are flushed; a second signal exits at \
 once. The original's manual-mode keys work from stdin (j/g roll, y/h pitch, q/w yaw, e/d \
 altitude, i/k mass, 0 reset mass, ESC quit).")]
-    Fly {
-        /// Configuration profile (default: config/uquad.toml under the working directory).
-        #[arg(long, value_name = "FILE")]
-        config: Option<PathBuf>,
-        #[command(flatten)]
-        sets: SetArgs,
-        /// Folder under which the run folder is created (default: log.dir of the profile).
-        #[arg(long, value_name = "DIR")]
-        log_dir: Option<PathBuf>,
-        /// Write the flight report (JSON: frames, steps, latency_us {p50, p99, max},
-        /// deadline_misses, log_drops, watchdog_trips, halt, run_dir) to FILE at the end.
-        #[arg(long, value_name = "FILE")]
-        report: Option<PathBuf>,
-    },
+    Fly(FlyArgs),
     /// Simulate: fly the real code against a physics model of the uQuad (the main job).
     #[command(
         long_about = "Simulate: fly the real code against a physics model of the uQuad.\n\n\
@@ -71,52 +57,16 @@ the flight goes through settle, ESC start-up ramp, IMU calibration, flight ramp 
 `fly` does. With gps.mode = \"gpsd\" (the default profile) a fix of the true position reaches \
 the filter each simulated second, where `fly` would read gpsd. The run folder logs/<run-id>/ is written as `fly` writes it, so \
 `uquad replay <run folder> --out DIR` reruns it to identical bytes.\n\n\
---fast (the default) runs the flight's state machines in lock-step with the physics on a \
-simulated clock: 40 simulated seconds take well under a second. --realtime runs fly's own \
-tasks and threads against the simulated edges, paced by the wall clock.\n\n\
+--mode fast (the default; also --fast) runs the flight's state machines in lock-step with the \
+physics on a simulated clock: 40 simulated seconds take well under a second. --mode realtime \
+(also --realtime) runs fly's own tasks and threads against the simulated edges, paced by the \
+wall clock. Both follow the same flight sequence and report the hover window the same way: \
+from sim.settle_s after the flight ramp, against the set point.\n\n\
 With no arguments: config/uquad.toml, sim.duration_s (40 s), a summary at the end."
     )]
-    Sim {
-        /// Configuration profile (default: config/uquad.toml under the working directory).
-        #[arg(long, value_name = "FILE")]
-        config: Option<PathBuf>,
-        #[command(flatten)]
-        sets: SetArgs,
-        /// Simulated seconds, start-up included (default: sim.duration_s).
-        #[arg(long, value_name = "S")]
-        duration: Option<f64>,
-        /// Pace the simulation to the wall clock, running fly's tasks and threads.
-        #[arg(long, conflicts_with = "fast")]
-        realtime: bool,
-        /// Run on a simulated clock, as fast as the machine can (the default).
-        #[arg(long)]
-        fast: bool,
-        /// Seed of every random draw (default: sim.seed).
-        #[arg(long, value_name = "N")]
-        seed: Option<u64>,
-        /// Write the flight report (JSON) to FILE: the fly report plus, over the hover window
-        /// (true state against the set point), alt_rms_m, alt_max_err_m, pos_max_err_m
-        /// (largest 3-D distance), roll_rms_rad and pitch_rms_rad.
-        #[arg(long, value_name = "FILE")]
-        report: Option<PathBuf>,
-        /// Folder under which the run folder is created (default: log.dir of the profile).
-        #[arg(long, value_name = "DIR")]
-        log_dir: Option<PathBuf>,
-        /// Inject a fault at T simulated seconds (repeatable): imu-stall (frames stop),
-        /// esc-nack (every I2C write fails), gps-loss (fixes stop), log-stall (the x_hat
-        /// logger blocks for 500 ms), thrust-loss (motor m0 loses 30 % of its thrust). With
-        /// --realtime: imu-stall and esc-nack.
-        #[arg(long, value_name = "FAULT@T", value_parser = uquad::sim::faults::parse_injection)]
-        inject: Vec<(uquad::sim::faults::Fault, f64)>,
-    },
+    Sim(SimArgs),
     /// Plot a run's altitude, attitude and motor speeds over time (SVG).
-    Plot {
-        /// A run folder: ours (logs/<run-id>) or the original's (x_hat.log, w.log).
-        run_dir: PathBuf,
-        /// Output file (.svg; default RUN_DIR/plot.svg).
-        #[arg(long, value_name = "FILE")]
-        out: Option<PathBuf>,
-    },
+    Plot(PlotArgs),
     /// Attach to a running fly or sim: live events, statistics, manual commands.
     #[command(
         long_about = "Attach to a running `uquad fly` or `uquad sim --realtime` through its console \
@@ -126,15 +76,7 @@ speeds). Type a manual-mode key and RET to send it (spec 5.2): j/g roll, y/h pit
 e/d altitude, i/k mass, 0 reset mass, quit; 'filter LEVEL[,TEXT]' changes the filter. Several \
 consoles can attach at once; one that stops reading only loses its own events."
     )]
-    Console {
-        /// The console socket (default: console.socket of config/uquad.toml).
-        #[arg(long, value_name = "PATH")]
-        socket: Option<PathBuf>,
-        /// Event filter: a level (error, warn, info, debug, trace) and optional text, e.g.
-        /// "debug,esc".
-        #[arg(long, value_name = "FILTER")]
-        filter: Option<String>,
-    },
+    Console(ConsoleArgs),
     /// Print the fixes gpsd gives, one JSON object per line: a check to run before flying.
     #[command(
         long_about = "Print the fixes gpsd gives, one JSON object per line on stdout: mode (2 or 3), \
@@ -142,14 +84,7 @@ lat_deg, lon_deg, alt_m, and x_m, y_m, z_m in the local frame (north, west, up f
 fix), plus gpsd's time. Reports without a fix are not printed; logs go to stderr. Exits 0 after \
 COUNT fixes, non-zero with the reason when gpsd cannot be reached or goes away."
     )]
-    Gps {
-        /// gpsd's address.
-        #[arg(long, value_name = "HOST:PORT", default_value = "127.0.0.1:2947")]
-        gpsd: String,
-        /// Fixes to print before exiting.
-        #[arg(long, value_name = "N", default_value_t = 10)]
-        count: u64,
-    },
+    Gps(GpsArgs),
     /// Design hover gains by LQR from the vehicle model and write them as gain files.
     #[command(
         long_about = "Design hover gains by LQR from the vehicle model (spec 4.5) and write them as gain files.\n\n\
@@ -161,19 +96,7 @@ convention w = w_hover + K·e + K_int·x_int, and prints the closed-loop spectra
 Integrating psi and phi cannot work at hover (velocity - g·∫angle is conserved): that design is \
 refused with an explanation and nothing is written."
     )]
-    Lqr {
-        /// Configuration profile (default: config/uquad.toml under the working directory).
-        #[arg(long, value_name = "FILE")]
-        config: Option<PathBuf>,
-        #[command(flatten)]
-        sets: SetArgs,
-        /// Integrated states: psi,phi,z,theta or x,y,z,theta.
-        #[arg(long, value_name = "LIST", default_value = "psi,phi,z,theta")]
-        integrators: String,
-        /// Folder for K_prop.txt and K_int.txt (created if missing).
-        #[arg(long, value_name = "DIR")]
-        out: PathBuf,
-    },
+    Lqr(LqrArgs),
     /// Rerun a recorded flight through the measurement path and write its logs.
     #[command(
         long_about = "Rerun a recorded flight through the core and write its logs.\n\n\
@@ -182,18 +105,120 @@ present, kalman_in.log, whose time columns are that run's recorded clock. The re
 OUT_DIR/kalman_in.log in the original's format (OUT_DIR is created if missing; logs in it are \
 overwritten). Without --config, RUN_DIR/config.toml is used."
     )]
-    Replay {
-        /// The run folder to replay (e.g. tests/data/flight-2012-05-25).
-        run_dir: PathBuf,
-        /// Configuration profile (default: RUN_DIR/config.toml).
-        #[arg(long, value_name = "FILE")]
-        config: Option<PathBuf>,
-        #[command(flatten)]
-        sets: SetArgs,
-        /// Folder for the output logs.
-        #[arg(long, value_name = "OUT_DIR")]
-        out: PathBuf,
-    },
+    Replay(ReplayArgs),
+}
+
+#[derive(clap::Args, Debug)]
+struct CheckConfigArgs {
+    /// The configuration file (TOML), e.g. config/uquad.toml.
+    file: PathBuf,
+    #[command(flatten)]
+    sets: SetArgs,
+}
+
+#[derive(clap::Args, Debug)]
+struct FlyArgs {
+    #[command(flatten)]
+    profile: ProfileArgs,
+    /// Folder under which the run folder is created (default: log.dir of the profile).
+    #[arg(long, value_name = "DIR")]
+    log_dir: Option<PathBuf>,
+    /// Write the flight report (JSON: frames, steps, latency_us {p50, p99, max},
+    /// deadline_misses, log_drops, watchdog_trips, halt, run_dir) to FILE at the end.
+    #[arg(long, value_name = "FILE")]
+    report: Option<PathBuf>,
+}
+
+#[derive(clap::Args, Debug)]
+struct SimArgs {
+    #[command(flatten)]
+    profile: ProfileArgs,
+    /// Simulated seconds, start-up included (default: sim.duration_s).
+    #[arg(long, value_name = "S")]
+    duration: Option<f64>,
+    /// fast: the flight's state machines in lock-step with the physics on a simulated clock
+    /// (the default); realtime: fly's own tasks and threads on the wall clock.
+    #[arg(long, value_enum, value_name = "MODE", conflicts_with_all = ["fast", "realtime"])]
+    mode: Option<SimMode>,
+    /// Same as --mode realtime.
+    #[arg(long, conflicts_with = "fast")]
+    realtime: bool,
+    /// Same as --mode fast.
+    #[arg(long)]
+    fast: bool,
+    /// Seed of every random draw (default: sim.seed).
+    #[arg(long, value_name = "N")]
+    seed: Option<u64>,
+    /// Write the flight report (JSON) to FILE: the fly report plus, over the hover window
+    /// (true state against the set point), alt_rms_m, alt_max_err_m, pos_max_err_m
+    /// (largest 3-D distance), roll_rms_rad and pitch_rms_rad.
+    #[arg(long, value_name = "FILE")]
+    report: Option<PathBuf>,
+    /// Folder under which the run folder is created (default: log.dir of the profile).
+    #[arg(long, value_name = "DIR")]
+    log_dir: Option<PathBuf>,
+    /// Inject a fault at T simulated seconds (repeatable): imu-stall (frames stop),
+    /// esc-nack (every I2C write fails), gps-loss (fixes stop), log-stall (the x_hat
+    /// logger blocks for 500 ms), thrust-loss (motor m0 loses 30 % of its thrust). With
+    /// --realtime: imu-stall and esc-nack.
+    #[arg(long, value_name = "FAULT@T", value_parser = parse_injection)]
+    inject: Vec<(Fault, f64)>,
+}
+
+#[derive(clap::Args, Debug)]
+struct PlotArgs {
+    /// A run folder: ours (logs/<run-id>) or the original's (x_hat.log, w.log).
+    run_dir: PathBuf,
+    /// Output file (.svg; default RUN_DIR/plot.svg).
+    #[arg(long, value_name = "FILE")]
+    out: Option<PathBuf>,
+}
+
+#[derive(clap::Args, Debug)]
+struct ConsoleArgs {
+    /// The console socket (default: console.socket of config/uquad.toml).
+    #[arg(long, value_name = "PATH")]
+    socket: Option<PathBuf>,
+    /// Event filter: a level (error, warn, info, debug, trace) and optional text, e.g.
+    /// "debug,esc".
+    #[arg(long, value_name = "FILTER")]
+    filter: Option<String>,
+}
+
+#[derive(clap::Args, Debug)]
+struct GpsArgs {
+    /// gpsd's address.
+    #[arg(long, value_name = "HOST:PORT", default_value = "127.0.0.1:2947")]
+    gpsd: String,
+    /// Fixes to print before exiting.
+    #[arg(long, value_name = "N", default_value_t = 10)]
+    count: u64,
+}
+
+#[derive(clap::Args, Debug)]
+struct LqrArgs {
+    #[command(flatten)]
+    profile: ProfileArgs,
+    /// Integrated states: psi,phi,z,theta or x,y,z,theta.
+    #[arg(long, value_name = "LIST", default_value = "psi,phi,z,theta")]
+    integrators: String,
+    /// Folder for K_prop.txt and K_int.txt (created if missing).
+    #[arg(long, value_name = "DIR")]
+    out: PathBuf,
+}
+
+#[derive(clap::Args, Debug)]
+struct ReplayArgs {
+    /// The run folder to replay (e.g. tests/data/flight-2012-05-25).
+    run_dir: PathBuf,
+    /// Configuration profile (default: RUN_DIR/config.toml).
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
+    #[command(flatten)]
+    sets: SetArgs,
+    /// Folder for the output logs.
+    #[arg(long, value_name = "OUT_DIR")]
+    out: PathBuf,
 }
 
 #[derive(clap::Args, Debug)]
@@ -202,6 +227,30 @@ struct SetArgs {
     /// gps.mode=off). Repeatable.
     #[arg(long = "set", value_name = "KEY=VALUE", value_parser = config::parse_set)]
     sets: Vec<(String, toml::Value)>,
+}
+
+impl SetArgs {
+    /// Loads and validates the profile at `path` with these overrides.
+    fn load(&self, path: &Path) -> anyhow::Result<Profile> {
+        config::load(path, &self.sets).map_err(|e| anyhow::anyhow!("invalid configuration:\n{e}"))
+    }
+}
+
+/// The profile arguments of the commands that fly or design: `--config` and `--set`.
+#[derive(clap::Args, Debug)]
+struct ProfileArgs {
+    /// Configuration profile (default: config/uquad.toml under the working directory).
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
+    #[command(flatten)]
+    sets: SetArgs,
+}
+
+impl ProfileArgs {
+    fn load(&self) -> anyhow::Result<Profile> {
+        let path = config::resolve_path(self.config.as_deref()).map_err(anyhow::Error::msg)?;
+        self.sets.load(&path)
+    }
 }
 
 /// Logs to stderr, filtered by RUST_LOG: compact and coloured on a terminal; under systemd
@@ -234,7 +283,17 @@ fn init_tracing() {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     init_tracing();
-    match run(cli) {
+    let result = match cli.command {
+        Command::CheckConfig(a) => a.run(),
+        Command::Fly(a) => a.run(),
+        Command::Sim(a) => a.run(),
+        Command::Plot(a) => a.run(),
+        Command::Console(a) => a.run(),
+        Command::Gps(a) => a.run(),
+        Command::Lqr(a) => a.run(),
+        Command::Replay(a) => a.run(),
+    };
+    match result {
         Ok(code) => code,
         Err(e) => {
             eprintln!("error: {e:#}");
@@ -243,13 +302,27 @@ fn main() -> ExitCode {
     }
 }
 
-fn load_profile(path: &std::path::Path, sets: &SetArgs) -> anyhow::Result<config::Profile> {
-    config::load(path, &sets.sets).map_err(|e| anyhow::anyhow!("invalid configuration:\n{e}"))
+/// Runs `work` on a new runtime, then shuts the runtime down without waiting more than
+/// `grace` for tasks still blocked on I/O (a stdin read must not hold the process).
+fn on_runtime<T>(grace: Duration, work: impl std::future::Future<Output = T>) -> anyhow::Result<T> {
+    let rt = tokio::runtime::Runtime::new().context("cannot start the runtime")?;
+    let out = rt.block_on(work);
+    rt.shutdown_timeout(grace);
+    Ok(out)
 }
 
-fn run(cli: Cli) -> anyhow::Result<ExitCode> {
-    match cli.command {
-        Command::CheckConfig { file, sets } => match config::load(&file, &sets.sets) {
+/// A run that a halt or an error ended fails, once its summary and report are out.
+fn exit_code(summary: &FlySummary) -> ExitCode {
+    if summary.error.is_some() || summary.halt.is_some() {
+        ExitCode::FAILURE
+    } else {
+        ExitCode::SUCCESS
+    }
+}
+
+impl CheckConfigArgs {
+    fn run(self) -> anyhow::Result<ExitCode> {
+        match config::load(&self.file, &self.sets.sets) {
             Ok(profile) => {
                 println!("{}: valid", profile.path.display());
                 Ok(ExitCode::SUCCESS)
@@ -261,193 +334,175 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 eprintln!("{} problem(s) found", e.problems.len());
                 Ok(ExitCode::FAILURE)
             }
-        },
-        Command::Fly {
-            config,
-            sets,
-            log_dir,
-            report,
-        } => {
-            let path = config::resolve_path(config.as_deref()).map_err(anyhow::Error::msg)?;
-            let profile = load_profile(&path, &sets)?;
-            let cfg = &profile.config;
-            let rt = tokio::runtime::Runtime::new().context("cannot start the runtime")?;
-            let summary = rt.block_on(async {
-                let imu = uquad::hw::serial::open_imu(&cfg.imu.device, cfg.imu.baud)?;
-                let bus = uquad::hw::esc_bus::LinuxEscBus::open(&cfg.esc.bus, &cfg.esc.addresses)?;
-                uquad::app::fly::run(
-                    &profile,
-                    uquad::app::fly::Edges {
-                        imu: Box::new(imu),
-                        bus: Box::new(bus),
-                        gps_fixes: None,
-                        live: None,
-                    },
-                    uquad::app::fly::FlyOptions {
-                        log_dir,
-                        realtime: true,
-                        stdin_keys: true,
-                        log_stall: None,
-                        handle_signals: true,
-                        control_delay: None,
-                    },
-                    tokio_util::sync::CancellationToken::new(),
-                )
-                .await
-            });
-            // A blocked stdin read must not hold the process after the run.
-            rt.shutdown_timeout(std::time::Duration::from_millis(200));
-            let summary = summary?;
-            eprintln!("{}", summary.text());
-            if let Some(path) = report {
-                summary.write_report(&path)?;
-            }
-            Ok(if summary.error.is_some() || summary.halt.is_some() {
-                ExitCode::FAILURE
-            } else {
-                ExitCode::SUCCESS
-            })
         }
-        Command::Sim {
-            config,
-            sets,
-            duration,
-            realtime,
-            fast: _,
-            seed,
-            report,
-            log_dir,
-            inject,
-        } => {
-            let path = config::resolve_path(config.as_deref()).map_err(anyhow::Error::msg)?;
-            let profile = load_profile(&path, &sets)?;
-            use uquad::sim::faults::Fault;
-            if realtime
-                && let Some((f, _)) = inject
-                    .iter()
-                    .find(|(f, _)| !matches!(f, Fault::ImuStall | Fault::EscNack))
-            {
-                anyhow::bail!(
-                    "--inject {}: with --realtime only imu-stall and esc-nack can be injected",
-                    f.name()
-                );
-            }
-            let opts = uquad::app::sim::SimOptions {
-                inject,
-                duration_s: duration,
-                seed,
-                log_dir,
-                progress: true,
+    }
+}
+
+impl FlyArgs {
+    fn run(self) -> anyhow::Result<ExitCode> {
+        use uquad::app::fly::{Edges, FlyOptions};
+        let profile = self.profile.load()?;
+        let cfg = &profile.config;
+        let opts = FlyOptions {
+            log_dir: self.log_dir,
+            realtime: true,
+            stdin_keys: true,
+            handle_signals: true,
+            ..FlyOptions::default()
+        };
+        let summary = on_runtime(Duration::from_millis(200), async {
+            let edges = Edges {
+                imu: Box::new(uquad::hw::serial::open_imu(&cfg.imu.device, cfg.imu.baud)?),
+                bus: Box::new(uquad::hw::esc_bus::LinuxEscBus::open(
+                    &cfg.esc.bus,
+                    &cfg.esc.addresses,
+                )?),
+                gps_fixes: None,
+                live: None,
             };
-            let summary = if realtime {
-                let rt = tokio::runtime::Runtime::new().context("cannot start the runtime")?;
-                let s = rt.block_on(uquad::app::sim_realtime::run(&profile, &opts));
-                rt.shutdown_timeout(std::time::Duration::from_millis(200));
-                s?
-            } else {
-                uquad::app::sim_fast::run_fast(&profile, &opts)?
-            };
-            eprintln!("{}", summary.text());
-            if let Some(path) = report {
-                uquad::app::report::write_json(&summary.report(), &path)?;
-            }
-            Ok(
-                if summary.fly.error.is_some() || summary.fly.halt.is_some() {
-                    ExitCode::FAILURE
-                } else {
-                    ExitCode::SUCCESS
-                },
-            )
+            let cancel = tokio_util::sync::CancellationToken::new();
+            uquad::app::fly::run(&profile, edges, opts, cancel).await
+        })??;
+        eprintln!("{}", summary.text());
+        if let Some(path) = self.report {
+            summary.write_report(&path)?;
         }
-        Command::Console { socket, filter } => {
-            let path = match socket {
-                Some(p) => p,
-                None => {
-                    let cfg = config::resolve_path(None).map_err(anyhow::Error::msg)?;
-                    load_profile(&cfg, &SetArgs { sets: vec![] })?
-                        .config
-                        .console
-                        .socket
-                }
-            };
-            let rt = tokio::runtime::Runtime::new().context("cannot start the runtime")?;
-            let r = rt.block_on(uquad::console::attach(&path, filter.as_deref()));
-            rt.shutdown_timeout(std::time::Duration::from_millis(100));
-            r?;
-            Ok(ExitCode::SUCCESS)
+        Ok(exit_code(&summary))
+    }
+}
+
+impl SimArgs {
+    fn mode(&self) -> SimMode {
+        match (self.realtime, self.fast) {
+            (true, _) => SimMode::Realtime,
+            (_, true) => SimMode::Fast,
+            _ => self.mode.unwrap_or_default(),
         }
-        Command::Plot { run_dir, out } => {
-            let path = uquad::app::plot::run(&run_dir, out.as_deref())?;
-            println!("{}", path.display());
-            Ok(ExitCode::SUCCESS)
-        }
-        Command::Gps { gpsd, count } => {
-            let rt = tokio::runtime::Runtime::new().context("cannot start the runtime")?;
-            rt.block_on(uquad::app::gps::run(
-                &gpsd,
-                count,
-                &mut std::io::stdout().lock(),
-            ))?;
-            Ok(ExitCode::SUCCESS)
-        }
-        Command::Lqr {
-            config,
-            sets,
-            integrators,
-            out,
-        } => {
-            let set = uquad::core::control::Integrators::parse(&integrators)
-                .filter(|s| *s != uquad::core::control::Integrators::ZTheta)
-                .with_context(|| {
-                    format!(
-                        "--integrators {integrators:?}: expected psi,phi,z,theta or x,y,z,theta"
-                    )
-                })?;
-            let path = config::resolve_path(config.as_deref()).map_err(anyhow::Error::msg)?;
-            let profile = load_profile(&path, &sets)?;
-            let outcome = uquad::app::lqr::run(&profile, set, &out)?;
-            println!(
-                "closed-loop spectral radius {:.9} (relative Riccati residual {:.2e})",
-                outcome.design.spectral_radius, outcome.design.residual_rel
+    }
+
+    fn run(self) -> anyhow::Result<ExitCode> {
+        let mode = self.mode();
+        if let Some((f, _)) = self.inject.iter().find(|(f, _)| !mode.supports(*f)) {
+            anyhow::bail!(
+                "--inject {}: with --realtime only imu-stall and esc-nack can be injected",
+                f.name()
             );
-            println!("{}", outcome.k_prop_path.display());
-            println!("{}", outcome.k_int_path.display());
-            Ok(ExitCode::SUCCESS)
         }
-        Command::Replay {
-            run_dir,
-            config,
-            sets,
-            out,
-        } => {
-            let path = match config {
-                Some(p) => p,
-                None => {
-                    let p = run_dir.join("config.toml");
-                    if !p.is_file() {
-                        anyhow::bail!(
-                            "{} has no config.toml; pass --config FILE (config/flight-2012-05.toml for the 2012 runs)",
-                            run_dir.display()
-                        );
-                    }
-                    p
-                }
-            };
-            let profile = load_profile(&path, &sets)?;
-            let summary = uquad::app::replay::run(&run_dir, &profile, &out)
-                .with_context(|| format!("replay of {} failed", run_dir.display()))?;
-            tracing::info!(
-                raw_frames = summary.raw_frames,
-                kalman_steps = summary.kalman_steps,
-                gps_updates = summary.gps_updates,
-                dt_clamped = summary.dt_clamped,
-                ekf_errors = summary.ekf_errors,
-                "replay finished"
-            );
-            for o in &summary.outputs {
-                println!("{}", o.display());
+        let profile = self.profile.load()?;
+        let opts = SimOptions {
+            inject: self.inject,
+            duration_s: self.duration,
+            seed: self.seed,
+            log_dir: self.log_dir,
+            progress: true,
+        };
+        let summary = match mode {
+            SimMode::Realtime => on_runtime(
+                Duration::from_millis(200),
+                uquad::app::sim_realtime::run(&profile, &opts),
+            )??,
+            SimMode::Fast => uquad::app::sim_fast::run_fast(&profile, &opts)?,
+        };
+        eprintln!("{}", summary.text());
+        if let Some(path) = self.report {
+            write_json(&summary.report(), &path)?;
+        }
+        Ok(exit_code(&summary.fly))
+    }
+}
+
+impl PlotArgs {
+    fn run(self) -> anyhow::Result<ExitCode> {
+        let path = uquad::app::plot::run(&self.run_dir, self.out.as_deref())?;
+        println!("{}", path.display());
+        Ok(ExitCode::SUCCESS)
+    }
+}
+
+impl ConsoleArgs {
+    fn run(self) -> anyhow::Result<ExitCode> {
+        let path = match self.socket {
+            Some(p) => p,
+            None => {
+                let cfg = config::resolve_path(None).map_err(anyhow::Error::msg)?;
+                SetArgs { sets: vec![] }.load(&cfg)?.config.console.socket
             }
-            Ok(ExitCode::SUCCESS)
+        };
+        on_runtime(
+            Duration::from_millis(100),
+            uquad::console::attach(&path, self.filter.as_deref()),
+        )??;
+        Ok(ExitCode::SUCCESS)
+    }
+}
+
+impl GpsArgs {
+    fn run(self) -> anyhow::Result<ExitCode> {
+        let mut stdout = std::io::stdout().lock();
+        on_runtime(
+            Duration::from_millis(100),
+            uquad::app::gps::run(&self.gpsd, self.count, &mut stdout),
+        )??;
+        Ok(ExitCode::SUCCESS)
+    }
+}
+
+impl LqrArgs {
+    fn run(self) -> anyhow::Result<ExitCode> {
+        use uquad::core::control::Integrators;
+        let integrators = &self.integrators;
+        let set = Integrators::parse(integrators)
+            .filter(|s| *s != Integrators::ZTheta)
+            .with_context(|| {
+                format!("--integrators {integrators:?}: expected psi,phi,z,theta or x,y,z,theta")
+            })?;
+        let profile = self.profile.load()?;
+        let outcome = uquad::app::lqr::run(&profile, set, &self.out)?;
+        println!(
+            "closed-loop spectral radius {:.9} (relative Riccati residual {:.2e})",
+            outcome.design.spectral_radius, outcome.design.residual_rel
+        );
+        println!("{}", outcome.k_prop_path.display());
+        println!("{}", outcome.k_int_path.display());
+        Ok(ExitCode::SUCCESS)
+    }
+}
+
+impl ReplayArgs {
+    /// The profile: --config, else the run folder's own config.toml.
+    fn profile(&self) -> anyhow::Result<Profile> {
+        let path = match &self.config {
+            Some(p) => p.clone(),
+            None => {
+                let p = self.run_dir.join("config.toml");
+                if !p.is_file() {
+                    anyhow::bail!(
+                        "{} has no config.toml; pass --config FILE (config/flight-2012-05.toml for the 2012 runs)",
+                        self.run_dir.display()
+                    );
+                }
+                p
+            }
+        };
+        self.sets.load(&path)
+    }
+
+    fn run(self) -> anyhow::Result<ExitCode> {
+        let profile = self.profile()?;
+        let run_dir = &self.run_dir;
+        let summary = uquad::app::replay::run(run_dir, &profile, &self.out)
+            .with_context(|| format!("replay of {} failed", run_dir.display()))?;
+        tracing::info!(
+            raw_frames = summary.raw_frames,
+            kalman_steps = summary.kalman_steps,
+            gps_updates = summary.gps_updates,
+            dt_clamped = summary.dt_clamped,
+            ekf_errors = summary.ekf_errors,
+            "replay finished"
+        );
+        for o in &summary.outputs {
+            println!("{}", o.display());
         }
+        Ok(ExitCode::SUCCESS)
     }
 }

@@ -21,8 +21,9 @@ async fn fly_through_a_pty_with_a_mock_bus_then_replay() {
     assert!(summary.error.is_none(), "{:?}", summary.error);
     assert!(
         summary.frames > 400 && summary.frames <= sent,
-        "{} of {sent}",
-        summary.frames
+        "{} of {sent}: {}",
+        summary.frames,
+        summary.text()
     );
     assert!(summary.steps > 150, "steps {}", summary.steps);
     assert_eq!(summary.rejected_frames, 0);

@@ -14,7 +14,9 @@ use crate::sim::esc::{EscModel, SimBus};
 use crate::sim::faults::{Fault, FaultSchedule};
 use crate::sim::hover::{FlightView, HoverStats, HoverWindow, TrueState, progress_line};
 use crate::sim::{FRAME_US, frame_start_byte, gps_fix};
+use crate::tasks::SIM_PRIORITY;
 use crate::tasks::controller::Live;
+use crate::tasks::imu_reader::BINARY_MODE_COMMAND;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -62,9 +64,7 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
         stop: stop.clone(),
         rt: tokio::runtime::Handle::current(),
     };
-    let sim_thread = std::thread::Builder::new()
-        .name("sim".into())
-        .spawn(move || thread.run())?;
+    let sim_thread = crate::tasks::spawn_thread("sim", true, SIM_PRIORITY, move || thread.run())?;
     let cancel = CancellationToken::new();
     let timer = {
         let cancel = cancel.clone();
@@ -108,16 +108,19 @@ impl SimThread {
     /// Steps the physics on the wall clock until told to stop; returns the simulated time and
     /// the hover figures.
     fn run(mut self) -> (i64, HoverStats) {
-        crate::tasks::raise_priority("sim", 60);
         let sc = self.profile.config.sim.clone();
         let (mut plant, mut imu) = crate::sim::vehicle(&self.profile, self.seed);
         let step_us = 1_000_000 / i64::from(sc.physics_hz);
         let mut hover = HoverWindow::new(sc.settle_s);
         let (mut t_us, mut frames_sent, mut gps_seq) = (0i64, 0u64, 0u64);
-        // The IMU waits for the host's '!' before streaming (spec 1.1); the pipe buffers it.
+        // The IMU streams once the host asks (spec 1.1), as the real one: frames sent before
+        // the reader runs would arrive in one burst, and the settling check would see it.
+        let Some(streaming) = self.wait_for_binary_mode() else {
+            return (0, hover.stats());
+        };
         while !self.stop.load(Ordering::SeqCst) {
             t_us += step_us;
-            let due = self.start + Duration::from_micros(t_us as u64);
+            let due = streaming + Duration::from_micros(t_us as u64);
             if let Some(wait) = due.checked_duration_since(Instant::now()) {
                 std::thread::sleep(wait);
             }
@@ -151,6 +154,23 @@ impl SimThread {
             }
         }
         (t_us, hover.stats())
+    }
+
+    /// Waits for the host's binary-mode command ('!'); `None` when the run ends first.
+    fn wait_for_binary_mode(&mut self) -> Option<Instant> {
+        use tokio::io::AsyncReadExt;
+        let mut byte = [0u8; 1];
+        while !self.stop.load(Ordering::SeqCst) {
+            let read = self.rt.block_on(async {
+                tokio::time::timeout(Duration::from_millis(50), self.imu_end.read(&mut byte)).await
+            });
+            match read {
+                Ok(Ok(0) | Err(_)) => return None,
+                Ok(Ok(_)) if byte[0] == BINARY_MODE_COMMAND => return Some(Instant::now()),
+                Ok(Ok(_)) | Err(_) => {}
+            }
+        }
+        None
     }
 
     /// What the simulated ESCs make of the writes so far (all refused after `esc-nack`).

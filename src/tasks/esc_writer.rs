@@ -15,6 +15,7 @@ pub use crate::core::esc::EscPhase;
 use crate::core::esc::{Cycle, CycleKind, CycleRunner, EscDriver};
 use crate::core::motor::MotorMap;
 use crate::hw::esc_bus::EscBus;
+use crate::tasks::ESC_WRITER_PRIORITY;
 use crate::tasks::heartbeats::{Event, Heartbeats};
 use std::sync::atomic::{AtomicU8, AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
@@ -208,23 +209,18 @@ pub fn spawn(
     beats: Arc<Heartbeats>,
     realtime: bool,
 ) -> std::io::Result<std::thread::JoinHandle<()>> {
-    std::thread::Builder::new()
-        .name("esc_writer".into())
-        .spawn(move || {
-            if realtime {
-                crate::tasks::raise_priority("esc_writer", 60);
-            }
-            run(
-                Writer {
-                    bus,
-                    params,
-                    status,
-                    beats,
-                    runner: CycleRunner::default(),
-                },
-                &mailbox,
-            )
-        })
+    crate::tasks::spawn_thread("esc_writer", realtime, ESC_WRITER_PRIORITY, move || {
+        run(
+            Writer {
+                bus,
+                params,
+                status,
+                beats,
+                runner: CycleRunner::default(),
+            },
+            &mailbox,
+        )
+    })
 }
 
 enum Wake {

@@ -37,8 +37,34 @@ impl Outputs for TaskOutputs {
     }
 }
 
+/// SCHED_FIFO priorities of the flight's threads (higher runs first): the watchdog above all,
+/// so that nothing it watches can silence it; the ESC writer and the simulator's physics (the
+/// edges) above the control path they serve.
+pub const WATCHDOG_PRIORITY: i32 = 70;
+pub const ESC_WRITER_PRIORITY: i32 = 60;
+pub const SIM_PRIORITY: i32 = 60;
+pub const CONTROL_PRIORITY: i32 = 50;
+
+/// Starts a named OS thread running `f`, first raised to SCHED_FIFO `priority` when
+/// `realtime` (a warning when not permitted).
+pub fn spawn_thread<T: Send + 'static>(
+    name: &'static str,
+    realtime: bool,
+    priority: i32,
+    f: impl FnOnce() -> T + Send + 'static,
+) -> std::io::Result<std::thread::JoinHandle<T>> {
+    std::thread::Builder::new()
+        .name(name.into())
+        .spawn(move || {
+            if realtime {
+                raise_priority(name, priority);
+            }
+            f()
+        })
+}
+
 /// Asks for SCHED_FIFO at `priority` for the calling thread; warns when not permitted.
-pub fn raise_priority(thread: &str, priority: i32) {
+fn raise_priority(thread: &str, priority: i32) {
     let param = libc::sched_param {
         sched_priority: priority,
     };

@@ -9,7 +9,8 @@
 //! Ends: after a halt, or when the run ends.
 
 use crate::core::watchdog::Halt;
-use crate::core::watchdog::{Watchdog, WatchdogParams};
+use crate::core::watchdog::{Event, Trip, Watchdog, WatchdogParams};
+use crate::tasks::WATCHDOG_PRIORITY;
 use crate::tasks::esc_writer::{EscMailbox, EscPhase, EscStatus};
 use crate::tasks::heartbeats::Heartbeats;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -49,52 +50,56 @@ pub fn spawn(
     cancel: CancellationToken,
     realtime: bool,
 ) -> std::io::Result<std::thread::JoinHandle<()>> {
-    std::thread::Builder::new()
-        .name("watchdog".into())
-        .spawn(move || {
-            if realtime {
-                crate::tasks::raise_priority("watchdog", 70);
+    crate::tasks::spawn_thread("watchdog", realtime, WATCHDOG_PRIORITY, move || {
+        let mut wd = Watchdog::new(params);
+        let mut batch = Vec::with_capacity(256);
+        while !status.stop.load(Ordering::SeqCst) && !cancel.is_cancelled() {
+            std::thread::sleep(TICK);
+            if let Some(trip) = check(&mut wd, &beats, &status, &mut batch) {
+                let halt = halt_motors(trip, &mailbox, &esc, &beats);
+                if let Ok(mut h) = status.halt.lock() {
+                    *h = Some(halt);
+                }
+                on_halt(halt);
+                cancel.cancel();
+                return;
             }
-            let mut wd = Watchdog::new(params);
-            let mut batch = Vec::with_capacity(256);
-            loop {
-                if status.stop.load(Ordering::SeqCst) || cancel.is_cancelled() {
-                    return;
-                }
-                std::thread::sleep(TICK);
-                // The time first, then the events: every frame that arrived before `now` is in
-                // this batch, so a preemption here cannot look like a silent IMU.
-                let now_us = beats.us(Instant::now());
-                status.last_check_us.store(now_us, Ordering::Relaxed);
-                beats.take_into(&mut batch);
-                let mut trip = None;
-                for &e in &batch {
-                    trip = trip.or(wd.on_event(e, now_us));
-                }
-                let trip = trip.or_else(|| wd.tick(now_us));
-                status
-                    .deadline_misses
-                    .store(wd.deadline_misses(), Ordering::Relaxed);
-                if let Some(trip) = trip {
-                    mailbox.halt(trip.reason.name());
-                    // The writer zeroes and disables at once; wait for it (bounded).
-                    let asked = Instant::now();
-                    while esc.phase() != EscPhase::Stopped
-                        && asked.elapsed() < Duration::from_secs(1)
-                    {
-                        std::thread::sleep(Duration::from_micros(100));
-                    }
-                    let halt_us = esc
-                        .stopped_at_us()
-                        .unwrap_or_else(|| beats.us(Instant::now()));
-                    let halt = Halt { trip, halt_us };
-                    if let Ok(mut h) = status.halt.lock() {
-                        *h = Some(halt);
-                    }
-                    on_halt(halt);
-                    cancel.cancel();
-                    return;
-                }
-            }
-        })
+        }
+    })
+}
+
+/// One check: the reported events through the policy's one dispatch, then the clock.
+fn check(
+    wd: &mut Watchdog,
+    beats: &Heartbeats,
+    status: &WatchdogStatus,
+    batch: &mut Vec<Event>,
+) -> Option<Trip> {
+    // The time first, then the events: every frame that arrived before `now` is in this
+    // batch, so a preemption here cannot look like a silent IMU.
+    let now_us = beats.us(Instant::now());
+    status.last_check_us.store(now_us, Ordering::Relaxed);
+    beats.take_into(batch);
+    let mut trip = None;
+    for &e in batch.iter() {
+        trip = trip.or(wd.on_event(e, now_us));
+    }
+    let trip = trip.or_else(|| wd.tick(now_us));
+    status
+        .deadline_misses
+        .store(wd.deadline_misses(), Ordering::Relaxed);
+    trip
+}
+
+/// Halts through the ESC writer (zero, then disable) and waits for it, at most a second.
+fn halt_motors(trip: Trip, mailbox: &EscMailbox, esc: &EscStatus, beats: &Heartbeats) -> Halt {
+    mailbox.halt(trip.reason.name());
+    let asked = Instant::now();
+    while esc.phase() != EscPhase::Stopped && asked.elapsed() < Duration::from_secs(1) {
+        std::thread::sleep(Duration::from_micros(100));
+    }
+    let halt_us = esc
+        .stopped_at_us()
+        .unwrap_or_else(|| beats.us(Instant::now()));
+    Halt { trip, halt_us }
 }

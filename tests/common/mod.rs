@@ -31,6 +31,56 @@ pub fn uquad(cwd: &Path, args: &[&str]) -> Output {
         .expect("the uquad binary runs")
 }
 
+/// `--set`s that let a `sim --realtime` run ride out this shared machine's scheduling stalls
+/// (tens of ms at times) where the subject of a test is not timing: a wide accepted IMU period
+/// for settling, and deadline, IMU and command timeouts above the stalls.
+pub const REALTIME_TOLERANT: [&str; 10] = [
+    "--set",
+    "watchdog.deadline_ms=100",
+    "--set",
+    "imu.period_max_us=100000",
+    "--set",
+    "imu.period_min_us=1000",
+    "--set",
+    "watchdog.imu_timeout_ms=100",
+    "--set",
+    "esc.command_timeout_ms=150",
+];
+
+/// A running `uquad` process: its stderr goes to a file, printed when the test fails; the
+/// process is killed if the test ends before it does.
+pub struct Uquad {
+    pub child: std::process::Child,
+    stderr: tempfile::NamedTempFile,
+}
+
+impl Uquad {
+    /// Spawns `cmd` (its stderr is taken over).
+    pub fn spawn(cmd: &mut Command) -> Uquad {
+        let stderr = tempfile::NamedTempFile::new().unwrap();
+        let child = cmd
+            .stderr(stderr.reopen().unwrap())
+            .spawn()
+            .expect("the uquad binary runs");
+        Uquad { child, stderr }
+    }
+
+    /// What it wrote on stderr so far.
+    pub fn stderr(&self) -> String {
+        std::fs::read_to_string(self.stderr.path()).unwrap_or_default()
+    }
+}
+
+impl Drop for Uquad {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        if std::thread::panicking() {
+            eprintln!("--- uquad's stderr ---\n{}", self.stderr());
+        }
+    }
+}
+
 /// Runs `uquad sim ARGS --report <tmp> --log-dir <tmp>` and returns its exit status, its report
 /// (written also when a halt ends the run) and the folder holding the run.
 #[allow(dead_code)]

@@ -8,9 +8,9 @@ use crate::config::{GpsMode, Profile};
 use crate::core::control::ManualCommand;
 use crate::core::gps::LiveFix;
 use crate::logs::Record;
-use crate::tasks::TaskOutputs;
 use crate::tasks::controller::{ControllerReport, ControllerTask, Live};
 use crate::tasks::estimator::{EstimatorReport, EstimatorTask};
+use crate::tasks::{CONTROL_PRIORITY, TaskOutputs};
 use crate::tasks::{gps_client, imu_reader};
 use anyhow::Context;
 use std::thread::JoinHandle;
@@ -42,76 +42,71 @@ pub(super) fn spawn(
     let (estimator, controller) = live_sides(profile);
     let h = h.clone();
     let (realtime, delay) = (opts.realtime, opts.control_delay);
-    std::thread::Builder::new()
-        .name("control".into())
-        .spawn(move || {
-            let _end_run = h.cancel.clone().drop_guard();
-            if realtime {
-                crate::tasks::raise_priority("control", 50);
-            }
-            let rt = tokio::runtime::Builder::new_current_thread()
-                .enable_all()
-                .build()
-                .context("cannot build the control runtime")?;
-            let out = TaskOutputs {
-                logs: h.logs.clone(),
-                beats: h.beats.clone(),
-            };
-            let (fb_tx, fb_rx) = watch::channel(controller.first_feedback());
-            let (est_tx, est_rx) = mpsc::channel(1);
-            let controller = ControllerTask {
-                side: controller,
-                estimates: est_rx,
-                manual: inputs.manual,
-                feedback: fb_tx,
+    crate::tasks::spawn_thread("control", realtime, CONTROL_PRIORITY, move || {
+        let _end_run = h.cancel.clone().drop_guard();
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .context("cannot build the control runtime")?;
+        let out = TaskOutputs {
+            logs: h.logs.clone(),
+            beats: h.beats.clone(),
+        };
+        let (fb_tx, fb_rx) = watch::channel(controller.first_feedback());
+        let (est_tx, est_rx) = mpsc::channel(1);
+        let controller = ControllerTask {
+            side: controller,
+            estimates: est_rx,
+            manual: inputs.manual,
+            feedback: fb_tx,
+            esc: h.mailbox.clone(),
+            out: out.clone(),
+            cancel: h.cancel.clone(),
+            delay,
+            live: inputs.live,
+        };
+        rt.block_on(async move {
+            let (frame_tx, frame_rx) = mpsc::channel(8);
+            let reader = imu_reader::run(
+                inputs.imu,
+                h.beats.clone(),
+                frame_tx,
+                h.imu_stats.clone(),
+                h.cancel.clone(),
+            );
+            let reader = tokio::spawn(reader.instrument(tracing::info_span!("imu_reader")));
+            let controller = tokio::spawn(
+                controller
+                    .run()
+                    .instrument(tracing::info_span!("controller")),
+            );
+            let estimator = EstimatorTask {
+                side: estimator,
+                gps_live,
+                frames: frame_rx,
+                feedback: fb_rx,
+                estimates: est_tx,
                 esc: h.mailbox.clone(),
-                out: out.clone(),
+                esc_status: h.esc_status.clone(),
+                out,
                 cancel: h.cancel.clone(),
-                delay,
-                live: inputs.live,
-            };
-            rt.block_on(async move {
-                let (frame_tx, frame_rx) = mpsc::channel(8);
-                let reader = imu_reader::run(
-                    inputs.imu,
-                    h.beats.clone(),
-                    frame_tx,
-                    h.imu_stats.clone(),
-                    h.cancel.clone(),
-                );
-                let reader = tokio::spawn(reader.instrument(tracing::info_span!("imu_reader")));
-                let controller = tokio::spawn(
-                    controller
-                        .run()
-                        .instrument(tracing::info_span!("controller")),
-                );
-                let estimator = EstimatorTask {
-                    side: estimator,
-                    gps_live,
-                    frames: frame_rx,
-                    feedback: fb_rx,
-                    estimates: est_tx,
-                    esc: h.mailbox.clone(),
-                    esc_status: h.esc_status.clone(),
-                    out,
-                    cancel: h.cancel.clone(),
-                }
-                .run()
-                .instrument(tracing::info_span!("estimator"))
-                .await;
-                // The estimator ends when frames stop, on an abort or on cancel: end the run.
-                h.cancel.cancel();
-                if let Ok(Err(e)) = reader.await {
-                    tracing::warn!("IMU read error: {e}");
-                }
-                let controller = controller.await.unwrap_or_default();
-                Ok(Reports {
-                    estimator: estimator?,
-                    controller,
-                })
+            }
+            .run()
+            .instrument(tracing::info_span!("estimator"))
+            .await;
+            // The estimator ends when frames stop, on an abort or on cancel: end the run.
+            h.cancel.cancel();
+            if let Ok(Err(e)) = reader.await {
+                tracing::warn!("IMU read error: {e}");
+            }
+            let controller = controller.await.unwrap_or_default();
+            Ok(Reports {
+                estimator: estimator?,
+                controller,
             })
         })
-        .context("cannot start the control thread")
+    })
+    .context("cannot start the control thread")
 }
 
 /// gps.mode = "gpsd": the caller's fixes (the simulator) or a gpsd client on the main runtime,
