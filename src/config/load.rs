@@ -1,0 +1,292 @@
+//! Loading a profile: read and parse the TOML, apply the `--set` overrides, deserialise
+//! (reporting every type error and unknown key), validate, resolve relative paths and load the
+//! data files. Also the report of what is wrong: `Problem` and `ConfigError`.
+
+use super::overrides::{remove_dotted, set_dotted};
+use super::profile::Profile;
+use super::schema::Config;
+use super::validate::validate;
+use crate::core::imu::calib::{CALIB_NUMBERS, Calibration};
+use crate::core::numfile;
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+/// Default configuration used when a command gets no `--config`.
+pub const DEFAULT_CONFIG: &str = "config/uquad.toml";
+
+/// One problem in a configuration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Problem {
+    /// The file the problem is in (the configuration or a data file it names).
+    pub file: PathBuf,
+    /// The configuration key concerned, when there is one.
+    pub key: Option<String>,
+    pub message: String,
+}
+
+impl fmt::Display for Problem {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}: ", self.file.display())?;
+        if let Some(k) = &self.key {
+            write!(f, "{k}: ")?;
+        }
+        f.write_str(&self.message)
+    }
+}
+
+/// Every problem found while loading a configuration.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub struct ConfigError {
+    pub problems: Vec<Problem>,
+}
+
+impl fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        for (i, p) in self.problems.iter().enumerate() {
+            if i > 0 {
+                writeln!(f)?;
+            }
+            write!(f, "{p}")?;
+        }
+        Ok(())
+    }
+}
+
+/// Picks the configuration file: the given one, else `config/uquad.toml` under the working
+/// directory when it exists.
+pub fn resolve_path(given: Option<&Path>) -> Result<PathBuf, String> {
+    match given {
+        Some(p) => Ok(p.to_path_buf()),
+        None if Path::new(DEFAULT_CONFIG).is_file() => Ok(PathBuf::from(DEFAULT_CONFIG)),
+        None => Err(format!(
+            "no --config given and {DEFAULT_CONFIG} does not exist under the working directory"
+        )),
+    }
+}
+
+/// Loads, overrides, validates and resolves a configuration file and its data files.
+pub fn load(path: &Path, sets: &[(String, toml::Value)]) -> Result<Profile, ConfigError> {
+    let mut table = read_table(path)?;
+    let mut report = Report {
+        path,
+        sets,
+        problems: Vec::new(),
+    };
+    apply_sets(&mut table, &mut report);
+    let Some(mut config) = deserialise(table, &mut report) else {
+        return Err(report.into_error());
+    };
+    for check in validate(&config) {
+        let origin = report.origin(&check.key);
+        let message = format!(
+            "{} is out of range{origin}: allowed {}",
+            check.value, check.allowed
+        );
+        report.push(Some(&check.key), message);
+    }
+    resolve_paths(&mut config, path);
+    match load_data(&config, &mut report) {
+        Some(data) if report.problems.is_empty() => Ok(Profile {
+            path: path.to_path_buf(),
+            config,
+            calib: data.calib,
+            k_prop: data.k_prop,
+            k_int: data.k_int,
+            lqr_q: data.lqr_q,
+            lqr_r: data.lqr_r,
+        }),
+        _ => Err(report.into_error()),
+    }
+}
+
+/// The problems found so far in one configuration file.
+struct Report<'a> {
+    /// The configuration file.
+    path: &'a Path,
+    /// The `--set` overrides applied to it.
+    sets: &'a [(String, toml::Value)],
+    problems: Vec<Problem>,
+}
+
+impl Report<'_> {
+    /// " (from --set)" for a key given with `--set`: the user then knows the file is not at
+    /// fault.
+    fn origin(&self, key: &str) -> &'static str {
+        if self.sets.iter().any(|(k, _)| k == key) {
+            " (from --set)"
+        } else {
+            ""
+        }
+    }
+
+    /// A problem in the configuration file, at `key` when there is one.
+    fn push(&mut self, key: Option<&str>, message: String) {
+        self.problems.push(Problem {
+            file: self.path.to_path_buf(),
+            key: key.map(str::to_string),
+            message,
+        });
+    }
+
+    fn into_error(self) -> ConfigError {
+        ConfigError {
+            problems: self.problems,
+        }
+    }
+}
+
+/// Reads and parses the configuration file; either failing ends the load with that one problem.
+fn read_table(path: &Path) -> Result<toml::Table, ConfigError> {
+    let fail = |message: String| ConfigError {
+        problems: vec![Problem {
+            file: path.to_path_buf(),
+            key: None,
+            message,
+        }],
+    };
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| fail(format!("cannot read the configuration: {e}")))?;
+    toml::from_str(&text).map_err(|e| fail(format!("not valid TOML: {}", e.to_string().trim())))
+}
+
+/// Applies the `--set` overrides in order; one that cannot apply is reported and skipped.
+fn apply_sets(table: &mut toml::Table, report: &mut Report<'_>) {
+    for (key, value) in report.sets {
+        if let Err(e) = set_dotted(table, key, value.clone()) {
+            report.push(Some(key), format!("--set cannot apply: {e}"));
+        }
+    }
+}
+
+/// Deserialises the table, reporting every type error and unknown key. On a type error the
+/// key is noted and dropped (its default applies) and deserialising starts again, so every
+/// bad value is reported rather than only the first. None when a type error cannot be
+/// dropped (it is not at a key).
+fn deserialise(mut table: toml::Table, report: &mut Report<'_>) -> Option<Config> {
+    loop {
+        let mut unknown: Vec<String> = Vec::new();
+        match deserialise_once(&table, &mut unknown) {
+            Ok(config) => {
+                for key in &unknown {
+                    let message = format!("unknown key{}", report.origin(key));
+                    report.push(Some(key), message);
+                }
+                return Some(config);
+            }
+            Err((key, message)) => {
+                let message = format!("{message}{}", report.origin(&key));
+                report.push(Some(&key), message);
+                if key.is_empty() || key == "." || !remove_dotted(&mut table, &key) {
+                    return None;
+                }
+            }
+        }
+    }
+}
+
+/// One pass of serde over the table, collecting the unknown keys: the configuration, or the
+/// key of the first type error and its message.
+fn deserialise_once(
+    table: &toml::Table,
+    unknown: &mut Vec<String>,
+) -> Result<Config, (String, String)> {
+    let mut track = serde_path_to_error::Track::new();
+    let de = serde_path_to_error::Deserializer::new(toml::Value::Table(table.clone()), &mut track);
+    let result: Result<Config, _> = serde_ignored::deserialize(de, |p| unknown.push(p.to_string()));
+    result.map_err(|e| {
+        // The first line is the problem; the rest repeats the key we already name.
+        let full = e.to_string();
+        let message = full.lines().next().unwrap_or("invalid value").trim();
+        (track.path().to_string(), message.to_string())
+    })
+}
+
+/// Makes every path of the configuration absolute, relative ones resolving against the
+/// configuration file's folder. An empty console socket stays empty (no console).
+fn resolve_paths(c: &mut Config, path: &Path) {
+    let base = path
+        .parent()
+        .map(|p| {
+            if p.as_os_str().is_empty() {
+                Path::new(".")
+            } else {
+                p
+            }
+        })
+        .unwrap_or(Path::new("."));
+    let base = std::fs::canonicalize(base).unwrap_or_else(|_| base.to_path_buf());
+    let resolve = |p: &Path| {
+        if p.is_absolute() {
+            p.to_path_buf()
+        } else {
+            base.join(p)
+        }
+    };
+    c.imu.calib_file = resolve(&c.imu.calib_file);
+    c.log.dir = resolve(&c.log.dir);
+    if !c.console.socket.as_os_str().is_empty() {
+        c.console.socket = resolve(&c.console.socket);
+    }
+    c.control.k_prop_file = resolve(&c.control.k_prop_file);
+    c.control.k_int_file = resolve(&c.control.k_int_file);
+    c.control.lqr_q_file = resolve(&c.control.lqr_q_file);
+    c.control.lqr_r_file = resolve(&c.control.lqr_r_file);
+}
+
+/// The data files a configuration names, loaded.
+struct DataFiles {
+    calib: Calibration,
+    k_prop: Vec<f64>,
+    k_int: Vec<f64>,
+    lqr_q: Vec<f64>,
+    lqr_r: Vec<f64>,
+}
+
+/// Loads every data file, reporting each one that is missing or malformed.
+fn load_data(c: &Config, report: &mut Report<'_>) -> Option<DataFiles> {
+    let control = &c.control;
+    let calib = load_numbers(report, "imu.calib_file", &c.imu.calib_file, CALIB_NUMBERS)
+        .map(|n| Calibration::from_numbers(&n));
+    // The original read exactly rows × cols numbers and ignored the rest (spec 4.3).
+    let n_states = if control.states == 8 { 8 } else { 12 };
+    let n_int = control.integrator_set().map_or(4, |s| s.states().len());
+    let k_prop = load_numbers(
+        report,
+        "control.k_prop_file",
+        &control.k_prop_file,
+        4 * n_states,
+    );
+    let k_int = load_numbers(report, "control.k_int_file", &control.k_int_file, 4 * n_int);
+    let lqr_q = load_numbers(report, "control.lqr_q_file", &control.lqr_q_file, 256);
+    let lqr_r = load_numbers(report, "control.lqr_r_file", &control.lqr_r_file, 16);
+    Some(DataFiles {
+        calib: calib?,
+        k_prop: k_prop?,
+        k_int: k_int?,
+        lqr_q: lqr_q?,
+        lqr_r: lqr_r?,
+    })
+}
+
+/// Reads exactly `count` numbers from `file`, named by `key`. A file that cannot be read is
+/// reported against the configuration; a malformed one against itself, with the position.
+fn load_numbers(report: &mut Report<'_>, key: &str, file: &Path, count: usize) -> Option<Vec<f64>> {
+    let text = match std::fs::read_to_string(file) {
+        Ok(t) => t,
+        Err(e) => {
+            report.push(Some(key), format!("cannot read {}: {e}", file.display()));
+            return None;
+        }
+    };
+    match numfile::parse_exact(&text, count) {
+        Ok(n) => Some(n),
+        Err(e) => {
+            report.problems.push(Problem {
+                file: file.to_path_buf(),
+                key: Some(key.to_string()),
+                message: e.to_string(),
+            });
+            None
+        }
+    }
+}

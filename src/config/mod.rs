@@ -1,0 +1,26 @@
+//! Configuration profiles: `config/*.toml`, parsed with serde, overridden with `--set`,
+//! validated at load, with the data files they name (calibration, gains) loaded and checked.
+//!
+//! Every problem found is reported, one line each, naming the file and the key (or the
+//! position of a malformed number in a data file). Relative paths resolve against the folder
+//! of the configuration file.
+//!
+//! - `schema`: the sections, their defaults and accessors;
+//! - `overrides`: `--set KEY=VALUE`;
+//! - `load`: reading, deserialising, resolving paths, loading the data files;
+//! - `validate`: the rules a configuration must meet;
+//! - `profile`: the loaded profile and the core objects it describes.
+
+mod load;
+mod overrides;
+mod profile;
+mod schema;
+mod validate;
+
+pub use load::{ConfigError, DEFAULT_CONFIG, Problem, load, resolve_path};
+pub use overrides::parse_set;
+pub use profile::Profile;
+pub use schema::{
+    Config, Console, Control, Ekf, Esc, Gps, GpsMode, Imu, Integrals, Log, Motor, Sim, Vehicle,
+    WatchdogConfig,
+};

@@ -1,0 +1,709 @@
+//! Validation: the list of rules a deserialised configuration must meet, each saying what it
+//! allows. A numeric rule is built from one Rust range, and its "allowed" text is written from
+//! that same range, so the range checked and the range printed cannot disagree.
+
+use super::schema::{Config, Esc, Imu, Sim, WatchdogConfig};
+use crate::core::control::{IntegralRule, Integrators};
+use std::fmt;
+use std::ops::Bound::{self, Excluded, Included, Unbounded};
+use std::ops::{RangeBounds, RangeInclusive};
+
+/// Take-off mass, kg: at 368 rad/s the motors lift at most 2.38 kg. Also bounds the manual
+/// mass commands.
+const MASS_KG: RangeInclusive<f64> = 0.1..=2.3;
+/// Hover altitude set point, m.
+const HOVER_Z_M: RangeInclusive<f64> = 0.0..=10.0;
+/// Highest altitude a manual command may reach, m.
+const MANUAL_Z_MAX_M: f64 = 20.0;
+/// Highest settle frame count, frames.
+const SETTLE_MAX_FRAMES: u32 = 100_000;
+/// Highest accepted IMU frame interval, µs.
+const PERIOD_MAX_US: u32 = 100_000;
+/// Highest watchdog IMU timeout, ms.
+const IMU_TIMEOUT_MAX_MS: u32 = 1000;
+/// The ESC writer's own timeout must leave the watchdog this long after its deadline, ms.
+const COMMAND_TIMEOUT_MARGIN_MS: u32 = 10;
+/// Longest ESC writer timeout, ms.
+const COMMAND_TIMEOUT_MAX_MS: u32 = 2000;
+
+/// One rule applied to one value of a configuration.
+#[derive(Debug, Clone, PartialEq)]
+pub(super) struct Check {
+    /// The dotted key of the value (with `[i]` for an element of a list).
+    pub key: String,
+    pub passed: bool,
+    /// The value as the message shows it.
+    pub value: String,
+    /// What the rule allows, as the message shows it.
+    pub allowed: String,
+}
+
+impl Check {
+    /// A rule whose test and text are given as they are (for rules that are not a range).
+    fn new(key: &str, passed: bool, value: String, allowed: impl Into<String>) -> Check {
+        Check {
+            key: key.to_string(),
+            passed,
+            value,
+            allowed: allowed.into(),
+        }
+    }
+
+    /// Appends an explanation in parentheses to the allowed text.
+    fn note(mut self, note: &str) -> Check {
+        self.allowed = format!("{} ({note})", self.allowed);
+        self
+    }
+
+    /// Adds a second condition, described after the allowed text.
+    fn and(mut self, passed: bool, condition: &str) -> Check {
+        self.passed &= passed;
+        self.allowed = format!("{}, {condition}", self.allowed);
+        self
+    }
+
+    /// Names what the allowed range is, before it.
+    fn described_as(mut self, what: &str) -> Check {
+        self.allowed = format!("{what}, {}", self.allowed);
+        self
+    }
+}
+
+/// A number a range rule can check and print.
+trait Number: Copy + PartialOrd + fmt::Display {
+    /// False for values no range holds: the checks of floating-point values refuse NaN and
+    /// the infinities even where the range is open on one side.
+    fn is_number(self) -> bool {
+        true
+    }
+
+    /// The text of a bound in an "allowed" message.
+    fn bound_text(self) -> String {
+        self.to_string()
+    }
+}
+
+impl Number for u32 {}
+impl Number for i16 {}
+
+impl Number for f64 {
+    fn is_number(self) -> bool {
+        self.is_finite()
+    }
+
+    /// Large bounds (variances up to 1e12) read better with an exponent than with 12 zeros.
+    fn bound_text(self) -> String {
+        if self.abs() >= 1e6 {
+            format!("{self:e}")
+        } else {
+            self.to_string()
+        }
+    }
+}
+
+/// An I2C address, shown in hexadecimal as the datasheets write it.
+#[derive(Debug, Clone, Copy, PartialEq, PartialOrd)]
+struct Hex(u8);
+
+impl fmt::Display for Hex {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "0x{:02x}", self.0)
+    }
+}
+
+impl Number for Hex {}
+
+/// The text of a range: "0.1 to 2.3 kg", "more than 0, at most 1 s", "more than 0"...
+fn range_text<T: Number>(range: &impl RangeBounds<T>, unit: &str) -> String {
+    let unit = if unit.is_empty() {
+        String::new()
+    } else {
+        format!(" {unit}")
+    };
+    let text = |b: &T| b.bound_text();
+    match (range.start_bound(), range.end_bound()) {
+        (Included(lo), Included(hi)) => format!("{} to {}{unit}", text(lo), text(hi)),
+        (Excluded(lo), Included(hi)) => {
+            format!("more than {}, at most {}{unit}", text(lo), text(hi))
+        }
+        (Included(lo), Excluded(hi)) => {
+            format!("at least {}, less than {}{unit}", text(lo), text(hi))
+        }
+        (Excluded(lo), Excluded(hi)) => {
+            format!("more than {}, less than {}{unit}", text(lo), text(hi))
+        }
+        (Included(lo), Unbounded) => format!("at least {}{unit}", text(lo)),
+        (Excluded(lo), Unbounded) => format!("more than {}{unit}", text(lo)),
+        (Unbounded, Included(hi)) => format!("at most {}{unit}", text(hi)),
+        (Unbounded, Excluded(hi)) => format!("less than {}{unit}", text(hi)),
+        (Unbounded, Unbounded) => "any number".to_string(),
+    }
+}
+
+/// The range "more than 0, at most `max`" (a Rust range cannot open at its start).
+fn positive_to(max: f64) -> (Bound<f64>, Bound<f64>) {
+    (Excluded(0.0), Included(max))
+}
+
+/// Whether `value` is a number (not NaN, not infinite) inside `range`.
+fn holds<T: Number>(range: &impl RangeBounds<T>, value: T) -> bool {
+    value.is_number() && range.contains(&value)
+}
+
+/// `value` must lie in `range`; the allowed text is the range's, with its unit.
+fn in_range<T: Number>(key: &str, value: T, range: impl RangeBounds<T>, unit: &str) -> Check {
+    Check::new(
+        key,
+        holds(&range, value),
+        value.to_string(),
+        range_text(&range, unit),
+    )
+}
+
+/// `value` must be 0 (the feature off) or lie in `range`.
+fn off_or_in_range(key: &str, value: f64, range: impl RangeBounds<f64>, unit: &str) -> Check {
+    Check::new(
+        key,
+        value == 0.0 || holds(&range, value),
+        value.to_string(),
+        format!("0 (off) or {}", range_text(&range, unit)),
+    )
+}
+
+/// `value` must be within ± `limit`.
+fn within(key: &str, value: f64, limit: f64, unit: &str) -> Check {
+    Check::new(
+        key,
+        holds(&(-limit..=limit), value),
+        value.to_string(),
+        format!("within ±{} {unit}", limit.bound_text()),
+    )
+}
+
+/// Every element of `values` must be within ± `limit`; the list is one value.
+fn each_within(key: &str, values: &[f64], limit: f64, unit: &str) -> Check {
+    Check::new(
+        key,
+        values.iter().all(|v| holds(&(-limit..=limit), *v)),
+        format!("{values:?}"),
+        format!("each within ±{} {unit}", limit.bound_text()),
+    )
+}
+
+/// `value` must be one of `allowed`.
+fn one_of(key: &str, value: u32, allowed: &[u32]) -> Check {
+    let list: Vec<String> = allowed.iter().map(u32::to_string).collect();
+    Check::new(
+        key,
+        allowed.contains(&value),
+        value.to_string(),
+        format!("one of {}", list.join(", ")),
+    )
+}
+
+/// `value` must be above the value of `other_key`, and at most `max`.
+fn above_key(key: &str, value: u32, other_key: &str, other: u32, max: u32, unit: &str) -> Check {
+    Check::new(
+        key,
+        value > other && value <= max,
+        value.to_string(),
+        format!("above {other_key}, at most {max} {unit}"),
+    )
+}
+
+/// The rules that fail for `c`, in the order of the rule list.
+pub(super) fn validate(c: &Config) -> Vec<Check> {
+    let rules = [
+        flight_rules(c),
+        imu_rules(&c.imu),
+        esc_rules(&c.esc),
+        watchdog_rules(&c.watchdog, &c.esc),
+        log_motor_gps_rules(c),
+        sim_rules(&c.sim),
+        vec![in_range(
+            "gps.fake_span_m",
+            c.gps.fake_span_m,
+            0.0..=100.0,
+            "m",
+        )],
+        ekf_rules(c),
+        states_rule(c),
+        manual_rules(c),
+        integral_rules(c),
+    ];
+    rules.into_iter().flatten().filter(|r| !r.passed).collect()
+}
+
+/// The vehicle, the set points and the motor lag.
+fn flight_rules(c: &Config) -> Vec<Check> {
+    vec![
+        in_range("vehicle.mass_kg", c.vehicle.mass_kg, MASS_KG, "kg")
+            .note("at 368 rad/s the motors lift at most 2.38 kg"),
+        in_range("control.hover_z_m", c.control.hover_z_m, HOVER_Z_M, "m"),
+        in_range(
+            "control.gps_hold_timeout_s",
+            c.control.gps_hold_timeout_s,
+            positive_to(3600.0),
+            "s",
+        ),
+        in_range("motor.tau_s", c.motor.tau_s, positive_to(1.0), "s"),
+        off_or_in_range(
+            "control.torque_observer_s",
+            c.control.torque_observer_s,
+            0.01..=10.0,
+            "s",
+        ),
+    ]
+}
+
+/// The IMU's serial link, settling and calibration.
+fn imu_rules(imu: &Imu) -> Vec<Check> {
+    vec![
+        in_range("imu.settle_frames", imu.settle_frames, 0..=10_000, "frames"),
+        Check::new(
+            "imu.settle_max_frames",
+            (imu.settle_frames..=SETTLE_MAX_FRAMES).contains(&imu.settle_max_frames),
+            imu.settle_max_frames.to_string(),
+            format!("imu.settle_frames to {SETTLE_MAX_FRAMES} frames"),
+        ),
+        in_range(
+            "imu.settle_timeout_s",
+            imu.settle_timeout_s,
+            positive_to(600.0),
+            "s",
+        ),
+        in_range(
+            "imu.period_min_us",
+            imu.period_min_us,
+            1_000..=PERIOD_MAX_US,
+            "µs",
+        ),
+        above_key(
+            "imu.period_max_us",
+            imu.period_max_us,
+            "imu.period_min_us",
+            imu.period_min_us,
+            PERIOD_MAX_US,
+            "µs",
+        ),
+        in_range("imu.calib_frames", imu.calib_frames, 6..=100_000, "frames")
+            .note("at least the FIR length"),
+        one_of(
+            "imu.baud",
+            imu.baud,
+            &[9_600, 19_200, 38_400, 57_600, 115_200, 230_400],
+        ),
+    ]
+}
+
+/// The ESC wiring, trims and re-send period.
+fn esc_rules(esc: &Esc) -> Vec<Check> {
+    let addresses = esc.addresses.iter().enumerate().map(|(i, a)| {
+        in_range(
+            &format!("esc.addresses[{i}]"),
+            Hex(*a),
+            Hex(0x08)..=Hex(0x77),
+            "",
+        )
+        .described_as("a 7-bit I2C address")
+    });
+    let mut sorted = esc.addresses;
+    sorted.sort_unstable();
+    let distinct = Check::new(
+        "esc.addresses",
+        sorted.windows(2).all(|w| w[0] != w[1]),
+        format!("{:?}", esc.addresses),
+        "four different addresses",
+    );
+    let trims = esc
+        .trims
+        .iter()
+        .enumerate()
+        .map(|(i, t)| in_range(&format!("esc.trims[{i}]"), *t, -50..=50, ""));
+    let resend = in_range("esc.resend_ms", esc.resend_ms, 1..=20, "ms");
+    addresses
+        .chain([distinct])
+        .chain(trims)
+        .chain([resend])
+        .collect()
+}
+
+/// The watchdog's limits, and the ESC writer's timeout, which must leave the watchdog time to
+/// act first.
+fn watchdog_rules(wd: &WatchdogConfig, esc: &Esc) -> Vec<Check> {
+    // Saturating: a deadline near u32::MAX (itself refused) leaves no timeout above it.
+    let deadline_margin_ms = wd.deadline_ms.saturating_add(COMMAND_TIMEOUT_MARGIN_MS);
+    let timeout_ms = esc.command_timeout_ms;
+    vec![
+        in_range("watchdog.deadline_ms", wd.deadline_ms, 1..=1000, "ms"),
+        above_key(
+            "watchdog.imu_timeout_ms",
+            wd.imu_timeout_ms,
+            "esc.resend_ms",
+            esc.resend_ms,
+            IMU_TIMEOUT_MAX_MS,
+            "ms",
+        ),
+        Check::new(
+            "esc.command_timeout_ms",
+            timeout_ms > wd.imu_timeout_ms
+                && timeout_ms > deadline_margin_ms
+                && timeout_ms <= COMMAND_TIMEOUT_MAX_MS,
+            timeout_ms.to_string(),
+            format!(
+                "above watchdog.imu_timeout_ms and watchdog.deadline_ms + \
+                 {COMMAND_TIMEOUT_MARGIN_MS}, at most {COMMAND_TIMEOUT_MAX_MS} ms"
+            ),
+        ),
+        in_range("watchdog.max_missed_acks", wd.max_missed_acks, 1..=1000, ""),
+        in_range(
+            "watchdog.sanity_temp_max_c",
+            wd.sanity_temp_max_c,
+            0.0..=125.0,
+            "°C",
+        ),
+        in_range(
+            "watchdog.sanity_tilt_max_rad",
+            wd.sanity_tilt_max_rad,
+            positive_to(1.57),
+            "rad",
+        ),
+        in_range("watchdog.sanity_max", wd.sanity_max, 0..=10_000, ""),
+    ]
+}
+
+/// The log queue, the motors' top speed (the mass must hover below it) and gpsd's address.
+fn log_motor_gps_rules(c: &Config) -> Vec<Check> {
+    let server_ok = c
+        .gps
+        .server
+        .rsplit_once(':')
+        .is_some_and(|(host, port)| !host.is_empty() && port.parse::<u16>().is_ok());
+    vec![
+        in_range("log.queue_records", c.log.queue_records, 1..=1_000_000, ""),
+        in_range(
+            "motor.w_max_rad_s",
+            c.motor.w_max_rad_s,
+            100.0..=1000.0,
+            "rad/s",
+        ),
+        hover_rule(c),
+        Check::new(
+            "gps.server",
+            server_ok,
+            format!("{:?}", c.gps.server),
+            "HOST:PORT, e.g. 127.0.0.1:2947",
+        ),
+    ]
+}
+
+/// The mass must hover below the motors' top speed. Checked only when the mass is itself in
+/// range, so one bad mass is reported once.
+fn hover_rule(c: &Config) -> Check {
+    let mass_kg = c.vehicle.mass_kg;
+    let w_max_rad_s = c.motor.w_max_rad_s;
+    let w_hover_rad_s = crate::core::model::w_hover_rad_s(mass_kg);
+    Check::new(
+        "vehicle.mass_kg",
+        !holds(&MASS_KG, mass_kg) || !w_max_rad_s.is_finite() || w_hover_rad_s < w_max_rad_s,
+        format!("{mass_kg} (hover needs {w_hover_rad_s:.1} rad/s)"),
+        "a mass that hovers below motor.w_max_rad_s",
+    )
+}
+
+/// The simulator's physics and sensors.
+fn sim_rules(sim: &Sim) -> Vec<Check> {
+    let physics_hz = sim.physics_hz;
+    // `is_multiple_of(0)` is false rather than a division by zero, so a rate of 0 (refused by
+    // the range) is safe here.
+    let divides = 1_000_000u32.is_multiple_of(physics_hz) && (physics_hz / 100).is_multiple_of(2);
+    vec![
+        in_range("sim.duration_s", sim.duration_s, positive_to(86_400.0), "s"),
+        in_range("sim.settle_s", sim.settle_s, 0.0..=3600.0, "s"),
+        in_range("sim.physics_hz", physics_hz, 1000..=100_000, "").and(
+            divides,
+            "dividing 1 s into whole µs and each 5 ms into whole steps",
+        ),
+        in_range("sim.motor_tau_s", sim.motor_tau_s, positive_to(1.0), "s"),
+        in_range(
+            "sim.drag_n_per_m_s",
+            sim.drag_n_per_m_s,
+            0.0..=10.0,
+            "N per m/s",
+        ),
+        each_within("sim.wind_m_s", &sim.wind_m_s, 30.0, "m/s"),
+        in_range("sim.acc_noise_m_s2", sim.acc_noise_m_s2, 0.0..=10.0, "m/s²"),
+        in_range(
+            "sim.gyro_noise_rad_s",
+            sim.gyro_noise_rad_s,
+            0.0..=1.0,
+            "rad/s",
+        ),
+        each_within("sim.gyro_bias_rad_s", &sim.gyro_bias_rad_s, 1.0, "rad/s"),
+        in_range("sim.baro_noise_pa", sim.baro_noise_pa, 0.0..=1000.0, "Pa"),
+        in_range("sim.mag_noise", sim.mag_noise, 0.0..=1.0, ""),
+        in_range("sim.temp_c", sim.temp_c, -20.0..=50.0, "°C"),
+        within("sim.initial_yaw_rad", sim.initial_yaw_rad, 3.2, "rad"),
+    ]
+}
+
+/// Every element of the estimator's noise diagonals is a variance.
+fn ekf_rules(c: &Config) -> Vec<Check> {
+    let lists: [(&str, &[f64]); 4] = [
+        ("ekf.q", &c.ekf.q),
+        ("ekf.r_imu", &c.ekf.r_imu),
+        ("ekf.r_gps", &c.ekf.r_gps),
+        ("ekf.p0", &c.ekf.p0),
+    ];
+    let variance = positive_to(1e12);
+    lists
+        .into_iter()
+        .flat_map(|(key, values)| {
+            values.iter().enumerate().map(move |(i, v)| {
+                in_range(&format!("{key}[{i}]"), *v, variance, "").note("a variance")
+            })
+        })
+        .collect()
+}
+
+/// The controlled states and the integrators must go together: 12 states with ψ φ z θ or
+/// x y z θ, 8 states with z θ. A bad state count is reported alone.
+fn states_rule(c: &Config) -> Vec<Check> {
+    let control = &c.control;
+    let paired = matches!(
+        (control.states, control.integrator_set()),
+        (12, Some(Integrators::PsiPhiZTheta | Integrators::XYZTheta))
+            | (8, Some(Integrators::ZTheta))
+    );
+    if !matches!(control.states, 8 | 12) {
+        vec![Check::new(
+            "control.states",
+            false,
+            control.states.to_string(),
+            "12 (full) or 8 (reduced)",
+        )]
+    } else if !paired {
+        let allowed = if control.states == 12 {
+            "\"psi,phi,z,theta\" or \"x,y,z,theta\" with control.states = 12"
+        } else {
+            "\"z,theta\" with control.states = 8"
+        };
+        let value = format!("{:?}", control.integrators);
+        vec![Check::new("control.integrators", false, value, allowed)]
+    } else {
+        Vec::new()
+    }
+}
+
+/// How far manual commands may move the set point. A bound relative to another key is
+/// checked only when that key is itself valid, so one bad value is reported once.
+fn manual_rules(c: &Config) -> Vec<Check> {
+    let man = &c.control.manual;
+    let z_m = c.control.hover_z_m;
+    let mass_kg = c.vehicle.mass_kg;
+    let z_ok = holds(&HOVER_Z_M, z_m);
+    let mass_ok = holds(&MASS_KG, mass_kg);
+    let (mass_lo_kg, mass_hi_kg) = (*MASS_KG.start(), *MASS_KG.end());
+    vec![
+        in_range(
+            "control.manual.max_tilt_rad",
+            man.max_tilt_rad,
+            0.0..=1.0,
+            "rad",
+        )
+        .note("the sanity check trips at 1 rad"),
+        in_range(
+            "control.manual.max_yaw_offset_rad",
+            man.max_yaw_offset_rad,
+            0.0..=6.3,
+            "rad",
+        ),
+        Check::new(
+            "control.manual.z_min_m",
+            man.z_min_m.is_finite() && man.z_min_m >= 0.0 && (!z_ok || man.z_min_m <= z_m),
+            man.z_min_m.to_string(),
+            "0 up to control.hover_z_m",
+        ),
+        Check::new(
+            "control.manual.z_max_m",
+            man.z_max_m.is_finite()
+                && (!z_ok || man.z_max_m >= z_m)
+                && man.z_max_m <= MANUAL_Z_MAX_M,
+            man.z_max_m.to_string(),
+            format!("control.hover_z_m up to {MANUAL_Z_MAX_M} m"),
+        ),
+        Check::new(
+            "control.manual.mass_min_kg",
+            man.mass_min_kg.is_finite()
+                && man.mass_min_kg >= mass_lo_kg
+                && (!mass_ok || man.mass_min_kg <= mass_kg),
+            man.mass_min_kg.to_string(),
+            format!("{mass_lo_kg} kg up to vehicle.mass_kg"),
+        ),
+        Check::new(
+            "control.manual.mass_max_kg",
+            man.mass_max_kg.is_finite()
+                && (!mass_ok || man.mass_max_kg >= mass_kg)
+                && man.mass_max_kg <= mass_hi_kg,
+            man.mass_max_kg.to_string(),
+            format!("vehicle.mass_kg up to {mass_hi_kg} kg"),
+        ),
+    ]
+}
+
+/// Each integrator's rule, named by its state.
+fn integral_rules(c: &Config) -> Vec<Check> {
+    let i = &c.control.integral;
+    let rules = [
+        ("psi", i.psi),
+        ("phi", i.phi),
+        ("z", i.z),
+        ("theta", i.theta),
+        ("x", i.x),
+        ("y", i.y),
+    ];
+    rules
+        .into_iter()
+        .flat_map(|(name, rule)| integral_rule(name, &rule))
+        .collect()
+}
+
+/// One integrator's step, cap, optional threshold and seed.
+fn integral_rule(name: &str, rule: &IntegralRule) -> Vec<Check> {
+    let key = |leaf: &str| format!("control.integral.{name}.{leaf}");
+    let mut checks = vec![
+        in_range(&key("step_max"), rule.step_max, positive_to(10.0), ""),
+        in_range(&key("cap"), rule.cap, positive_to(100.0), ""),
+    ];
+    if let Some(threshold) = rule.threshold {
+        checks.push(
+            in_range(&key("threshold"), threshold, (Excluded(0.0), Unbounded), "")
+                .note("leave the key out for no threshold"),
+        );
+    }
+    checks.push(Check::new(
+        &key("seed"),
+        rule.seed.is_finite() && rule.seed.abs() <= rule.cap,
+        rule.seed.to_string(),
+        "within ± the cap",
+    ));
+    checks
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Checks `value` against `range` with `in_range`.
+    fn passes<T: Number>(value: T, range: impl RangeBounds<T>) -> bool {
+        in_range("k", value, range, "u").passed
+    }
+
+    #[test]
+    fn closed_range_text_and_bounds() {
+        let check = in_range("vehicle.mass_kg", 1.0, MASS_KG, "kg");
+        assert_eq!(check.allowed, "0.1 to 2.3 kg");
+        assert!(check.passed);
+        assert!(passes(0.1, MASS_KG) && passes(2.3, MASS_KG));
+        assert!(!passes(0.1f64.next_down(), MASS_KG));
+        assert!(!passes(2.3f64.next_up(), MASS_KG));
+        for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+            assert!(!passes(bad, MASS_KG), "{bad}");
+        }
+    }
+
+    #[test]
+    fn open_lower_bound_text_and_bounds() {
+        let range = positive_to(1.0);
+        assert_eq!(range_text(&range, "s"), "more than 0, at most 1 s");
+        assert!(!passes(0.0, range));
+        assert!(passes(f64::MIN_POSITIVE, range) && passes(1.0, range));
+        assert!(!passes(1.0f64.next_up(), range));
+    }
+
+    #[test]
+    fn unbounded_range_still_refuses_infinity() {
+        let range = (Excluded(0.0), Unbounded);
+        assert_eq!(range_text(&range, ""), "more than 0");
+        assert!(passes(1e300, range));
+        assert!(!passes(f64::INFINITY, range) && !passes(0.0, range));
+    }
+
+    #[test]
+    fn integer_range_text_and_bounds() {
+        assert_eq!(
+            in_range("esc.resend_ms", 1u32, 1..=20, "ms").allowed,
+            "1 to 20 ms"
+        );
+        assert!(passes(1u32, 1..=20) && passes(20u32, 1..=20));
+        assert!(!passes(0u32, 1..=20) && !passes(21u32, 1..=20));
+        assert_eq!(range_text(&(-50i16..=50), ""), "-50 to 50");
+        assert!(passes(-50i16, -50..=50) && !passes(-51i16, -50..=50));
+    }
+
+    #[test]
+    fn value_is_shown_as_given() {
+        let check = in_range("vehicle.mass_kg", -3.0, MASS_KG, "kg");
+        assert!(!check.passed);
+        assert_eq!(check.value, "-3");
+        let hex = in_range("esc.addresses[0]", Hex(0x05), Hex(0x08)..=Hex(0x77), "");
+        assert_eq!(
+            (hex.value.as_str(), hex.allowed.as_str()),
+            ("0x05", "0x08 to 0x77")
+        );
+        assert!(!hex.passed);
+        assert!(passes(Hex(0x08), Hex(0x08)..=Hex(0x77)));
+        assert!(passes(Hex(0x77), Hex(0x08)..=Hex(0x77)));
+        assert!(!passes(Hex(0x78), Hex(0x08)..=Hex(0x77)));
+    }
+
+    #[test]
+    fn large_bounds_print_with_an_exponent() {
+        let range = positive_to(1e12);
+        assert_eq!(range_text(&range, ""), "more than 0, at most 1e12");
+        assert!(passes(1e12, range) && !passes(1e12f64.next_up(), range));
+    }
+
+    #[test]
+    fn notes_and_extra_conditions_extend_the_text() {
+        let noted = in_range("k", 0.5, 0.0..=1.0, "rad").note("why");
+        assert_eq!(noted.allowed, "0 to 1 rad (why)");
+        let both = in_range("k", 1000u32, 1000..=100_000, "").and(false, "dividing");
+        assert_eq!(both.allowed, "1000 to 100000, dividing");
+        assert!(!both.passed);
+    }
+
+    #[test]
+    fn off_or_in_range_accepts_zero_and_the_range() {
+        let check = |v: f64| off_or_in_range("k", v, 0.01..=10.0, "s");
+        assert_eq!(check(0.0).allowed, "0 (off) or 0.01 to 10 s");
+        assert!(check(0.0).passed && check(0.01).passed && check(10.0).passed);
+        assert!(!check(0.01f64.next_down()).passed && !check(10f64.next_up()).passed);
+        assert!(!check(f64::NAN).passed);
+    }
+
+    #[test]
+    fn within_is_symmetric() {
+        let check = |v: f64| within("k", v, 3.2, "rad");
+        assert_eq!(check(0.0).allowed, "within ±3.2 rad");
+        assert!(check(3.2).passed && check(-3.2).passed);
+        assert!(!check(3.2f64.next_up()).passed && !check((-3.2f64).next_down()).passed);
+        let list = each_within("k", &[0.0, 30.0, -30.0], 30.0, "m/s");
+        assert_eq!(list.allowed, "each within ±30 m/s");
+        assert!(list.passed);
+        assert!(!each_within("k", &[0.0, 30.5], 30.0, "m/s").passed);
+    }
+
+    #[test]
+    fn one_of_lists_the_choices() {
+        let check = one_of("imu.baud", 9_600, &[9_600, 115_200]);
+        assert_eq!(check.allowed, "one of 9600, 115200");
+        assert!(check.passed);
+        assert!(!one_of("imu.baud", 9_601, &[9_600, 115_200]).passed);
+    }
+
+    #[test]
+    fn the_default_configuration_meets_every_rule() {
+        assert_eq!(validate(&Config::default()), Vec::new());
+    }
+}
