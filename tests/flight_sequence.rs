@@ -106,9 +106,9 @@ impl Bench {
                     .estimator
                     .estimate(*sample, times, &self.feedback, None, &mut self.out)
                     .expect("a step after calibration");
-                let c = self.controller.control(&est, &mut self.out);
-                self.feedback = c.feedback;
-                self.commands.push(c.w_rad_s);
+                let commands = &mut self.commands;
+                let send = |c: &uquad::core::flight::Command| commands.push(c.w_rad_s);
+                self.feedback = self.controller.control(&est, send, &mut self.out).feedback;
             }
             FrameAction::Abort(a) => self.aborts.push(a.clone()),
             FrameAction::Wait | FrameAction::Ended => {}

@@ -25,7 +25,12 @@ async fn fly_through_a_pty_with_a_mock_bus_then_replay() {
         summary.frames,
         summary.text()
     );
-    assert!(summary.steps > 150, "steps {}", summary.steps);
+    assert!(
+        summary.steps > 150,
+        "steps {}: {}",
+        summary.steps,
+        summary.text()
+    );
     assert_eq!(summary.rejected_frames, 0);
     assert_eq!(summary.log_drops_total(), 0);
 

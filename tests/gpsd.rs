@@ -310,7 +310,13 @@ async fn gpsd_restart_mid_run_reconnects_and_loses_no_control_step() {
     let steps = summary.steps;
     assert!(steps > 250, "{steps}");
     assert_eq!(summary.dropped_frames, 0);
-    assert_eq!(summary.late_feedback, 0);
+    // A control path that waited on the lost gpsd would be late for its whole 700 ms
+    // absence (about 70 steps); a stall of this shared machine is one or two.
+    assert!(
+        summary.late_feedback * 100 <= steps,
+        "{} late of {steps}",
+        summary.late_feedback
+    );
     assert_eq!(
         read_table(&summary.run_dir.join("w.log")).len() as u64,
         steps

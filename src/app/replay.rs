@@ -301,7 +301,7 @@ pub fn run_observed(
         if let Some(ekf) = estimator.ekf() {
             on_step(ekf);
         }
-        feedback = controller.control(&est, &mut out).feedback;
+        feedback = controller.control(&est, |_| {}, &mut out).feedback;
     }
     let (e, c) = (estimator.counts(), controller.counts());
     summary.kalman_steps = e.steps as usize;

@@ -17,8 +17,8 @@ use crate::app::sim::SimOptions;
 use crate::config::{GpsMode, Profile};
 use crate::core::esc::{CycleKind, CycleRunner, EscDriver, EscPhase};
 use crate::core::flight::{
-    ControllerSide, EscState, EstimatorSide, Feedback, FlightRecord, FrameAction, FrameTimes,
-    Outputs,
+    Command, ControllerSide, EscState, EstimatorSide, Feedback, FlightRecord, FrameAction,
+    FrameTimes, Outputs,
 };
 use crate::core::gps::LiveFix;
 use crate::core::imu::frame::{FrameDecoder, RawFrame};
@@ -261,10 +261,9 @@ impl<'a> FastSim<'a> {
             return;
         };
         self.dispatch_events();
-        let c = self.controller.control(&est, &mut self.out);
-        self.feedback = c.feedback;
-        let t = self.t_us;
-        self.driver.command(&c.w_rad_s, t, t, &mut self.cycles);
+        let (t, driver, cycles) = (self.t_us, &mut self.driver, &mut self.cycles);
+        let send = |c: &Command| driver.command(&c.w_rad_s, t, t, cycles);
+        self.feedback = self.controller.control(&est, send, &mut self.out).feedback;
     }
 
     /// The ESC driver's due work, executed on the simulated ESCs.

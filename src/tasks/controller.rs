@@ -8,7 +8,7 @@
 //! a quit command, which cancels), after the estimates it already sent.
 
 use crate::core::control::ManualCommand;
-use crate::core::flight::{ControllerSide, Feedback};
+use crate::core::flight::{Command, ControllerSide, Feedback};
 use crate::tasks::TaskOutputs;
 use crate::tasks::esc_writer::{EscMailbox, MotorCommand};
 use crate::tasks::estimator::EstimateMsg;
@@ -65,11 +65,14 @@ impl ControllerTask {
             {
                 tokio::time::sleep(d).await;
             }
-            let c = self.side.control(est, &mut self.out);
-            self.esc.command(MotorCommand {
-                w_rad_s: c.w_rad_s,
-                frame_at: msg.frame_at,
-            });
+            let esc = &self.esc;
+            let send = |c: &Command| {
+                esc.command(MotorCommand {
+                    w_rad_s: c.w_rad_s,
+                    frame_at: msg.frame_at,
+                })
+            };
+            let c = self.side.control(est, send, &mut self.out);
             self.feedback.send_replace(c.feedback);
             self.live.send_replace(Some(Live {
                 step: c.step,

@@ -344,8 +344,18 @@ pub fn sets(extra: &[&str]) -> Vec<(String, toml::Value)> {
     .collect()
 }
 
-/// Flies the 2012 profile (with a short start-up) while `during` runs, then cancels as a
-/// signal would. Returns the summary, the frames sent, the bus and the log folder.
+/// `--set`s that let a `fly` run in a test ride out this shared machine's scheduling stalls
+/// where the subject is not timing (the watchdog's own tests keep the 10 ms deadline): a wide
+/// accepted IMU period for settling and a deadline above the stalls.
+pub const FLY_TOLERANT: [&str; 3] = [
+    "imu.period_min_us=1000",
+    "imu.period_max_us=100000",
+    "watchdog.deadline_ms=100",
+];
+
+/// Flies the 2012 profile (with a short start-up and [`FLY_TOLERANT`]) while `during` runs,
+/// then cancels as a signal would. Returns the summary, the frames sent, the bus and the log
+/// folder.
 pub async fn fly_for(
     extra: &[&str],
     stall: Option<uquad::tasks::logger::LogStall>,
@@ -356,8 +366,9 @@ pub async fn fly_for(
     MockBus,
     tempfile::TempDir,
 ) {
+    let sets: Vec<&str> = FLY_TOLERANT.iter().chain(extra).copied().collect();
     fly_with(
-        extra,
+        &sets,
         uquad::app::fly::FlyOptions {
             log_stall: stall,
             ..Default::default()

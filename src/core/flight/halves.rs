@@ -1,6 +1,7 @@
 //! The flight loop's two halves as pure state machines: the estimator (measurement front end +
 //! EKF) and the controller (hover planner + P + I controller + flight ramp and saturation).
-//! [`super::sequence`] drives them in the order every mode follows.
+//! The flight sequence (`sequence.rs` beside this file) drives them in the order every mode
+//! follows.
 //!
 //! Spec section 8.3 steps 6–11 with ERRATA 3–8 and 10: one Kalman step per filtered frame; the
 //! EKF input u is w_hover on step 1, the previous raw controller output while the flight ramp

@@ -13,8 +13,8 @@
 //! 2. On a due step: the controller's [`Feedback`] of the previous step (`fly` waits for it)
 //!    and the newest live GPS fix, then [`EstimatorSide::estimate`] → [`Estimate`]. The fake-GPS
 //!    clock runs on the previous command's time here (ERRATA 10).
-//! 3. [`ControllerSide::control`] on the estimate → [`Command`]: the speeds for the ESC driver
-//!    and the feedback for step 2 of the next frame.
+//! 3. [`ControllerSide::control`] on the estimate → [`Command`]: the speeds, handed to the ESC
+//!    driver before anything is recorded, and the feedback for step 2 of the next frame.
 //!
 //! A watchdog halt at any point: [`EstimatorSide::on_halt`]; the ESCs are zeroed then disabled
 //! and the run ends. Records (what the log streams hold) and watchdog events go to the
@@ -465,9 +465,27 @@ impl ControllerSide {
         outcome == Some(ManualOutcome::Quit)
     }
 
-    /// Step 3: one control step on `est`.
-    pub fn control(&mut self, est: &Estimate, out: &mut impl Outputs) -> Command {
+    /// Step 3: one control step on `est`. The command goes to `send` (the ESC driver) before
+    /// anything is recorded, so that every command in the `w` log was handed over.
+    pub fn control(
+        &mut self,
+        est: &Estimate,
+        send: impl FnOnce(&Command),
+        out: &mut impl Outputs,
+    ) -> Command {
         let c = self.core.control(est, est.t_ctrl_us, est.t_cmd_us);
+        let command = Command {
+            step: c.step,
+            w_rad_s: c.w_sent,
+            feedback: Feedback {
+                step: c.step,
+                u_next: self.core.input_for_step(c.step + 1),
+                mass_kg: self.core.mass_kg(),
+                t_cmd_us: Some(c.t_cmd_us),
+            },
+            saturated: c.saturated,
+        };
+        send(&command);
         if c.position_hold != self.position_hold {
             self.position_hold = c.position_hold;
             out.record(FlightRecord::Note(
@@ -485,16 +503,6 @@ impl ControllerSide {
             t_us: c.t_cmd_us,
             w_rad_s: c.w_sent,
         });
-        Command {
-            step: c.step,
-            w_rad_s: c.w_sent,
-            feedback: Feedback {
-                step: c.step,
-                u_next: self.core.input_for_step(c.step + 1),
-                mass_kg: self.core.mass_kg(),
-                t_cmd_us: Some(c.t_cmd_us),
-            },
-            saturated: c.saturated,
-        }
+        command
     }
 }
