@@ -41,24 +41,10 @@ fn two_consoles_watch_and_steer_a_running_flight() {
     let dir = tempfile::tempdir().unwrap();
     let sock = dir.path().join("console.sock");
     let report = dir.path().join("report.json");
+    // The subject is the console, not this shared machine's scheduling.
+    let socket = format!("console.socket=\"{}\"", sock.display());
     let mut child = Uquad::spawn(
-        std::process::Command::new(env!("CARGO_BIN_EXE_uquad"))
-            .args([
-                "sim",
-                "--realtime",
-                "--duration",
-                "15",
-                "--config",
-                "config/uquad.toml",
-            ])
-            .arg("--set")
-            .arg(format!("console.socket=\"{}\"", sock.display()))
-            // The subject is the console, not this shared machine's scheduling.
-            .args(REALTIME_TOLERANT)
-            .args(["--log-dir", dir.path().to_str().unwrap()])
-            .args(["--report", report.to_str().unwrap()])
-            .current_dir(root())
-            .env("RUST_LOG", "info"),
+        realtime_sim(&["--duration", "15", "--set", &socket], dir.path()).env("RUST_LOG", "info"),
     );
     let t0 = Instant::now();
     while !sock.exists() {

@@ -1,17 +1,8 @@
 //! Keeps the core pure: no file in `src/core` may use tokio, a clock, files, sockets or threads.
 
+mod common;
+use common::rust_files;
 use std::path::Path;
-
-fn rust_files(dir: &Path, out: &mut Vec<std::path::PathBuf>) {
-    for entry in std::fs::read_dir(dir).unwrap() {
-        let p = entry.unwrap().path();
-        if p.is_dir() {
-            rust_files(&p, out);
-        } else if p.extension().is_some_and(|e| e == "rs") {
-            out.push(p);
-        }
-    }
-}
 
 #[test]
 fn core_has_no_io_clock_or_runtime() {

@@ -2,8 +2,10 @@
 //! and no module imports one that imports it back. Read from the source text: `crate::` and
 //! `super::` paths in code (comments and test modules left out).
 
+mod common;
+use common::rust_files;
 use std::collections::{BTreeMap, BTreeSet};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// What each top-level module may import.
 const ALLOWED: [(&str, &[&str]); 8] = [
@@ -19,17 +21,6 @@ const ALLOWED: [(&str, &[&str]); 8] = [
         &["core", "hw", "logs", "config", "console", "sim", "tasks"],
     ),
 ];
-
-fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
-    for entry in std::fs::read_dir(dir).unwrap() {
-        let p = entry.unwrap().path();
-        if p.is_dir() {
-            rust_files(&p, out);
-        } else if p.extension().is_some_and(|e| e == "rs") {
-            out.push(p);
-        }
-    }
-}
 
 /// The module path of a file under `src` (`core/flight/mod.rs` → `core::flight`).
 fn module_of(src: &Path, file: &Path) -> String {

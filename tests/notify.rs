@@ -17,26 +17,13 @@ fn ready_then_pings_which_stop_after_a_fault() {
     let start = Instant::now();
     // Tolerant of this shared machine's scheduling, so only the injected stall trips.
     let mut child = Uquad::spawn(
-        std::process::Command::new(env!("CARGO_BIN_EXE_uquad"))
-            .args([
-                "sim",
-                "--realtime",
-                "--duration",
-                "16",
-                "--inject",
-                "imu-stall@13",
-                "--config",
-                "config/uquad.toml",
-                "--log-dir",
-                dir.path().to_str().unwrap(),
-                "--report",
-                report.to_str().unwrap(),
-            ])
-            .args(REALTIME_TOLERANT)
-            .current_dir(root())
-            .env("NOTIFY_SOCKET", &sock_path)
-            .env("WATCHDOG_USEC", "400000")
-            .env("RUST_LOG", "warn"),
+        realtime_sim(
+            &["--duration", "16", "--inject", "imu-stall@13"],
+            dir.path(),
+        )
+        .env("NOTIFY_SOCKET", &sock_path)
+        .env("WATCHDOG_USEC", "400000")
+        .env("RUST_LOG", "warn"),
     );
     let mut msgs: Vec<(f64, String)> = Vec::new();
     let mut buf = [0u8; 4096];

@@ -33,8 +33,10 @@ pub fn uquad(cwd: &Path, args: &[&str]) -> Output {
 
 /// `--set`s that let a `sim --realtime` run ride out this shared machine's scheduling stalls
 /// (tens of ms at times) where the subject of a test is not timing: a wide accepted IMU period
-/// for settling, and deadline, IMU and command timeouts above the stalls.
-pub const REALTIME_TOLERANT: [&str; 10] = [
+/// and frames to settle in, and deadline, IMU and command timeouts above the stalls.
+pub const REALTIME_TOLERANT: [&str; 12] = [
+    "--set",
+    "imu.settle_max_frames=1000",
     "--set",
     "watchdog.deadline_ms=100",
     "--set",
@@ -46,6 +48,33 @@ pub const REALTIME_TOLERANT: [&str; 10] = [
     "--set",
     "esc.command_timeout_ms=150",
 ];
+
+/// `uquad sim --realtime --config config/uquad.toml ARGS` with [`REALTIME_TOLERANT`], its run
+/// folder under `dir` and its report at `dir/report.json`, from the repository's root.
+pub fn realtime_sim(args: &[&str], dir: &Path) -> Command {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_uquad"));
+    cmd.args(["sim", "--realtime", "--config", "config/uquad.toml"])
+        .args(args)
+        .args(REALTIME_TOLERANT)
+        .arg("--log-dir")
+        .arg(dir)
+        .arg("--report")
+        .arg(dir.join("report.json"))
+        .current_dir(root());
+    cmd
+}
+
+/// Every `.rs` file under `dir`.
+pub fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let p = entry.unwrap().path();
+        if p.is_dir() {
+            rust_files(&p, out);
+        } else if p.extension().is_some_and(|e| e == "rs") {
+            out.push(p);
+        }
+    }
+}
 
 /// A running `uquad` process: its stderr goes to a file, printed when the test fails; the
 /// process is killed if the test ends before it does.
@@ -333,7 +362,9 @@ pub const DEFAULT_TIMEOUTS: [&str; 2] = ["watchdog.imu_timeout_ms=12", "esc.comm
 pub fn sets(extra: &[&str]) -> Vec<(String, toml::Value)> {
     [
         "imu.settle_frames=5",
-        "imu.settle_max_frames=40",
+        // Settling gives up only after this many frames: a stall of this shared machine at
+        // start-up costs a few frames, not the run.
+        "imu.settle_max_frames=1000",
         "imu.calib_frames=64",
         "watchdog.imu_timeout_ms=100",
         "esc.command_timeout_ms=150",
@@ -346,7 +377,7 @@ pub fn sets(extra: &[&str]) -> Vec<(String, toml::Value)> {
 
 /// `--set`s that let a `fly` run in a test ride out this shared machine's scheduling stalls
 /// where the subject is not timing (the watchdog's own tests keep the 10 ms deadline): a wide
-/// accepted IMU period for settling and a deadline above the stalls.
+/// accepted IMU period and a deadline above the stalls.
 pub const FLY_TOLERANT: [&str; 3] = [
     "imu.period_min_us=1000",
     "imu.period_max_us=100000",
