@@ -218,7 +218,8 @@ impl<'a> FastSim<'a> {
         self.sample_hover();
         if self.opts.progress && t % 5_000_000 == 0 {
             let phase = format!("{:?}", self.estimator.phase());
-            eprintln!("{}", progress_line(t, &self.plant, &phase, self.fly.steps));
+            let steps = self.estimator.counts().steps;
+            eprintln!("{}", progress_line(t, &self.plant, &phase, steps));
         }
         let ended = self.halt.is_some() || self.fly.error.is_some();
         !(ended && self.driver.phase() == EscPhase::Stopped)
