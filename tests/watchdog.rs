@@ -57,6 +57,14 @@ async fn expect_halt(
     summary
 }
 
+/// For the tests of the causes other than the deadline: a deadline above this shared machine's
+/// stalls (about 10 ms at times in a debug build), so that none pre-empts the cause under test.
+/// The deadline's own test keeps its 10 ms.
+const DEADLINE_ABOVE_STALLS: [&str; 1] = ["watchdog.deadline_ms=100"];
+
+/// The IMU timeout at its 12 ms default, with the deadline above the stalls.
+const IMU_TIMEOUT_12_MS: [&str; 2] = ["watchdog.imu_timeout_ms=12", "watchdog.deadline_ms=100"];
+
 fn no_fault() -> FramePlan {
     Box::new(|_, f| Some(f))
 }
@@ -74,7 +82,7 @@ async fn silent_imu_trips_imu_timeout_within_14_ms() {
     // The IMU falls silent mid-flight: 12 ms timeout + 2 ms.
     let plan: FramePlan = Box::new(|k, f| (k < FLYING_AT_FRAME).then_some(f));
     expect_halt(
-        &DEFAULT_TIMEOUTS,
+        &IMU_TIMEOUT_12_MS,
         Default::default(),
         plan,
         idle(Duration::from_secs(8)),
@@ -94,7 +102,15 @@ async fn missed_acks_trip_esc_ack_within_12_ms() {
             tokio::time::sleep(Duration::from_secs(3)).await;
         })
     };
-    let s = expect_halt(&[], Default::default(), no_fault(), during, "esc-ack", 12.0).await;
+    let s = expect_halt(
+        &DEADLINE_ABOVE_STALLS,
+        Default::default(),
+        no_fault(),
+        during,
+        "esc-ack",
+        12.0,
+    )
+    .await;
     // The disable was attempted although the bus kept failing.
     assert!(s.esc_failed_writes >= 8);
 }
@@ -128,7 +144,7 @@ async fn hot_imu_trips_sanity_temp() {
         Some(f)
     });
     expect_halt(
-        &[],
+        &DEADLINE_ABOVE_STALLS,
         Default::default(),
         plan,
         idle(Duration::from_secs(8)),
@@ -148,7 +164,7 @@ async fn rolling_over_trips_sanity_tilt() {
         Some(f)
     });
     expect_halt(
-        &[],
+        &DEADLINE_ABOVE_STALLS,
         Default::default(),
         plan,
         idle(Duration::from_secs(9)),

@@ -352,10 +352,6 @@ impl Drop for ImuFeeder {
     }
 }
 
-/// The configured IMU timeout and the ESC writer's own refusal (tests of the watchdog and of a
-/// healthy flight pass these to undo [`sets`]' relaxed values).
-pub const DEFAULT_TIMEOUTS: [&str; 2] = ["watchdog.imu_timeout_ms=12", "esc.command_timeout_ms=25"];
-
 /// A short start-up (5 settling frames, 64 calibration frames), and an IMU timeout of 100 ms:
 /// tests of other subjects must not fail on this shared machine's scheduling jitter (the 12 ms
 /// default leaves 2 ms over the 10 ms frame period; the watchdog's tests use it).
