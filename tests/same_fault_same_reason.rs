@@ -76,7 +76,7 @@ async fn refused_writes_during_the_esc_ramp_give_the_same_reason_in_every_mode()
     let (summary, _, _, _logs) = fly_with(
         &FLY_TOLERANT,
         Default::default(),
-        Link::Pipe,
+        Link::Pty,
         Box::new(|_, f| Some(f)),
         during,
     )
