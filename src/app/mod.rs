@@ -1,4 +1,7 @@
-//! Composition roots: each mode wires the pure core to its edges.
+//! Composition roots: each mode wires the pure core to its edges (`fly`, `sim_fast`,
+//! `sim_realtime`, `replay`, `plot`, `lqr`, `gps`), and what the modes share: the flight's two
+//! sides as a profile builds them (`flight`), the run folder (`run_dir`), the simulation
+//! options (`sim`) and the reports (`report`).
 
 pub mod flight;
 pub mod fly;

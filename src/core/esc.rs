@@ -330,4 +330,56 @@ mod tests {
         assert_eq!(d.phase(), EscPhase::Stopped);
         assert_eq!(out.len(), 2);
     }
+    /// Two cycles (speeds, then a command) through `runner`, every even address refusing
+    /// when `failing`; what each cycle reported.
+    fn two_cycles(
+        runner: &mut CycleRunner,
+        failing: bool,
+        at_us: i64,
+    ) -> Vec<(CycleDone, Option<u8>)> {
+        let cycle = MotorMap::UQUAD.speed_writes(&[60; 4]);
+        let mut cycles = vec![(CycleKind::Speeds, cycle), (CycleKind::Command, cycle)];
+        let mut seen = Vec::new();
+        runner.execute(
+            &mut cycles,
+            |addr, _, _| {
+                if failing && addr % 2 == 0 {
+                    Err(addr)
+                } else {
+                    Ok(())
+                }
+            },
+            || at_us,
+            |done, first_error| seen.push((done, first_error)),
+        );
+        assert!(cycles.is_empty(), "drained");
+        seen
+    }
+
+    #[test]
+    fn the_write_loop_counts_failed_cycles_and_reports_the_first_error_once() {
+        let mut runner = CycleRunner::default();
+        let seen = two_cycles(&mut runner, false, 1_000);
+        assert!(
+            seen.iter()
+                .all(|(d, e)| d.ok && d.failures.is_none() && e.is_none())
+        );
+        let mut seen = two_cycles(&mut runner, true, 2_000);
+        seen.extend(two_cycles(&mut runner, true, 4_000));
+        let failures: Vec<_> = seen.iter().map(|(d, _)| d.failures).collect();
+        let want: Vec<_> = (1..=4)
+            .map(|n| {
+                Some(Event::EscFailures {
+                    cycles: n,
+                    first_us: 2_000,
+                })
+            })
+            .collect();
+        assert_eq!(failures, want);
+        let errors = seen.iter().filter(|(_, e)| e.is_some()).count();
+        assert_eq!(errors, 1, "the first failed write of a failing run, once");
+        assert_eq!((runner.writes, runner.failed_writes), (24, 8));
+        let seen = two_cycles(&mut runner, false, 6_000);
+        assert!(seen.iter().all(|(d, _)| d.ok && d.failures.is_none()));
+    }
 }
