@@ -22,6 +22,29 @@ fn thrust_loss_report(extra: &[&str]) -> (serde_json::Value, tempfile::TempDir) 
     sim_report(&args)
 }
 
+/// Every simulated ESC ends disabled, its last two acknowledged writes a zero speed, then the
+/// disable.
+fn assert_escs_end_zero_then_disable(r: &serde_json::Value) {
+    let escs = r["esc_end"]
+        .as_array()
+        .unwrap_or_else(|| panic!("no esc_end: {r}"));
+    assert_eq!(escs.len(), 4, "{r}");
+    for e in escs {
+        assert_eq!(e["enabled"], false, "{e}");
+        assert_eq!(
+            e["last_writes"],
+            serde_json::json!(["speed 0", "disable"]),
+            "{e}"
+        );
+    }
+}
+
+/// The err.log of a run.
+fn err_log(r: &serde_json::Value) -> String {
+    std::fs::read_to_string(std::path::Path::new(r["run_dir"].as_str().unwrap()).join("err.log"))
+        .unwrap()
+}
+
 #[test]
 fn imu_stall_halts_within_14_ms_of_the_last_frame() {
     let (r, _logs) = sim_report(&["--duration", "40", "--inject", "imu-stall@30"]);
@@ -34,15 +57,117 @@ fn imu_stall_halts_within_14_ms_of_the_last_frame() {
         "{r}"
     );
     assert_eq!(r["watchdog_trips"], 1);
+    assert_eq!(r["halt"]["confirmed"], true, "{r}");
+    assert_escs_end_zero_then_disable(&r);
 }
 
 #[test]
-fn esc_nack_halts_within_12_ms_of_the_first_failed_write() {
+fn imu_stall_halts_in_every_start_up_phase_with_the_motors_enabled() {
+    // The default profile's start-up on the simulated clock: settled and ESC ramp from about
+    // 0.5 s to 2.9 s, calibration to 8.0 s, flight ramp (100 steps) to 9.0 s. Each phase is
+    // told by err.log's lines (and the flight ramp by its step count).
+    let phases = [
+        ("1.5", "ESC start-up ramp", "ESC ramp done"),
+        ("5", "ESC ramp done", "IMU calibration completed"),
+        (
+            "8.5",
+            "IMU calibration completed",
+            "watchdog: halt, reason imu-timeout; event at 8.49",
+        ),
+    ];
+    for (at, reached, not_reached) in phases {
+        let stall = format!("imu-stall@{at}");
+        let (r, _logs) = sim_report(&["--duration", "20", "--inject", &stall]);
+        assert_eq!(r["halt"]["reason"], "imu-timeout", "{stall}: {r}");
+        let last_frame_s = r["halt"]["event_s"].as_f64().unwrap();
+        let at_s: f64 = at.parse().unwrap();
+        assert!(
+            (last_frame_s - (at_s - 0.01)).abs() < 0.0011,
+            "{stall}: {r}"
+        );
+        let ms = r["halt"]["latency_ms"].as_f64().unwrap();
+        assert!(ms <= 14.0, "{stall}: {ms} ms after the last frame");
+        assert_eq!(r["halt"]["confirmed"], true, "{stall}: {r}");
+        assert_escs_end_zero_then_disable(&r);
+        let err = err_log(&r);
+        assert!(err.contains(reached), "{stall}: {err}");
+        assert!(
+            !err.contains(not_reached) || not_reached.starts_with("watchdog"),
+            "{stall}: {err}"
+        );
+        assert!(
+            r["simulated_s"].as_f64().unwrap() < at_s + 0.1,
+            "the run ended: {r}"
+        );
+    }
+    // The flight ramp: steps had begun, fewer than its 100.
+    let (r, _logs) = sim_report(&["--duration", "20", "--inject", "imu-stall@8.5"]);
+    let steps = r["steps"].as_u64().unwrap();
+    assert!((1..100).contains(&steps), "{steps} steps: {r}");
+}
+
+#[test]
+fn esc_nack_halts_within_12_ms_and_names_the_escs_that_never_confirmed() {
     let (r, _logs) = sim_report(&["--duration", "40", "--inject", "esc-nack@30"]);
     assert_eq!(r["halt"]["reason"], "esc-ack", "{r}");
-    let ms = r["halt"]["latency_ms"].as_f64().unwrap();
-    assert!(ms <= 12.0, "{ms} ms");
+    let ms = r["halt"]["decision_ms"].as_f64().unwrap();
+    assert!(ms <= 12.0, "decided {ms} ms after the first failed write");
     assert!(r["esc"]["failed_writes"].as_u64().unwrap() >= 12, "{r}");
+    // The refusals never end: the stop is retried for watchdog.halt_retry_ms (500 ms), then
+    // reported unconfirmed by every ESC.
+    assert_eq!(r["halt"]["confirmed"], false, "{r}");
+    assert_eq!(
+        r["halt"]["unconfirmed"],
+        serde_json::json!(["0x69", "0x6b", "0x6a", "0x68"]),
+        "{r}"
+    );
+    let retried_ms = r["halt"]["latency_ms"].as_f64().unwrap() - ms;
+    assert!(
+        (499.0..=501.0).contains(&retried_ms),
+        "retried {retried_ms} ms: {r}"
+    );
+    let err = err_log(&r);
+    assert!(
+        err.contains("stop NOT confirmed by 0x69, 0x6b, 0x6a, 0x68"),
+        "{err}"
+    );
+}
+
+#[test]
+fn a_blind_estimator_halts_within_half_a_second() {
+    // The barometer reads 0 Pa from 30 s: no altitude, every update refused; 10 in a row
+    // (watchdog.estimator_max_refused) halt.
+    let (r, _logs) = sim_report(&["--duration", "40", "--inject", "baro-fail@30"]);
+    assert_eq!(r["halt"]["reason"], "estimator", "{r}");
+    let halt_s = r["halt"]["halt_s"].as_f64().unwrap();
+    assert!((30.0..=30.5).contains(&halt_s), "halted at {halt_s} s: {r}");
+    assert_escs_end_zero_then_disable(&r);
+    assert!(err_log(&r).contains("watchdog: halt, reason estimator"));
+}
+
+#[test]
+fn garbage_on_the_imu_wire_halts_as_a_silent_imu() {
+    let (r, _logs) = sim_report(&["--duration", "40", "--inject", "imu-garbage@30"]);
+    assert_eq!(r["halt"]["reason"], "imu-timeout", "{r}");
+    assert!(r["halt"]["latency_ms"].as_f64().unwrap() <= 14.0, "{r}");
+    assert!(r["imu"]["discarded_bytes"].as_u64().unwrap() > 0, "{r}");
+    assert_escs_end_zero_then_disable(&r);
+}
+
+#[test]
+fn a_stuck_gyro_is_injected() {
+    // The gyro repeats its reading from 30 s: the filter's rates no longer follow the vehicle,
+    // and the hover degrades (no watchdog rule recognises a stuck gyro yet).
+    let (clean, _a) = sim_report(&["--duration", "40"]);
+    let (r, _b) = sim_report(&["--duration", "40", "--inject", "gyro-stuck@30"]);
+    let (a, b) = (
+        clean["alt_rms_m"].as_f64().unwrap(),
+        r["alt_rms_m"].as_f64().unwrap(),
+    );
+    assert!(
+        b > 2.0 * a,
+        "altitude RMS {b} m with the stuck gyro, {a} m without"
+    );
 }
 
 #[test]

@@ -44,9 +44,16 @@ async fn expect_halt(
     assert_eq!(halt.trip.reason.name(), reason, "{}", summary.text());
     let latency = halt.latency_ms();
     let bound_ms = max_latency_ms + STALL_MS;
+    // A refused stop is retried (watchdog.halt_retry_ms) before it settles: then only the
+    // decision is bound by the cause's limit.
+    let settled_ms = if halt.confirmed {
+        latency
+    } else {
+        halt.decision_ms()
+    };
     assert!(
-        (0.0..=bound_ms).contains(&latency),
-        "halt {latency} ms after the event (limit {max_latency_ms} ms + {STALL_MS} ms of stalls)"
+        (0.0..=bound_ms).contains(&settled_ms),
+        "halt {settled_ms} ms after the event (limit {max_latency_ms} ms + {STALL_MS} ms of stalls)"
     );
     // Zero to every ESC, then disable every ESC, and nothing after.
     assert_ends_zero_then_disable(&bus.transactions());
@@ -57,6 +64,12 @@ async fn expect_halt(
         err.contains(&format!("watchdog: halt, reason {reason}")),
         "{err}"
     );
+    let stop = if halt.confirmed {
+        "stop confirmed by every ESC"
+    } else {
+        "stop NOT confirmed by 0x"
+    };
+    assert!(err.contains(stop), "{err}");
     let report_path = summary.run_dir.join("report.json");
     summary.write_report(&report_path).unwrap();
     let report: serde_json::Value =
@@ -122,8 +135,52 @@ async fn missed_acks_trip_esc_ack() {
         12.0,
     )
     .await;
-    // The disable was attempted although the bus kept failing.
+    // The disable was attempted although the bus kept failing, and retried for
+    // watchdog.halt_retry_ms (500 ms): unconfirmed by every ESC.
     assert!(s.esc_failed_writes >= 8);
+    let halt = s.halt.unwrap();
+    assert!(!halt.confirmed, "{}", s.text());
+    assert_eq!(
+        halt.unconfirmed_addresses().collect::<Vec<_>>(),
+        uquad::core::motor::MotorMap::UQUAD.addresses.to_vec()
+    );
+    let retried_ms = halt.latency_ms() - halt.decision_ms();
+    assert!(
+        (500.0..=500.0 + STALL_MS).contains(&retried_ms),
+        "retried for {retried_ms} ms"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_refused_stop_is_retried_until_every_esc_acknowledges_it() {
+    // Every I2C write fails from 4.5 s for 300 ms: the halt (esc-ack) is decided within the
+    // refusals, its zero and disable retried until the bus answers again, then confirmed.
+    let during = |bus: uquad::hw::esc_bus::MockBus| -> std::pin::Pin<Box<dyn std::future::Future<Output = ()> + Send>> {
+        Box::pin(async move {
+            tokio::time::sleep(Duration::from_millis(4_500)).await;
+            bus.set_failing(true);
+            tokio::time::sleep(Duration::from_millis(300)).await;
+            bus.set_failing(false);
+            tokio::time::sleep(Duration::from_secs(3)).await;
+        })
+    };
+    let s = expect_halt(
+        &DEADLINE_ABOVE_STALLS,
+        Default::default(),
+        no_fault(),
+        during,
+        "esc-ack",
+        // To the last acknowledgement: the 300 ms of refusals.
+        300.0,
+    )
+    .await;
+    let halt = s.halt.unwrap();
+    assert!(halt.confirmed, "{}", s.text());
+    assert!(
+        halt.latency_ms() >= 250.0,
+        "confirmed {} ms after the event",
+        halt.latency_ms()
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -3,6 +3,7 @@
 
 use crate::core::watchdog::Halt;
 use crate::logs::{PerStream, Record};
+use crate::sim::esc::EscEnd;
 use crate::sim::hover::HoverStats;
 use anyhow::Context;
 use serde::Serialize;
@@ -53,9 +54,16 @@ pub struct Percentiles {
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct HaltReport {
     pub reason: &'static str,
+    /// From the event to the settled stop (the last acknowledgement, or the retries' end).
     pub latency_ms: f64,
+    /// From the event to the watchdog's decision.
+    pub decision_ms: f64,
     pub event_s: f64,
     pub halt_s: f64,
+    /// Every ESC acknowledged zero, then disable.
+    pub confirmed: bool,
+    /// The ESCs that never did, as "0x6a".
+    pub unconfirmed: Vec<String>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -99,7 +107,8 @@ pub struct FlyReport {
     pub error: Option<String>,
 }
 
-/// The simulator's report: the flight report plus the hover figures.
+/// The simulator's report: the flight report plus the hover figures and what the simulated
+/// ESCs were left with.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct SimReport {
     #[serde(flatten)]
@@ -107,6 +116,7 @@ pub struct SimReport {
     #[serde(flatten)]
     pub hover: HoverStats,
     pub simulated_s: f64,
+    pub esc_end: Vec<EscEnd>,
 }
 
 /// Writes a report as pretty JSON to `path`.
@@ -157,8 +167,14 @@ impl FlySummary {
             halt: self.halt.map(|h| HaltReport {
                 reason: h.trip.reason.name(),
                 latency_ms: h.latency_ms(),
+                decision_ms: h.decision_ms(),
                 event_s: h.trip.event_us as f64 / 1e6,
                 halt_s: h.halt_us as f64 / 1e6,
+                confirmed: h.confirmed,
+                unconfirmed: h
+                    .unconfirmed_addresses()
+                    .map(|a| format!("0x{a:02x}"))
+                    .collect(),
             }),
             run_dir: std::fs::canonicalize(&self.run_dir).unwrap_or_else(|_| self.run_dir.clone()),
             log_drops_by_stream: self.log_drops,
@@ -221,9 +237,14 @@ impl FlySummary {
             .collect();
         let watchdog = match self.halt {
             Some(h) => format!(
-                "HALT, reason {}, {:.3} ms after the event",
+                "HALT, reason {}, {:.3} ms after the event{}",
                 h.trip.reason.name(),
-                h.latency_ms()
+                h.latency_ms(),
+                if h.confirmed {
+                    ""
+                } else {
+                    " (stop NOT confirmed by every ESC)"
+                }
             ),
             None => "no trip".to_string(),
         };
@@ -267,6 +288,7 @@ pub struct SimSummary {
     pub fly: FlySummary,
     pub hover: HoverStats,
     pub simulated_s: f64,
+    pub esc_end: Vec<EscEnd>,
 }
 
 impl SimSummary {
@@ -276,6 +298,7 @@ impl SimSummary {
             fly: self.fly.report(),
             hover: self.hover,
             simulated_s: self.simulated_s,
+            esc_end: self.esc_end.clone(),
         }
     }
 

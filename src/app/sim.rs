@@ -33,7 +33,14 @@ impl SimMode {
     pub fn supports(self, fault: Fault) -> bool {
         match self {
             SimMode::Fast => true,
-            SimMode::Realtime => matches!(fault, Fault::ImuStall | Fault::EscNack),
+            SimMode::Realtime => matches!(
+                fault,
+                Fault::ImuStall
+                    | Fault::EscNack
+                    | Fault::BaroFail
+                    | Fault::GyroStuck
+                    | Fault::ImuGarbage
+            ),
         }
     }
 }

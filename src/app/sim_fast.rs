@@ -23,10 +23,10 @@ use crate::core::flight::{
 use crate::core::gps::LiveFix;
 use crate::core::imu::frame::{FrameDecoder, RawFrame};
 use crate::core::motor::FLIGHT_RAMP_STEPS;
-use crate::core::watchdog::{Event, Halt, Trip, Watchdog};
+use crate::core::watchdog::{Event, Trip, Watchdog};
 use crate::logs::{PerStream, Record, Stream};
 use crate::sim::esc::EscModel;
-use crate::sim::faults::{Fault, FaultSchedule};
+use crate::sim::faults::{Fault, FaultSchedule, WireFaults};
 use crate::sim::hover::{FlightView, HoverWindow, TrueState, progress_line};
 use crate::sim::{FRAME_US, frame_start_byte, gps_fix, imu::SimImu, physics::Plant};
 use anyhow::Context;
@@ -84,6 +84,7 @@ impl Outputs for FastOutputs {
 struct FastSim<'a> {
     opts: &'a SimOptions,
     faults: FaultSchedule,
+    wire: WireFaults,
     step_us: i64,
     gps_live: bool,
     t_us: i64,
@@ -102,8 +103,8 @@ struct FastSim<'a> {
     runner: CycleRunner,
     cycles: Vec<(CycleKind, crate::core::esc::Cycle)>,
     watchdog: Watchdog,
-    /// The decided halt and, once the ESCs are disabled, when.
-    halt: Option<(Trip, i64)>,
+    /// The decided halt (its stop is the driver's).
+    trip: Option<Trip>,
     out: FastOutputs,
     fly: FlySummary,
     hover: HoverWindow,
@@ -158,6 +159,7 @@ impl<'a> FastSim<'a> {
         }
         FastSim {
             opts,
+            wire: WireFaults::new(seed),
             step_us: 1_000_000 / i64::from(cfg.sim.physics_hz),
             gps_live,
             t_us: 0,
@@ -172,15 +174,11 @@ impl<'a> FastSim<'a> {
             estimator,
             controller,
             escs: EscModel::new(map),
-            driver: EscDriver::new(
-                map,
-                i64::from(cfg.esc.resend_ms) * 1000,
-                i64::from(cfg.esc.command_timeout_ms) * 1000,
-            ),
+            driver: EscDriver::new(map, cfg.esc_timing()),
             runner: CycleRunner::default(),
             cycles: Vec::with_capacity(8),
             watchdog: Watchdog::new(cfg.watchdog.params()),
-            halt: None,
+            trip: None,
             out,
             fly: FlySummary::empty(run_dir),
             hover: HoverWindow::new(cfg.sim.settle_s),
@@ -209,7 +207,7 @@ impl<'a> FastSim<'a> {
             self.pending_fix = None;
         }
         let imu_silent = self.faults.active(Fault::ImuStall, t);
-        if t % FRAME_US == 0 && self.halt.is_none() && self.fly.error.is_none() && !imu_silent {
+        if t % FRAME_US == 0 && self.trip.is_none() && self.fly.error.is_none() && !imu_silent {
             self.send_frame();
         }
         self.run_escs();
@@ -221,15 +219,17 @@ impl<'a> FastSim<'a> {
             let steps = self.estimator.counts().steps;
             eprintln!("{}", progress_line(t, &self.plant, &phase, steps));
         }
-        let ended = self.halt.is_some() || self.fly.error.is_some();
-        !(ended && self.driver.phase() == EscPhase::Stopped)
+        // The run ends once the motors' stop has settled (confirmed, or out of retries).
+        let ended = self.trip.is_some() || self.fly.error.is_some();
+        !(ended && self.driver.stop_outcome().is_some())
     }
 
     /// The IMU's next frame, through the byte decoder, into the flight sequence.
     fn send_frame(&mut self) {
         let frame = self.imu.frame(&self.plant, FRAME_US as u32);
         let start = frame_start_byte(self.frames_sent);
-        self.bytes.extend_from_slice(&frame.encode(start));
+        let bytes = self.wire.bytes(&self.faults, self.t_us, frame, start);
+        self.bytes.extend_from_slice(&bytes);
         self.frames_sent += 1;
         while let Some(frame) = self.decoder.next_frame(&mut self.bytes) {
             self.fly.frames += 1;
@@ -250,7 +250,7 @@ impl<'a> FastSim<'a> {
             FrameAction::StartEscs => return self.driver.start(self.t_us),
             FrameAction::Abort(why) => {
                 self.fly.error = Some(why.to_string());
-                return self.driver.stop("shutdown", &mut self.cycles);
+                return self.driver.stop("shutdown", self.t_us, &mut self.cycles);
             }
             FrameAction::Step(sample) => sample,
         };
@@ -269,10 +269,9 @@ impl<'a> FastSim<'a> {
 
     /// The ESC driver's due work, executed on the simulated ESCs.
     fn run_escs(&mut self) {
-        if let Some((trip, _)) = self.halt
-            && self.driver.phase() != EscPhase::Stopped
-        {
-            self.driver.stop(trip.reason.name(), &mut self.cycles);
+        if let Some(trip) = self.trip {
+            self.driver
+                .stop(trip.reason.name(), self.t_us, &mut self.cycles);
         }
         self.driver.poll(self.t_us, &mut self.cycles);
         self.execute_cycles();
@@ -284,31 +283,24 @@ impl<'a> FastSim<'a> {
         let mut done_cycles = Vec::new();
         let escs = &mut self.escs;
         self.runner.execute(
+            &mut self.driver,
             &mut self.cycles,
             |addr, reg, value| escs.write(addr, reg, value, t),
             || t,
             |done, _| done_cycles.push(done),
         );
         for done in done_cycles {
-            if let Some(e) = done.failures {
+            for e in done.watchdog_events() {
                 self.decide(|wd, t| wd.on_event(e, t));
             }
-            match done.kind {
-                CycleKind::Command => {
-                    self.fly.esc_commands += 1;
-                    self.fly.latencies_us.push(0);
-                    let e = Event::Command {
-                        frame_us: t,
-                        written_us: t,
-                    };
-                    self.decide(|wd, t| wd.on_event(e, t));
-                }
-                CycleKind::StopDisable => {
-                    if let Some((_, halt_us)) = &mut self.halt {
-                        *halt_us = t;
-                    }
-                }
-                CycleKind::Enable | CycleKind::Ramp | CycleKind::Speeds | CycleKind::StopZero => {}
+            if done.kind == CycleKind::Command {
+                self.fly.esc_commands += 1;
+                self.fly.latencies_us.push(0);
+                let e = Event::Command {
+                    frame_us: t,
+                    written_us: t,
+                };
+                self.decide(|wd, t| wd.on_event(e, t));
             }
         }
     }
@@ -323,22 +315,23 @@ impl<'a> FastSim<'a> {
     /// Asks the watchdog policy; a trip is kept (the first one decides).
     fn decide(&mut self, ask: impl FnOnce(&mut Watchdog, i64) -> Option<Trip>) {
         if let Some(trip) = ask(&mut self.watchdog, self.t_us) {
-            self.halt.get_or_insert((trip, self.t_us));
+            self.trip.get_or_insert(trip);
         }
     }
 
-    /// A decided halt is executed in the same step: zero, then disable; then it is recorded.
+    /// A decided halt is executed in the same step: zero, then disable (retried by the driver
+    /// until acknowledged); it is recorded once the stop has settled.
     fn execute_halt(&mut self) {
-        let Some((trip, _)) = self.halt else {
+        let Some(trip) = self.trip else {
             return;
         };
         if self.driver.phase() != EscPhase::Stopped {
-            self.driver.stop(trip.reason.name(), &mut self.cycles);
+            self.driver
+                .stop(trip.reason.name(), self.t_us, &mut self.cycles);
             self.execute_cycles();
         }
-        if let Some((trip, halt_us)) = self.halt {
-            self.estimator
-                .on_halt(Halt { trip, halt_us }, &mut self.out);
+        if let Some(o) = self.driver.stop_outcome() {
+            self.estimator.on_halt(o.halt(trip), &mut self.out);
         }
     }
 
@@ -349,7 +342,7 @@ impl<'a> FastSim<'a> {
         let flight = FlightView {
             ramp_done: self.controller.counts().steps >= u64::from(FLIGHT_RAMP_STEPS),
             setpoint_m: self.controller.setpoint_m().unwrap_or_default(),
-            flying: self.halt.is_none(),
+            flying: self.trip.is_none(),
         };
         self.hover
             .sample(self.t_us, flight, TrueState::of(&self.plant));
@@ -358,8 +351,17 @@ impl<'a> FastSim<'a> {
     /// The end of the run: zero and disable, as fly's shutdown does; the closing lines; the
     /// streams written into the run folder.
     fn finish(mut self) -> anyhow::Result<SimSummary> {
-        self.driver.stop("shutdown", &mut self.cycles);
+        self.driver.stop("shutdown", self.t_us, &mut self.cycles);
         self.execute_cycles();
+        // Its retries, on the simulated clock (the physics no longer matters).
+        while self.driver.stop_outcome().is_none() {
+            let Some(next_us) = self.driver.next_wake_us() else {
+                break;
+            };
+            self.t_us = next_us.max(self.t_us);
+            self.driver.poll(self.t_us, &mut self.cycles);
+            self.execute_cycles();
+        }
         let est = self.estimator.counts();
         let fly = &mut self.fly;
         fly.steps = est.steps;
@@ -370,7 +372,10 @@ impl<'a> FastSim<'a> {
         fly.esc_failed_writes = self.runner.failed_writes;
         fly.esc_stop_reason = self.driver.stop_reason().map(str::to_string);
         fly.deadline_misses = self.watchdog.deadline_misses();
-        fly.halt = self.halt.map(|(trip, halt_us)| Halt { trip, halt_us });
+        fly.halt = self
+            .trip
+            .zip(self.driver.stop_outcome())
+            .map(|(trip, o)| o.halt(trip));
         fly.log_drops = self.out.drops;
         fly.discarded_bytes = self.decoder.stats().discarded_bytes;
         fly.rejected_frames = self.decoder.stats().rejected_frames;
@@ -387,6 +392,7 @@ impl<'a> FastSim<'a> {
             fly: self.fly,
             hover: self.hover.stats(),
             simulated_s: self.t_us as f64 / 1e6,
+            esc_end: self.escs.end_state(),
         })
     }
 }

@@ -11,7 +11,7 @@ use crate::config::{GpsMode, Profile};
 use crate::core::gps::LiveFix;
 use crate::core::motor::FLIGHT_RAMP_STEPS;
 use crate::sim::esc::{EscModel, SimBus};
-use crate::sim::faults::{Fault, FaultSchedule};
+use crate::sim::faults::{Fault, FaultSchedule, WireFaults};
 use crate::sim::hover::{FlightView, HoverStats, HoverWindow, TrueState, progress_line};
 use crate::sim::{FRAME_US, frame_start_byte, gps_fix};
 use crate::tasks::SIM_PRIORITY;
@@ -79,7 +79,10 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
     run_profile.config.sim.seed = seed;
     let edges = Edges {
         imu: Box::new(host),
-        bus: Box::new(SimBus { model, start }),
+        bus: Box::new(SimBus {
+            model: model.clone(),
+            start,
+        }),
         gps_fixes: Some(gps_rx),
         live: Some(live_tx),
     };
@@ -89,6 +92,7 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
         handle_signals: true,
         ..Default::default()
     };
+    let esc_model = model;
     let summary = fly::run(&run_profile, edges, opts, cancel).await;
     timer.abort();
     stop.store(true, Ordering::SeqCst);
@@ -97,7 +101,9 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
         .ok()
         .and_then(Result::ok)
         .unwrap_or_default();
+    let esc_end = esc_model.lock().map(|m| m.end_state()).unwrap_or_default();
     Ok(SimSummary {
+        esc_end,
         fly: summary?,
         hover,
         simulated_s: simulated_us as f64 / 1e6,
@@ -113,6 +119,7 @@ impl SimThread {
         let step_us = 1_000_000 / i64::from(sc.physics_hz);
         let mut hover = HoverWindow::new(sc.settle_s);
         let (mut t_us, mut frames_sent, mut gps_seq) = (0i64, 0u64, 0u64);
+        let mut wire = WireFaults::new(self.seed);
         // The IMU streams once the host asks (spec 1.1), as the real one: frames sent before
         // the reader runs would arrive in one burst, and the settling check would see it.
         let Some(streaming) = self.wait_for_binary_mode() else {
@@ -138,9 +145,8 @@ impl SimThread {
             if t_us % FRAME_US != 0 || self.faults.active(Fault::ImuStall, t_us) {
                 continue;
             }
-            let bytes = imu
-                .frame(&plant, FRAME_US as u32)
-                .encode(frame_start_byte(frames_sent));
+            let frame = imu.frame(&plant, FRAME_US as u32);
+            let bytes = wire.bytes(&self.faults, t_us, frame, frame_start_byte(frames_sent));
             frames_sent += 1;
             if self.rt.block_on(self.imu_end.write_all(&bytes)).is_err() {
                 break;

@@ -115,6 +115,11 @@ pub struct WatchdogConfig {
     pub sanity_tilt_max_rad: f64,
     /// Sanity: insane steps (net) tolerated.
     pub sanity_max: u32,
+    /// Consecutive refused EKF measurement updates that halt the motors.
+    pub estimator_max_refused: u32,
+    /// A stop (zero, then disable) is retried until every ESC acknowledged it, for at most
+    /// this long, ms.
+    pub halt_retry_ms: u32,
 }
 
 impl Default for WatchdogConfig {
@@ -127,6 +132,8 @@ impl Default for WatchdogConfig {
             sanity_temp_max_c: d.temp_max_c,
             sanity_tilt_max_rad: d.tilt_max_rad,
             sanity_max: d.sanity_max,
+            estimator_max_refused: d.estimator_max_refused,
+            halt_retry_ms: 500,
         }
     }
 }
@@ -140,6 +147,19 @@ impl WatchdogConfig {
             temp_max_c: self.sanity_temp_max_c,
             tilt_max_rad: self.sanity_tilt_max_rad,
             sanity_max: self.sanity_max,
+            estimator_max_refused: self.estimator_max_refused,
+        }
+    }
+}
+
+impl Config {
+    /// The ESC driver's timing: its re-send period, its stale-command timeout and how long a
+    /// stop is retried.
+    pub fn esc_timing(&self) -> crate::core::esc::EscTiming {
+        crate::core::esc::EscTiming {
+            resend_us: i64::from(self.esc.resend_ms) * 1000,
+            command_timeout_us: i64::from(self.esc.command_timeout_ms) * 1000,
+            halt_retry_us: i64::from(self.watchdog.halt_retry_ms) * 1000,
         }
     }
 }

@@ -25,6 +25,12 @@ const IMU_TIMEOUT_MAX_MS: u32 = 1000;
 const COMMAND_TIMEOUT_MARGIN_MS: u32 = 10;
 /// Longest ESC writer timeout, ms.
 const COMMAND_TIMEOUT_MAX_MS: u32 = 2000;
+/// Consecutive refused EKF updates before a halt: at least one; at most half a second of a
+/// blind estimator at 100 Hz.
+const ESTIMATOR_MAX_REFUSED: RangeInclusive<u32> = 1..=50;
+/// How long a refused stop is retried, ms: at least a few re-send periods; at most 2 s, the
+/// longest the shutdown waits for the motors.
+const HALT_RETRY_MS: RangeInclusive<u32> = 10..=2000;
 
 /// One rule applied to one value of a configuration.
 #[derive(Debug, Clone, PartialEq)]
@@ -369,6 +375,18 @@ fn watchdog_rules(wd: &WatchdogConfig, esc: &Esc) -> Vec<Check> {
             "rad",
         ),
         in_range("watchdog.sanity_max", wd.sanity_max, 0..=10_000, ""),
+        in_range(
+            "watchdog.estimator_max_refused",
+            wd.estimator_max_refused,
+            ESTIMATOR_MAX_REFUSED,
+            "steps",
+        ),
+        in_range(
+            "watchdog.halt_retry_ms",
+            wd.halt_retry_ms,
+            HALT_RETRY_MS,
+            "ms",
+        ),
     ]
 }
 

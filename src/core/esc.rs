@@ -1,5 +1,7 @@
 //! The ESC writer's decisions as a pure state machine: when to enable, the start-up ramp,
-//! re-sending the last speeds, trims, and when to write zero and disable (spec 6.3, 6.4).
+//! re-sending the last speeds, trims, and when to write zero and disable (spec 6.3, 6.4) —
+//! a stop retried until every ESC acknowledged its zero and its disable, or the retry time
+//! ran out (a refused write may mean a spinning motor).
 //! The thread in `tasks::esc_writer` and the simulator's lock-step loop both drive it; it
 //! returns write cycles (four SMBus writes each, one per ESC) and never touches a bus or a clock.
 
@@ -7,7 +9,7 @@ use crate::core::motor::{
     EscAction, I2C_IDLE, MotorMap, REG_DISABLE, REG_ENABLE, REG_SPEED, esc_startup_ramp,
     i2c_from_rad_s,
 };
-use crate::core::watchdog::Event;
+use crate::core::watchdog::{Event, Halt, Trip};
 
 /// Where the ESCs are.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -40,11 +42,60 @@ pub enum CycleKind {
     StopDisable,
 }
 
+/// How a stop ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct StopOutcome {
+    /// Every ESC acknowledged a zero speed and then a disable.
+    pub confirmed: bool,
+    /// The addresses that never did, in motor order.
+    pub unconfirmed: [Option<u8>; 4],
+    /// When the last acknowledgement came (confirmed) or the retries ran out, µs since start.
+    pub settled_us: i64,
+}
+
+impl StopOutcome {
+    /// The addresses that never confirmed their stop.
+    pub fn unconfirmed_addresses(&self) -> Vec<u8> {
+        self.unconfirmed.iter().flatten().copied().collect()
+    }
+
+    /// The halt `trip` became, with this stop.
+    pub fn halt(&self, trip: Trip) -> Halt {
+        Halt {
+            trip,
+            halt_us: self.settled_us,
+            confirmed: self.confirmed,
+            unconfirmed: self.unconfirmed,
+        }
+    }
+}
+
+/// A stop being confirmed: which ESCs acknowledged their zero and their disable.
+#[derive(Debug, Clone, Copy)]
+struct StopRetry {
+    zero_acked: [bool; 4],
+    disable_acked: [bool; 4],
+    next_us: i64,
+    deadline_us: i64,
+}
+
+/// The driver's timing, µs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct EscTiming {
+    /// The last speeds are re-sent this often; a refused stop is retried this often.
+    pub resend_us: i64,
+    /// A flight command older than this is replaced by a stop.
+    pub command_timeout_us: i64,
+    /// A stop is retried until every ESC acknowledged it, for at most this long.
+    pub halt_retry_us: i64,
+}
+
 #[derive(Debug, Clone)]
 pub struct EscDriver {
     map: MotorMap,
     resend_us: i64,
     command_timeout_us: i64,
+    halt_retry_us: i64,
     phase: EscPhase,
     ramp: Vec<(u64, EscAction)>,
     ramp_next: usize,
@@ -54,14 +105,19 @@ pub struct EscDriver {
     /// Arrival of the frame of the newest flight command.
     command_frame_us: Option<i64>,
     stop_reason: Option<String>,
+    retry: Option<StopRetry>,
+    outcome: Option<StopOutcome>,
 }
 
 impl EscDriver {
-    pub fn new(map: MotorMap, resend_us: i64, command_timeout_us: i64) -> Self {
+    pub fn new(map: MotorMap, timing: EscTiming) -> Self {
         EscDriver {
             map,
-            resend_us,
-            command_timeout_us,
+            resend_us: timing.resend_us,
+            command_timeout_us: timing.command_timeout_us,
+            halt_retry_us: timing.halt_retry_us,
+            retry: None,
+            outcome: None,
             phase: EscPhase::Disabled,
             ramp: esc_startup_ramp().collect(),
             ramp_next: 0,
@@ -89,8 +145,14 @@ impl EscDriver {
                 .get(self.ramp_next)
                 .map(|(at, _)| self.ramp_start_us + *at as i64),
             EscPhase::Running => Some(self.next_resend_us),
-            EscPhase::Disabled | EscPhase::Stopped => None,
+            EscPhase::Stopped => self.retry.map(|r| r.next_us.min(r.deadline_us)),
+            EscPhase::Disabled => None,
         }
+    }
+
+    /// How the stop ended, once it has: confirmed, or its retries ran out.
+    pub fn stop_outcome(&self) -> Option<StopOutcome> {
+        self.outcome
     }
 
     /// Start request: enable and ramp, from `now_us`.
@@ -106,24 +168,71 @@ impl EscDriver {
         self.map.speed_writes(values)
     }
 
-    /// Zero, then disable every ESC; then nothing more.
-    pub fn stop(&mut self, reason: &str, out: &mut Vec<(CycleKind, Cycle)>) {
+    /// Zero, then disable every ESC, from `now_us`; retried (see [`EscDriver::poll`]) until
+    /// each ESC acknowledged both or the retry time ran out; then nothing more.
+    pub fn stop(&mut self, reason: &str, now_us: i64, out: &mut Vec<(CycleKind, Cycle)>) {
         if self.phase == EscPhase::Stopped {
             return;
         }
+        self.stop_reason = Some(reason.to_string());
         if self.phase == EscPhase::Disabled {
             // Never enabled: nothing spins, nothing to write.
             self.phase = EscPhase::Stopped;
-            self.stop_reason = Some(reason.to_string());
+            self.outcome = Some(StopOutcome {
+                confirmed: true,
+                unconfirmed: [None; 4],
+                settled_us: now_us,
+            });
             return;
         }
+        self.phase = EscPhase::Stopped;
+        self.retry = Some(StopRetry {
+            zero_acked: [false; 4],
+            disable_acked: [false; 4],
+            next_us: now_us + self.resend_us,
+            deadline_us: now_us + self.halt_retry_us,
+        });
+        self.push_stop(out);
+    }
+
+    fn push_stop(&self, out: &mut Vec<(CycleKind, Cycle)>) {
         out.push((CycleKind::StopZero, self.speeds(&[0; 4])));
         out.push((
             CycleKind::StopDisable,
             self.map.addresses.map(|a| (a, REG_DISABLE, 0)),
         ));
-        self.phase = EscPhase::Stopped;
-        self.stop_reason = Some(reason.to_string());
+    }
+
+    /// A cycle was executed: a stop's acknowledgements are noted, and the stop is confirmed
+    /// once every ESC acknowledged a zero and, after it, a disable.
+    pub fn on_done(&mut self, done: &CycleDone) {
+        let Some(r) = &mut self.retry else {
+            return;
+        };
+        for m in 0..4 {
+            match done.kind {
+                CycleKind::StopZero => r.zero_acked[m] |= done.acked[m],
+                CycleKind::StopDisable => r.disable_acked[m] |= done.acked[m] && r.zero_acked[m],
+                _ => {}
+            }
+        }
+        if r.disable_acked.iter().all(|&a| a) {
+            self.settle(done.at_us);
+        }
+    }
+
+    /// The stop ends: confirmed, or with the ESCs that never acknowledged it named.
+    fn settle(&mut self, at_us: i64) {
+        let Some(r) = self.retry.take() else {
+            return;
+        };
+        let unconfirmed =
+            std::array::from_fn(|m| (!r.disable_acked[m]).then_some(self.map.addresses[m]));
+        self.outcome = Some(StopOutcome {
+            confirmed: r.disable_acked.iter().all(|&a| a),
+            unconfirmed,
+            settled_us: at_us,
+        });
     }
 
     /// A flight command for the frame that arrived at `frame_us`: written at once when running;
@@ -139,7 +248,7 @@ impl EscDriver {
             return;
         }
         if w_rad_s.iter().any(|v| !v.is_finite()) {
-            return self.stop("non-finite motor command", out);
+            return self.stop("non-finite motor command", now_us, out);
         }
         self.values = w_rad_s.map(i2c_from_rad_s);
         self.command_frame_us = Some(frame_us);
@@ -147,7 +256,8 @@ impl EscDriver {
         self.next_resend_us = now_us + self.resend_us;
     }
 
-    /// Does what is due at `now_us`: ramp steps, the periodic re-send, the stale-command stop.
+    /// Does what is due at `now_us`: ramp steps, the periodic re-send, the stale-command stop,
+    /// the retries of an unconfirmed stop.
     pub fn poll(&mut self, now_us: i64, out: &mut Vec<(CycleKind, Cycle)>) {
         match self.phase {
             EscPhase::Ramping => {
@@ -176,7 +286,7 @@ impl EscDriver {
                 if let Some(f) = self.command_frame_us
                     && now_us - f > self.command_timeout_us
                 {
-                    return self.stop("stale motor command", out);
+                    return self.stop("stale motor command", now_us, out);
                 }
                 if now_us >= self.next_resend_us {
                     out.push((CycleKind::Speeds, self.speeds(&self.values)));
@@ -186,7 +296,22 @@ impl EscDriver {
                     }
                 }
             }
-            EscPhase::Disabled | EscPhase::Stopped => {}
+            EscPhase::Stopped => self.retry_stop(now_us, out),
+            EscPhase::Disabled => {}
+        }
+    }
+
+    /// An unconfirmed stop: written again every re-send period until its retry time ran out.
+    fn retry_stop(&mut self, now_us: i64, out: &mut Vec<(CycleKind, Cycle)>) {
+        let Some(r) = &mut self.retry else {
+            return;
+        };
+        if now_us >= r.deadline_us {
+            return self.settle(now_us);
+        }
+        if now_us >= r.next_us {
+            r.next_us = now_us + self.resend_us;
+            self.push_stop(out);
         }
     }
 }
@@ -197,10 +322,20 @@ pub struct CycleDone {
     pub kind: CycleKind,
     /// Every write of the cycle was acknowledged.
     pub ok: bool,
+    /// Which of the cycle's four writes (in motor order) were acknowledged.
+    pub acked: [bool; 4],
     /// When the cycle's writes were done, µs since start.
     pub at_us: i64,
     /// After a failed cycle: the run of consecutive failed cycles, for the watchdog.
     pub failures: Option<Event>,
+}
+
+impl CycleDone {
+    /// What the watchdog hears of this cycle: the motors enabled, a run of failed cycles.
+    pub fn watchdog_events(&self) -> impl Iterator<Item = Event> + use<> {
+        let enabled = (self.kind == CycleKind::Enable).then_some(Event::MotorsEnabled(self.at_us));
+        enabled.into_iter().chain(self.failures)
+    }
 }
 
 /// The one ESC write loop of every mode: executes the driver's cycles through `write` (one
@@ -216,11 +351,13 @@ pub struct CycleRunner {
 }
 
 impl CycleRunner {
-    /// Executes and drains `cycles` in order. `now_us` is read after each cycle's writes;
-    /// `done` hears of each cycle and, first, of the first failed write of a failing run (to
-    /// be logged once, not per write).
+    /// Executes and drains `cycles` (the `driver`'s) in order. `now_us` is read after each
+    /// cycle's writes; the driver hears of each cycle's acknowledgements (a stop is confirmed
+    /// by them); `done` hears of each cycle and, first, of the first failed write of a failing
+    /// run (to be logged once, not per write).
     pub fn execute<E>(
         &mut self,
+        driver: &mut EscDriver,
         cycles: &mut Vec<(CycleKind, Cycle)>,
         mut write: impl FnMut(u8, u8, u8) -> Result<(), E>,
         mut now_us: impl FnMut() -> i64,
@@ -228,11 +365,13 @@ impl CycleRunner {
     ) {
         for (kind, cycle) in cycles.drain(..) {
             let mut ok = true;
+            let mut acked = [true; 4];
             let mut first_error = None;
-            for (addr, reg, value) in cycle {
+            for (m, (addr, reg, value)) in cycle.into_iter().enumerate() {
                 self.writes += 1;
                 if let Err(e) = write(addr, reg, value) {
                     self.failed_writes += 1;
+                    acked[m] = false;
                     if ok && self.failed_cycles == 0 {
                         first_error = Some(e);
                     }
@@ -256,9 +395,11 @@ impl CycleRunner {
             let cycle_done = CycleDone {
                 kind,
                 ok,
+                acked,
                 at_us,
                 failures,
             };
+            driver.on_done(&cycle_done);
             done(cycle_done, first_error);
         }
     }
@@ -268,8 +409,14 @@ impl CycleRunner {
 mod tests {
     use super::*;
 
+    const TIMING: EscTiming = EscTiming {
+        resend_us: 2_000,
+        command_timeout_us: 25_000,
+        halt_retry_us: 100_000,
+    };
+
     fn driver() -> EscDriver {
-        EscDriver::new(MotorMap::UQUAD, 2_000, 25_000)
+        EscDriver::new(MotorMap::UQUAD, TIMING)
     }
 
     #[test]
@@ -311,7 +458,11 @@ mod tests {
         out.clear();
         d.poll(t + 100_000, &mut out);
         d.command(&[300.0; 4], 0, t + 100_000, &mut out);
-        assert!(out.is_empty(), "stopped stays stopped");
+        assert!(
+            out.iter()
+                .all(|c| matches!(c.0, CycleKind::StopZero | CycleKind::StopDisable)),
+            "stopped stays stopped: only the stop is written again (not acknowledged here)"
+        );
     }
 
     #[test]
@@ -341,6 +492,7 @@ mod tests {
         let mut cycles = vec![(CycleKind::Speeds, cycle), (CycleKind::Command, cycle)];
         let mut seen = Vec::new();
         runner.execute(
+            &mut driver(),
             &mut cycles,
             |addr, _, _| {
                 if failing && addr % 2 == 0 {
@@ -381,5 +533,115 @@ mod tests {
         assert_eq!((runner.writes, runner.failed_writes), (24, 8));
         let seen = two_cycles(&mut runner, false, 6_000);
         assert!(seen.iter().all(|(d, _)| d.ok && d.failures.is_none()));
+    }
+
+    /// A running driver stopped at `t0`, its writes refused by the addresses `refusing` says
+    /// (at a time, µs); runs until the stop settles and returns its outcome and every write.
+    fn stop_with(refusing: impl Fn(u8, i64) -> bool) -> (StopOutcome, Vec<(u8, u8, u8, i64)>) {
+        let (mut d, mut runner, mut out) = (driver(), CycleRunner::default(), Vec::new());
+        d.start(0);
+        d.poll(10_000_000, &mut out);
+        out.clear();
+        let t0 = 10_000_000;
+        d.stop("imu-timeout", t0, &mut out);
+        let mut writes = Vec::new();
+        let mut t = t0;
+        while d.stop_outcome().is_none() {
+            runner.execute(
+                &mut d,
+                &mut out,
+                |a, r, v| {
+                    writes.push((a, r, v, t));
+                    if refusing(a, t) { Err(()) } else { Ok(()) }
+                },
+                || t,
+                |_, _| {},
+            );
+            t = d.next_wake_us().unwrap_or(t + 1).max(t + 1);
+            d.poll(t, &mut out);
+            assert!(t < t0 + 1_000_000, "the stop settles");
+        }
+        (d.stop_outcome().unwrap(), writes)
+    }
+
+    #[test]
+    fn an_acknowledged_stop_is_confirmed_at_once() {
+        let (o, writes) = stop_with(|_, _| false);
+        assert!(o.confirmed);
+        assert_eq!(o.unconfirmed, [None; 4]);
+        assert_eq!(o.settled_us, 10_000_000);
+        assert_eq!(writes.len(), 8, "zero, then disable, once each");
+    }
+
+    #[test]
+    fn a_refused_stop_is_retried_until_acknowledged() {
+        // 0x6a refuses for 30 ms: retried every 2 ms, confirmed by its first acks.
+        let (o, writes) = stop_with(|a, t| a == 0x6a && t < 10_030_000);
+        assert!(o.confirmed, "{o:?}");
+        assert_eq!(o.settled_us, 10_030_000);
+        let last: Vec<_> = writes.iter().rev().take(8).collect();
+        assert!(last[..4].iter().all(|w| w.1 == REG_DISABLE), "disable last");
+        assert!(
+            last[4..].iter().all(|w| w.1 == REG_SPEED && w.2 == 0),
+            "zero before it"
+        );
+    }
+
+    #[test]
+    fn a_stop_refused_to_the_end_names_the_escs_within_the_retry_time() {
+        let (o, writes) = stop_with(|a, _| a == 0x6a || a == 0x68);
+        assert!(!o.confirmed);
+        assert_eq!(o.unconfirmed_addresses(), vec![0x6a, 0x68]);
+        assert_eq!(o.settled_us, 10_000_000 + TIMING.halt_retry_us);
+        assert!(
+            writes
+                .iter()
+                .all(|w| w.3 < 10_000_000 + TIMING.halt_retry_us)
+        );
+        assert_eq!(writes.len(), 8 * 50, "a round every 2 ms for 100 ms");
+    }
+
+    #[test]
+    fn a_stop_needs_the_zero_acknowledged_before_the_disable() {
+        // The zero is refused once, the disable acknowledged: not confirmed until a round
+        // with both.
+        let (mut d, mut runner, mut out) = (driver(), CycleRunner::default(), Vec::new());
+        d.start(0);
+        d.poll(10_000_000, &mut out);
+        out.clear();
+        d.stop("shutdown", 10_000_000, &mut out);
+        runner.execute(
+            &mut d,
+            &mut out,
+            |_, r, _| if r == REG_SPEED { Err(()) } else { Ok(()) },
+            || 10_000_000,
+            |_, _| {},
+        );
+        assert_eq!(d.stop_outcome(), None);
+        d.poll(10_002_000, &mut out);
+        runner.execute(
+            &mut d,
+            &mut out,
+            |_, _, _| Ok::<(), ()>(()),
+            || 10_002_000,
+            |_, _| {},
+        );
+        assert!(d.stop_outcome().unwrap().confirmed);
+    }
+
+    #[test]
+    fn enabling_the_escs_is_told_to_the_watchdog() {
+        let (mut d, mut runner, mut out) = (driver(), CycleRunner::default(), Vec::new());
+        d.start(0);
+        d.poll(0, &mut out);
+        let mut events = Vec::new();
+        runner.execute(
+            &mut d,
+            &mut out,
+            |_, _, _| Ok::<(), ()>(()),
+            || 5,
+            |done, _| events.extend(done.watchdog_events()),
+        );
+        assert_eq!(events, vec![Event::MotorsEnabled(5)]);
     }
 }

@@ -12,6 +12,8 @@ pub enum TripReason {
     EscAck,
     SanityTemp,
     SanityTilt,
+    /// The estimator refused its measurement update too many steps in a row: it runs blind.
+    Estimator,
 }
 
 impl TripReason {
@@ -22,6 +24,7 @@ impl TripReason {
             TripReason::EscAck => "esc-ack",
             TripReason::SanityTemp => "sanity-temp",
             TripReason::SanityTilt => "sanity-tilt",
+            TripReason::Estimator => "estimator",
         }
     }
 }
@@ -38,18 +41,34 @@ pub struct Trip {
     pub decided_us: i64,
 }
 
-/// A halt as it happened: the decision and when the ESCs were zeroed and disabled.
+/// A halt as it happened: the decision, and how the stop (zero, then disable, retried until
+/// acknowledged) ended.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Halt {
     pub trip: Trip,
-    /// When the ESCs were zeroed and disabled, µs since start.
+    /// When the stop settled, µs since start: the last ESC acknowledged its disable
+    /// (confirmed), or the retries ran out.
     pub halt_us: i64,
+    /// Every ESC acknowledged a zero speed and then a disable.
+    pub confirmed: bool,
+    /// The addresses of the ESCs that never did, in motor order.
+    pub unconfirmed: [Option<u8>; 4],
 }
 
 impl Halt {
-    /// From the triggering event to the halt, ms.
+    /// From the triggering event to the settled stop, ms.
     pub fn latency_ms(&self) -> f64 {
         (self.halt_us - self.trip.event_us) as f64 / 1000.0
+    }
+
+    /// From the triggering event to the decision, ms.
+    pub fn decision_ms(&self) -> f64 {
+        (self.trip.decided_us - self.trip.event_us) as f64 / 1000.0
+    }
+
+    /// The addresses of the ESCs that never confirmed the stop.
+    pub fn unconfirmed_addresses(&self) -> impl Iterator<Item = u8> + '_ {
+        self.unconfirmed.iter().flatten().copied()
     }
 }
 
@@ -60,6 +79,9 @@ impl Halt {
 pub enum Event {
     /// A frame arrived.
     Frame(i64),
+    /// The ESCs were enabled (the first write of their start-up ramp): the motors may spin
+    /// from now on, so a silent IMU halts them.
+    MotorsEnabled(i64),
     /// The command for the frame that arrived at `frame_us` was written at `written_us`.
     Command { frame_us: i64, written_us: i64 },
     /// A Kalman step's sanity inputs.
@@ -68,6 +90,9 @@ pub enum Event {
         temp_c: f64,
         psi_rad: f64,
         phi_rad: f64,
+        /// The step's measurement update was refused (a non-finite measurement, a covariance
+        /// that is not positive definite): the estimate ran on the model alone.
+        refused: bool,
     },
     /// `cycles` consecutive failed ESC write cycles, the first at `first_us`.
     EscFailures { cycles: u32, first_us: i64 },
@@ -84,6 +109,8 @@ pub struct WatchdogParams {
     pub temp_max_c: f64,
     pub tilt_max_rad: f64,
     pub sanity_max: u32,
+    /// Consecutive refused measurement updates that halt the motors.
+    pub estimator_max_refused: u32,
 }
 
 impl WatchdogParams {
@@ -96,6 +123,7 @@ impl WatchdogParams {
         temp_max_c: 55.0,
         tilt_max_rad: 1.0,
         sanity_max: 20,
+        estimator_max_refused: 10,
     };
 }
 
@@ -110,9 +138,13 @@ pub struct Watchdog {
     last_frame_us: Option<i64>,
     /// Arrivals of the frames not yet commanded, oldest first (tracked while flying).
     uncommanded_us: std::collections::VecDeque<i64>,
-    /// Motors under flight commands (the deadline and IMU timeout apply from then on).
+    /// Motors under flight commands (the deadline applies from then on).
     flying: bool,
+    /// When the ESCs were enabled (the IMU timeout applies from then on).
+    motors_on_us: Option<i64>,
     sanity_counter: u32,
+    /// Consecutive refused measurement updates.
+    refused_updates: u32,
     deadline_misses: u64,
     trip: Option<Trip>,
 }
@@ -124,7 +156,9 @@ impl Watchdog {
             last_frame_us: None,
             uncommanded_us: std::collections::VecDeque::with_capacity(UNCOMMANDED_CAP),
             flying: false,
+            motors_on_us: None,
             sanity_counter: 0,
+            refused_updates: 0,
             deadline_misses: 0,
             trip: None,
         }
@@ -162,6 +196,8 @@ impl Watchdog {
     /// answers that frame and any older one (the ESC writer keeps only the newest command).
     pub fn on_command(&mut self, frame_us: i64, written_us: i64) -> Option<Trip> {
         self.flying = true;
+        // A flight command spins the motors, whether or not their enable was reported.
+        self.motors_on_us.get_or_insert(frame_us);
         while self.uncommanded_us.front().is_some_and(|&f| f <= frame_us) {
             self.uncommanded_us.pop_front();
         }
@@ -181,6 +217,20 @@ impl Watchdog {
     ) -> Option<Trip> {
         if failures >= self.params.max_missed_acks {
             return self.decide(TripReason::EscAck, first_failure_us, now_us);
+        }
+        None
+    }
+
+    /// A Kalman step at `step_us` whose measurement update was `refused` or not: the
+    /// estimator's health. A run of `estimator_max_refused` refusals halts.
+    pub fn on_update(&mut self, step_us: i64, refused: bool) -> Option<Trip> {
+        self.refused_updates = if refused {
+            self.refused_updates.saturating_add(1)
+        } else {
+            0
+        };
+        if self.refused_updates >= self.params.estimator_max_refused {
+            return self.decide(TripReason::Estimator, step_us, step_us);
         }
         None
     }
@@ -222,6 +272,10 @@ impl Watchdog {
                 self.on_frame(at);
                 None
             }
+            Event::MotorsEnabled(at) => {
+                self.motors_on_us.get_or_insert(at);
+                None
+            }
             Event::Command {
                 frame_us,
                 written_us,
@@ -231,23 +285,28 @@ impl Watchdog {
                 temp_c,
                 psi_rad,
                 phi_rad,
-            } => self.on_estimate(step_us, temp_c, psi_rad, phi_rad),
+                refused,
+            } => self
+                .on_update(step_us, refused)
+                .or_else(|| self.on_estimate(step_us, temp_c, psi_rad, phi_rad)),
             Event::EscFailures { cycles, first_us } => {
                 self.on_esc_failures(cycles, first_us, now_us.max(first_us))
             }
         }
     }
 
-    /// Time passes: a frame left without command past the deadline, or no frame for the IMU
-    /// timeout while flying.
+    /// Time passes: no frame for the IMU timeout since the ESCs were enabled, or a frame left
+    /// without command past the deadline while flying.
     pub fn tick(&mut self, now_us: i64) -> Option<Trip> {
+        let on_us = self.motors_on_us?;
+        // Silence counts from the enable at the earliest: the frame that asked for the ESC
+        // start may be older than the enable by the writer's wake-up.
+        let last = self.last_frame_us.unwrap_or(on_us);
+        if now_us - last.max(on_us) > self.params.imu_timeout_us {
+            return self.decide(TripReason::ImuTimeout, last, now_us);
+        }
         if !self.flying {
             return None;
-        }
-        if let Some(last) = self.last_frame_us
-            && now_us - last > self.params.imu_timeout_us
-        {
-            return self.decide(TripReason::ImuTimeout, last, now_us);
         }
         // The oldest frame still without a command, past the deadline.
         if let Some(&oldest) = self.uncommanded_us.front()
@@ -374,5 +433,52 @@ mod tests {
             w.on_estimate(k, f64::NAN, 0.0, 0.0);
         }
         assert_eq!(w.trip().unwrap().reason, TripReason::SanityTemp);
+    }
+
+    #[test]
+    fn silent_imu_trips_from_the_esc_enable_before_any_command() {
+        let mut w = wd();
+        w.on_frame(0);
+        assert_eq!(w.tick(500_000), None, "motors off: no timeout");
+        w.on_frame(1_000_000);
+        w.on_event(Event::MotorsEnabled(1_000_500), 1_000_500);
+        // The silence counts from the enable when the frame before it is older.
+        assert_eq!(w.tick(1_012_500), None);
+        let trip = w.tick(1_012_501).unwrap();
+        assert_eq!(
+            (trip.reason, trip.event_us),
+            (TripReason::ImuTimeout, 1_000_000)
+        );
+        // Frames keep it quiet through the ramp and the calibration.
+        let mut w = wd();
+        w.on_event(Event::MotorsEnabled(0), 0);
+        for k in 0..500 {
+            w.on_frame(k * 10_000);
+            assert_eq!(w.tick(k * 10_000 + 9_999), None);
+        }
+        assert_eq!(w.deadline_misses(), 0, "no deadline before flight commands");
+    }
+
+    #[test]
+    fn a_run_of_refused_updates_trips_estimator() {
+        let est = |refused| Event::Estimate {
+            step_us: 0,
+            temp_c: 30.0,
+            psi_rad: 0.0,
+            phi_rad: 0.0,
+            refused,
+        };
+        let mut w = wd();
+        // Nine refusals, then a fused update: the run starts again.
+        for _ in 0..9 {
+            assert_eq!(w.on_event(est(true), 0), None);
+        }
+        assert_eq!(w.on_event(est(false), 0), None);
+        for _ in 0..9 {
+            assert_eq!(w.on_event(est(true), 0), None);
+        }
+        let trip = w.on_event(est(true), 0).unwrap();
+        assert_eq!(trip.reason, TripReason::Estimator);
+        assert_eq!(trip.reason.name(), "estimator");
     }
 }

@@ -171,8 +171,17 @@ impl Record {
 
 /// The err.log line of a watchdog halt: the same words in every mode.
 pub fn halt_line(h: &Halt) -> String {
+    let stop = if h.confirmed {
+        "stop confirmed by every ESC".to_string()
+    } else {
+        let addrs: Vec<String> = h
+            .unconfirmed_addresses()
+            .map(|a| format!("0x{a:02x}"))
+            .collect();
+        format!("stop NOT confirmed by {}", addrs.join(", "))
+    };
     format!(
-        "watchdog: halt, reason {}; event at {} s, halt at {} s ({:.3} ms later)",
+        "watchdog: halt, reason {}; event at {} s, halt at {} s ({:.3} ms later); {stop}",
         h.trip.reason.name(),
         format::fmt_time_us(h.trip.event_us),
         format::fmt_time_us(h.halt_us),

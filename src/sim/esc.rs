@@ -19,6 +19,8 @@ pub struct EscModel {
     enabled: [bool; 4],
     value: [u8; 4],
     last_write_us: [Option<i64>; 4],
+    /// The last two acknowledged writes to each ESC (register, value), oldest first.
+    last_writes: [[Option<(u8, u8)>; 2]; 4],
     /// Fault injection: every write goes unacknowledged and is not applied.
     pub failing: bool,
 }
@@ -30,6 +32,7 @@ impl EscModel {
             enabled: [false; 4],
             value: [0; 4],
             last_write_us: [None; 4],
+            last_writes: [[None; 2]; 4],
             failing: false,
         }
     }
@@ -48,6 +51,7 @@ impl EscModel {
             return Err(err("no acknowledgement (simulated fault)"));
         }
         self.last_write_us[m] = Some(now_us);
+        self.last_writes[m] = [self.last_writes[m][1], Some((reg, value))];
         match reg {
             REG_ENABLE => self.enabled[m] = true,
             REG_DISABLE => {
@@ -70,6 +74,39 @@ impl EscModel {
             let untrimmed = (i16::from(self.value[m]) - self.map.trims[m]).clamp(0, 255) as u8;
             rad_s_from_i2c(untrimmed)
         })
+    }
+}
+
+/// What an ESC was left with at the end of a run, for the sim report.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+pub struct EscEnd {
+    /// Its I2C address, as "0x69".
+    pub address: String,
+    pub enabled: bool,
+    /// Its last two acknowledged writes, oldest first, as "speed 0", "disable"...
+    pub last_writes: Vec<String>,
+}
+
+impl EscModel {
+    /// Each ESC's state and last writes, in motor order.
+    pub fn end_state(&self) -> Vec<EscEnd> {
+        let name = |(reg, value): (u8, u8)| match reg {
+            REG_ENABLE => "enable".to_string(),
+            REG_DISABLE => "disable".to_string(),
+            REG_SPEED => format!("speed {value}"),
+            _ => format!("register {reg} {value}"),
+        };
+        (0..4)
+            .map(|m| EscEnd {
+                address: format!("0x{:02x}", self.map.addresses[m]),
+                enabled: self.enabled[m],
+                last_writes: self.last_writes[m]
+                    .iter()
+                    .flatten()
+                    .map(|&w| name(w))
+                    .collect(),
+            })
+            .collect()
     }
 }
 

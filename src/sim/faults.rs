@@ -1,5 +1,9 @@
-//! The simulator's faults (`--inject FAULT@T`): their names, parsing, and the schedule both
-//! ways of simulating read to know when each strikes.
+//! The simulator's faults (`--inject FAULT@T`): their names, parsing, the schedule both
+//! ways of simulating read to know when each strikes, and what the faults of the IMU's wire
+//! do to the bytes it sends ([`WireFaults`]), the same in both ways.
+
+use crate::core::gps::SplitMix64;
+use crate::core::imu::frame::{FRAME_LEN, RawFrame};
 
 /// A fault injected at a simulated time.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -14,15 +18,24 @@ pub enum Fault {
     LogStall,
     /// Motor m0 loses 30 % of its thrust.
     ThrustLoss,
+    /// The barometer reads 0 Pa (the altitude it gives is not finite).
+    BaroFail,
+    /// The gyro repeats its last reading.
+    GyroStuck,
+    /// Random bytes on the IMU's wire instead of frames.
+    ImuGarbage,
 }
 
 impl Fault {
-    pub const NAMES: [(&'static str, Fault); 5] = [
+    pub const NAMES: [(&'static str, Fault); 8] = [
         ("imu-stall", Fault::ImuStall),
         ("esc-nack", Fault::EscNack),
         ("gps-loss", Fault::GpsLoss),
         ("log-stall", Fault::LogStall),
         ("thrust-loss", Fault::ThrustLoss),
+        ("baro-fail", Fault::BaroFail),
+        ("gyro-stuck", Fault::GyroStuck),
+        ("imu-garbage", Fault::ImuGarbage),
     ];
 
     pub fn name(self) -> &'static str {
@@ -90,6 +103,44 @@ impl FaultSchedule {
     }
 }
 
+/// The faults of the IMU's wire and their state: the gyro reading a stuck gyro repeats, and
+/// the generator of the garbage.
+#[derive(Debug, Clone)]
+pub struct WireFaults {
+    stuck_gyro: Option<[i16; 3]>,
+    rng: SplitMix64,
+}
+
+impl WireFaults {
+    pub fn new(seed: u64) -> Self {
+        WireFaults {
+            stuck_gyro: None,
+            rng: SplitMix64::new(seed ^ 0x1b0_9a4b),
+        }
+    }
+
+    /// The bytes the IMU sends at `t_us` for `frame` (started by `start`), with the faults
+    /// of `schedule` that have struck.
+    pub fn bytes(
+        &mut self,
+        schedule: &FaultSchedule,
+        t_us: i64,
+        mut frame: RawFrame,
+        start: u8,
+    ) -> [u8; FRAME_LEN] {
+        if schedule.active(Fault::ImuGarbage, t_us) {
+            return std::array::from_fn(|_| (self.rng.next_u64() >> 56) as u8);
+        }
+        if schedule.active(Fault::BaroFail, t_us) {
+            frame.pres_pa = 0;
+        }
+        if schedule.active(Fault::GyroStuck, t_us) {
+            frame.gyro = *self.stuck_gyro.get_or_insert(frame.gyro);
+        }
+        frame.encode(start)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -105,5 +156,35 @@ mod tests {
         assert!(!s.active(Fault::EscNack, 1_499_999));
         assert!(s.active(Fault::EscNack, 1_500_000));
         assert!(!s.active(Fault::ImuStall, i64::MAX));
+    }
+
+    #[test]
+    fn wire_faults_change_the_bytes_from_their_time_on() {
+        let s = FaultSchedule::new(&[
+            (Fault::BaroFail, 1.0),
+            (Fault::GyroStuck, 2.0),
+            (Fault::ImuGarbage, 3.0),
+        ]);
+        let mut w = WireFaults::new(1);
+        let f = |g: i16| RawFrame {
+            t_us: 10_000,
+            acc: [1, 2, 3],
+            gyro: [g, g, g],
+            magn: [4, 5, 6],
+            temp_dc: 300,
+            pres_pa: 101_000,
+        };
+        assert_eq!(w.bytes(&s, 0, f(7), b'C'), f(7).encode(b'C'));
+        let mut no_baro = f(7);
+        no_baro.pres_pa = 0;
+        assert_eq!(w.bytes(&s, 1_000_000, f(7), b'C'), no_baro.encode(b'C'));
+        let stuck = w.bytes(&s, 2_000_000, f(8), b'C');
+        assert_eq!(
+            w.bytes(&s, 2_010_000, f(9), b'C'),
+            stuck,
+            "the gyro repeats"
+        );
+        let garbage = w.bytes(&s, 3_000_000, f(9), b'C');
+        assert_ne!(garbage, w.bytes(&s, 3_010_000, f(9), b'C'));
     }
 }

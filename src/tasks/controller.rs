@@ -10,7 +10,7 @@
 use crate::core::control::ManualCommand;
 use crate::core::flight::{Command, ControllerSide, Feedback};
 use crate::tasks::TaskOutputs;
-use crate::tasks::esc_writer::{EscMailbox, MotorCommand};
+use crate::tasks::esc_writer::{EscMailbox, HaltOnPanic, MotorCommand};
 use crate::tasks::estimator::EstimateMsg;
 use std::sync::Arc;
 use tokio::sync::{mpsc, watch};
@@ -34,6 +34,8 @@ pub struct ControllerTask {
     pub cancel: CancellationToken,
     /// Fault injection: from this step on, each control step takes this long.
     pub delay: Option<(u32, std::time::Duration)>,
+    /// Fault injection (tests): the control step of this number panics.
+    pub panic_at_step: Option<u32>,
     /// The newest estimate, command and set point, for the console and the simulator.
     pub live: watch::Sender<Option<Live>>,
 }
@@ -50,6 +52,10 @@ pub struct Live {
 
 impl ControllerTask {
     pub async fn run(mut self) -> ControllerReport {
+        let _halt = HaltOnPanic {
+            mailbox: self.esc.clone(),
+            cancel: self.cancel.clone(),
+        };
         self.feedback.send_replace(self.side.first_feedback());
         // Ends when the estimator does (it drops its sender on cancel), after the estimates
         // already sent: every step the estimator logged is also controlled and logged here.
@@ -64,6 +70,9 @@ impl ControllerTask {
                 && est.step >= from
             {
                 tokio::time::sleep(d).await;
+            }
+            if self.panic_at_step == Some(est.step) {
+                panic!("injected controller panic at step {}", est.step);
             }
             let esc = &self.esc;
             let send = |c: &Command| {

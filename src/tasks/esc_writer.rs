@@ -3,16 +3,18 @@
 //! In: start request, motor commands (newest wins), halt and shutdown, through [`EscMailbox`].
 //! Out: I2C transactions on the [`EscBus`]; [`EscStatus`] counters and phase.
 //! Rate: re-sends the last speeds every `resend_ms` (2 ms); wakes at once on a new command.
-//! Ends: on shutdown, after writing zero to every ESC and disabling them all.
+//! Ends: on shutdown, after writing zero to every ESC and disabling them all (retried until
+//! each acknowledged, or `watchdog.halt_retry_ms` ran out).
 //!
 //! The process boots with the ESCs disabled. Start: enable all, then the driver's saw-tooth
 //! start-up ramp (spec 6.4), then idle (I2C 50) until flight commands arrive. A flight command
 //! older than `command_timeout` or not finite, a halt, or shutdown: zero, then disable (the
-//! disable is attempted even when writes keep failing). A failed write is a missed ack: counted,
-//! with the run of consecutive failures exposed for the watchdog.
+//! disable is attempted even when writes keep failing), written again until every ESC
+//! acknowledged both or the retry time ran out; no request is taken meanwhile. A failed write
+//! is a missed ack: counted, with the run of consecutive failures exposed for the watchdog.
 
 pub use crate::core::esc::EscPhase;
-use crate::core::esc::{Cycle, CycleKind, CycleRunner, EscDriver};
+use crate::core::esc::{Cycle, CycleKind, CycleRunner, EscDriver, EscTiming, StopOutcome};
 use crate::core::motor::MotorMap;
 use crate::hw::esc_bus::EscBus;
 use crate::tasks::ESC_WRITER_PRIORITY;
@@ -80,6 +82,23 @@ impl EscMailbox {
     }
 }
 
+/// Held by every flight thread and control task: dropped during a panic (the unwinding of the
+/// release profile), it halts the motors at once with reason "panic" and ends the run, before
+/// anything else is torn down.
+pub struct HaltOnPanic {
+    pub mailbox: Arc<EscMailbox>,
+    pub cancel: tokio_util::sync::CancellationToken,
+}
+
+impl Drop for HaltOnPanic {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            self.mailbox.halt("panic");
+            self.cancel.cancel();
+        }
+    }
+}
+
 /// Counters and phase, readable from any thread.
 #[derive(Debug, Default)]
 pub struct EscStatus {
@@ -94,8 +113,8 @@ pub struct EscStatus {
     pub stop_reason: Mutex<Option<String>>,
     /// Frame-arrival → ESC-write latency of each flight command, µs (newest last).
     pub latencies_us: Mutex<Vec<u32>>,
-    /// When the ESCs were zeroed and disabled, µs since the run's start.
-    stopped_at: Mutex<Option<i64>>,
+    /// How the stop ended (confirmed or not, and when), once it has.
+    stop_outcome: Mutex<Option<StopOutcome>>,
 }
 
 impl EscStatus {
@@ -116,9 +135,9 @@ impl EscStatus {
         self.stop_reason.lock().ok().and_then(|g| g.clone())
     }
 
-    /// When the ESCs were zeroed and disabled, µs since the run's start.
-    pub fn stopped_at_us(&self) -> Option<i64> {
-        self.stopped_at.lock().ok().and_then(|g| *g)
+    /// How the stop ended, once it has: every ESC acknowledged it, or the retries ran out.
+    pub fn stop_outcome(&self) -> Option<StopOutcome> {
+        self.stop_outcome.lock().ok().and_then(|g| *g)
     }
 }
 
@@ -129,8 +148,7 @@ const MAX_LATENCY_SAMPLES: usize = 1_000_000;
 #[derive(Debug, Clone, Copy)]
 pub struct EscParams {
     pub map: MotorMap,
-    pub resend: Duration,
-    pub command_timeout: Duration,
+    pub timing: EscTiming,
 }
 
 struct Writer {
@@ -144,9 +162,15 @@ struct Writer {
 impl Writer {
     /// Executes the driver's cycles on the bus through the one write loop of every mode, then
     /// publishes the counts, the watchdog's events, the stop time and the command latency.
-    fn execute(&mut self, cycles: &mut Vec<(CycleKind, Cycle)>, command_frame_at: Option<Instant>) {
+    fn execute(
+        &mut self,
+        driver: &mut EscDriver,
+        cycles: &mut Vec<(CycleKind, Cycle)>,
+        command_frame_at: Option<Instant>,
+    ) {
         let (bus, beats, status) = (&mut self.bus, &self.beats, &self.status);
         self.runner.execute(
+            driver,
             cycles,
             |addr, reg, value| bus.write_byte_data(addr, reg, value),
             || beats.us(Instant::now()),
@@ -154,27 +178,19 @@ impl Writer {
                 if let Some(e) = first_error {
                     tracing::warn!("{e}");
                 }
-                if let Some(e) = done.failures {
+                for e in done.watchdog_events() {
                     beats.report(e);
                 }
-                match done.kind {
-                    CycleKind::Command => {
-                        if let Some(frame_at) = command_frame_at {
-                            record_command(status, beats, frame_at, done.at_us);
-                        }
-                    }
-                    CycleKind::StopDisable => {
-                        if let Ok(mut at) = status.stopped_at.lock() {
-                            at.get_or_insert(done.at_us);
-                        }
-                    }
-                    CycleKind::Enable
-                    | CycleKind::Ramp
-                    | CycleKind::Speeds
-                    | CycleKind::StopZero => {}
+                if let (CycleKind::Command, Some(frame_at)) = (done.kind, command_frame_at) {
+                    record_command(status, beats, frame_at, done.at_us);
                 }
             },
         );
+        if let Some(o) = driver.stop_outcome()
+            && let Ok(mut g) = self.status.stop_outcome.lock()
+        {
+            g.get_or_insert(o);
+        }
         self.status
             .writes
             .store(self.runner.writes, Ordering::Relaxed);
@@ -269,11 +285,7 @@ fn wait(mailbox: &EscMailbox, deadline: Option<Instant>, accept_start: bool) -> 
 }
 
 fn run(mut w: Writer, mailbox: &EscMailbox) {
-    let mut driver = EscDriver::new(
-        w.params.map,
-        w.params.resend.as_micros() as i64,
-        w.params.command_timeout.as_micros() as i64,
-    );
+    let mut driver = EscDriver::new(w.params.map, w.params.timing);
     let mut cycles = Vec::with_capacity(8);
     w.status.set_phase(EscPhase::Disabled);
     loop {
@@ -285,12 +297,10 @@ fn run(mut w: Writer, mailbox: &EscMailbox) {
         let mut frame_at = None;
         match wake {
             Wake::Shutdown => {
-                driver.stop("shutdown", &mut cycles);
-                w.execute(&mut cycles, None);
-                w.finish(&driver);
-                return;
+                driver.stop("shutdown", now_us, &mut cycles);
+                return settle_stop(&mut w, &mut driver, &mut cycles);
             }
-            Wake::Halt(reason) => driver.stop(&reason, &mut cycles),
+            Wake::Halt(reason) => driver.stop(&reason, now_us, &mut cycles),
             Wake::Start => driver.start(now_us),
             Wake::Command(c) => {
                 if c.w_rad_s.iter().any(|v| !v.is_finite()) {
@@ -306,11 +316,36 @@ fn run(mut w: Writer, mailbox: &EscMailbox) {
         if was_running && driver.stop_reason() == Some("stale motor command") {
             w.status.refused_commands.fetch_add(1, Ordering::Relaxed);
         }
-        w.execute(&mut cycles, frame_at);
+        w.execute(&mut driver, &mut cycles, frame_at);
         w.finish(&driver);
         if driver.phase() == EscPhase::Stopped {
+            settle_stop(&mut w, &mut driver, &mut cycles);
             return park_until_shutdown(mailbox);
         }
+    }
+}
+
+/// A stop is written again until every ESC acknowledged it or its retry time ran out; no
+/// request can interrupt it (a halt or a shutdown during it asks for the same stop).
+fn settle_stop(w: &mut Writer, driver: &mut EscDriver, cycles: &mut Vec<(CycleKind, Cycle)>) {
+    w.execute(driver, cycles, None);
+    while driver.stop_outcome().is_none() {
+        let Some(at_us) = driver.next_wake_us() else {
+            break;
+        };
+        let at = w.beats.start() + Duration::from_micros(at_us.max(0) as u64);
+        std::thread::sleep(at.saturating_duration_since(Instant::now()));
+        driver.poll(w.beats.us(Instant::now()), cycles);
+        w.execute(driver, cycles, None);
+    }
+    w.finish(driver);
+    if let Some(o) = driver.stop_outcome()
+        && !o.confirmed
+    {
+        tracing::error!(
+            unconfirmed = ?o.unconfirmed_addresses(),
+            "ESC stop not acknowledged by every ESC within the retry time"
+        );
     }
 }
 

@@ -45,6 +45,15 @@ pub const ESC_WRITER_PRIORITY: i32 = 60;
 pub const SIM_PRIORITY: i32 = 60;
 pub const CONTROL_PRIORITY: i32 = 50;
 
+/// The message a panic carried (`panic!`'s text), for the run's error.
+pub fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "a panic without a message".to_string())
+}
+
 /// Starts a named OS thread running `f`, first raised to SCHED_FIFO `priority` when
 /// `realtime` (a warning when not permitted).
 pub fn spawn_thread<T: Send + 'static>(

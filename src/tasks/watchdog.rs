@@ -11,7 +11,7 @@
 use crate::core::watchdog::Halt;
 use crate::core::watchdog::{Event, Trip, Watchdog, WatchdogParams};
 use crate::tasks::WATCHDOG_PRIORITY;
-use crate::tasks::esc_writer::{EscMailbox, EscPhase, EscStatus};
+use crate::tasks::esc_writer::{EscMailbox, EscStatus};
 use crate::tasks::heartbeats::Heartbeats;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -40,23 +40,37 @@ impl WatchdogStatus {
 
 const TICK: Duration = Duration::from_micros(500);
 
+/// The way to the motors: the ESC writer's inbox and status, the ESCs' addresses, and how
+/// long the writer may retry a stop.
+pub struct HaltPath {
+    pub mailbox: Arc<EscMailbox>,
+    pub esc: Arc<EscStatus>,
+    pub addresses: [u8; 4],
+    pub retry: Duration,
+}
+
 /// Starts the watchdog thread.
 pub fn spawn(
     params: WatchdogParams,
     beats: Arc<Heartbeats>,
     status: Arc<WatchdogStatus>,
-    (mailbox, esc): (Arc<EscMailbox>, Arc<EscStatus>),
+    path: HaltPath,
     on_halt: impl FnOnce(Halt) + Send + 'static,
     cancel: CancellationToken,
     realtime: bool,
 ) -> std::io::Result<std::thread::JoinHandle<()>> {
     crate::tasks::spawn_thread("watchdog", realtime, WATCHDOG_PRIORITY, move || {
+        // Without its watchdog the flight must not go on.
+        let _halt = crate::tasks::esc_writer::HaltOnPanic {
+            mailbox: path.mailbox.clone(),
+            cancel: cancel.clone(),
+        };
         let mut wd = Watchdog::new(params);
         let mut batch = Vec::with_capacity(256);
         while !status.stop.load(Ordering::SeqCst) && !cancel.is_cancelled() {
             std::thread::sleep(TICK);
             if let Some(trip) = check(&mut wd, &beats, &status, &mut batch) {
-                let halt = halt_motors(trip, &mailbox, &esc, &beats);
+                let halt = halt_motors(trip, &path, &beats);
                 if let Ok(mut h) = status.halt.lock() {
                     *h = Some(halt);
                 }
@@ -91,15 +105,26 @@ fn check(
     trip
 }
 
-/// Halts through the ESC writer (zero, then disable) and waits for it, at most a second.
-fn halt_motors(trip: Trip, mailbox: &EscMailbox, esc: &EscStatus, beats: &Heartbeats) -> Halt {
-    mailbox.halt(trip.reason.name());
+/// A writer that has not settled its stop this long after its retry time is taken as hung.
+const WRITER_GRACE: Duration = Duration::from_millis(500);
+
+/// Halts through the ESC writer (zero, then disable, retried until acknowledged) and waits
+/// for the stop to settle. A writer that never answers leaves the stop unconfirmed by all.
+fn halt_motors(trip: Trip, path: &HaltPath, beats: &Heartbeats) -> Halt {
+    path.mailbox.halt(trip.reason.name());
     let asked = Instant::now();
-    while esc.phase() != EscPhase::Stopped && asked.elapsed() < Duration::from_secs(1) {
+    loop {
+        if let Some(o) = path.esc.stop_outcome() {
+            return o.halt(trip);
+        }
+        if asked.elapsed() > path.retry + WRITER_GRACE {
+            return Halt {
+                trip,
+                halt_us: beats.us(Instant::now()),
+                confirmed: false,
+                unconfirmed: path.addresses.map(Some),
+            };
+        }
         std::thread::sleep(Duration::from_micros(100));
     }
-    let halt_us = esc
-        .stopped_at_us()
-        .unwrap_or_else(|| beats.us(Instant::now()));
-    Halt { trip, halt_us }
 }

@@ -9,6 +9,7 @@ use crate::core::control::ManualCommand;
 use crate::core::gps::LiveFix;
 use crate::logs::Record;
 use crate::tasks::controller::{ControllerReport, ControllerTask, Live};
+use crate::tasks::esc_writer::HaltOnPanic;
 use crate::tasks::estimator::{EstimatorReport, EstimatorTask};
 use crate::tasks::{CONTROL_PRIORITY, TaskOutputs};
 use crate::tasks::{gps_client, imu_reader};
@@ -41,9 +42,14 @@ pub(super) fn spawn(
     let gps_live = live_fixes(profile, inputs.gps_fixes, h);
     let (estimator, controller) = live_sides(profile);
     let h = h.clone();
-    let (realtime, delay) = (opts.realtime, opts.control_delay);
+    let (realtime, delay, panic_at_step) =
+        (opts.realtime, opts.control_delay, opts.control_panic_at);
     crate::tasks::spawn_thread("control", realtime, CONTROL_PRIORITY, move || {
         let _end_run = h.cancel.clone().drop_guard();
+        let _halt = HaltOnPanic {
+            mailbox: h.mailbox.clone(),
+            cancel: h.cancel.clone(),
+        };
         let rt = tokio::runtime::Builder::new_current_thread()
             .enable_all()
             .build()
@@ -63,6 +69,7 @@ pub(super) fn spawn(
             out: out.clone(),
             cancel: h.cancel.clone(),
             delay,
+            panic_at_step,
             live: inputs.live,
         };
         rt.block_on(async move {
@@ -99,10 +106,17 @@ pub(super) fn spawn(
             if let Ok(Err(e)) = reader.await {
                 tracing::warn!("IMU read error: {e}");
             }
-            let controller = controller.await.unwrap_or_default();
+            // A panic in the controller task already halted the motors (`HaltOnPanic`).
+            let controller = controller.await.map_err(|e| {
+                let why = e.try_into_panic().map_or_else(
+                    |e| e.to_string(),
+                    |p| crate::tasks::panic_message(p.as_ref()),
+                );
+                anyhow::anyhow!("the controller task panicked: {why}")
+            });
             Ok(Reports {
                 estimator: estimator?,
-                controller,
+                controller: controller?,
             })
         })
     })

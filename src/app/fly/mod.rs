@@ -73,6 +73,8 @@ pub struct FlyOptions {
     pub handle_signals: bool,
     /// Fault injection: from this control step on, each control step takes this long.
     pub control_delay: Option<(u32, Duration)>,
+    /// Fault injection (tests): the control step of this number panics.
+    pub control_panic_at: Option<u32>,
 }
 
 /// The handles every phase of a run shares; cheap to clone.
@@ -193,8 +195,7 @@ fn start_actuator(
         bus,
         EscParams {
             map: profile.motor_map(),
-            resend: Duration::from_millis(u64::from(cfg.esc.resend_ms)),
-            command_timeout: Duration::from_millis(u64::from(cfg.esc.command_timeout_ms)),
+            timing: cfg.esc_timing(),
         },
         h.mailbox.clone(),
         h.esc_status.clone(),
@@ -219,7 +220,12 @@ fn start_watchdog(
         profile.config.watchdog.params(),
         h.beats.clone(),
         h.wd_status.clone(),
-        (h.mailbox.clone(), h.esc_status.clone()),
+        watchdog::HaltPath {
+            mailbox: h.mailbox.clone(),
+            esc: h.esc_status.clone(),
+            addresses: profile.motor_map().addresses,
+            retry: Duration::from_millis(u64::from(profile.config.watchdog.halt_retry_ms)),
+        },
         on_halt,
         h.cancel.clone(),
         realtime,
@@ -274,20 +280,18 @@ async fn shut_down(h: RunHandles, threads: Threads, loggers: Loggers) -> FlySumm
     }
     h.mailbox.shutdown();
     h.wd_status.stop();
-    let _ = tokio::task::spawn_blocking(move || threads.watchdog.join()).await;
-    let esc_joined = tokio::task::spawn_blocking(move || threads.esc.join()).await;
-    if !matches!(esc_joined, Ok(Ok(()))) {
-        tracing::error!("the ESC writer thread did not end cleanly");
-    }
-    let control = tokio::task::spawn_blocking(move || threads.control.join()).await;
-    let (reports, error) = match control {
-        Ok(Ok(Ok(r))) => (r, None),
-        Ok(Ok(Err(e))) => (control::Reports::default(), Some(format!("{e:#}"))),
-        _ => (
-            control::Reports::default(),
-            Some("the control thread panicked".to_string()),
-        ),
+    let watchdog = joined("watchdog", threads.watchdog).await.err();
+    let esc = joined("ESC writer", threads.esc)
+        .await
+        .err()
+        .map(|e| format!("{e}; the ESCs stop by themselves once their writes stop"));
+    let (reports, control) = match joined("control", threads.control).await {
+        Ok(Ok(r)) => (r, None),
+        Ok(Err(e)) => (control::Reports::default(), Some(format!("{e:#}"))),
+        Err(e) => (control::Reports::default(), Some(e)),
     };
+    let errors: Vec<String> = [control, esc, watchdog].into_iter().flatten().collect();
+    let error = (!errors.is_empty()).then(|| errors.join("; "));
     if let Some(e) = &error {
         tracing::error!("{e}");
     }
@@ -304,6 +308,18 @@ async fn shut_down(h: RunHandles, threads: Threads, loggers: Loggers) -> FlySumm
         }
     }
     summary
+}
+
+/// Joins a flight thread off the runtime; a panic becomes an error with its message.
+async fn joined<T: Send + 'static>(name: &str, t: JoinHandle<T>) -> Result<T, String> {
+    match tokio::task::spawn_blocking(move || t.join()).await {
+        Ok(Ok(v)) => Ok(v),
+        Ok(Err(p)) => Err(format!(
+            "the {name} thread panicked: {}",
+            crate::tasks::panic_message(p.as_ref())
+        )),
+        Err(e) => Err(format!("the {name} thread could not be joined: {e}")),
+    }
 }
 
 /// The run's counters, gathered from every part.

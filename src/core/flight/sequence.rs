@@ -361,6 +361,7 @@ impl EstimatorSide {
             temp_c: est.sample.temp_c,
             psi_rad: est.x[idx::PSI],
             phi_rad: est.x[idx::PHI],
+            refused: est.ekf_error.is_some(),
         });
         out.record(FlightRecord::KalmanIn {
             t_us: est.t_us,

@@ -208,8 +208,16 @@ impl Default for NullReference {
     }
 }
 
-/// Barometric altitude (spec 2.2), m.
+/// The BMP085's measuring range (its datasheet: 300 to 1100 hPa), Pa. A reading outside it is
+/// a failed sensor, not a pressure: 0 Pa would read as 44 km up.
+pub const BARO_RANGE_PA: std::ops::RangeInclusive<f64> = 30_000.0..=110_000.0;
+
+/// Barometric altitude (spec 2.2), m; not a number for a pressure outside the sensor's range,
+/// so that the filter refuses the measurement instead of fusing it.
 pub fn altitude_m(p_pa: f64, p0_pa: f64) -> f64 {
+    if !BARO_RANGE_PA.contains(&p_pa) {
+        return f64::NAN;
+    }
     PRESS_K_M * (1.0 - math::pow(p_pa / p0_pa, PRESS_EXP))
 }
 
