@@ -34,7 +34,7 @@ enum Command {
     #[command(
         long_about = "Validate a configuration file and the calibration and gain files it names.\n\n\
 Exits 0 when everything is valid. Otherwise prints one line per problem, naming the file, the key \
-(or the position of a malformed number in a data file) and the problem, and exits 1."
+(or the position of a malformed number in a data file) and the problem, and exits 2."
     )]
     CheckConfig(CheckConfigArgs),
     /// Fly: the flight program (serial IMU, EKF, controller, ESCs over I2C, loggers).
@@ -133,8 +133,14 @@ struct FlyArgs {
 struct SimArgs {
     #[command(flatten)]
     profile: ProfileArgs,
-    /// Simulated seconds, start-up included (default: sim.duration_s).
-    #[arg(long, value_name = "S")]
+    /// Simulated seconds, start-up included: more than 0, at most 86400 (default:
+    /// sim.duration_s).
+    #[arg(
+        long,
+        value_name = "S",
+        value_parser = config::parse_duration_s,
+        allow_negative_numbers = true
+    )]
     duration: Option<f64>,
     /// fast: the flight's state machines in lock-step with the physics on a simulated clock
     /// (the default); realtime: fly's own tasks and threads on the wall clock.
@@ -146,8 +152,13 @@ struct SimArgs {
     /// Same as --mode fast.
     #[arg(long)]
     fast: bool,
-    /// Seed of every random draw (default: sim.seed).
-    #[arg(long, value_name = "N")]
+    /// Seed of every random draw, 0 to 2^63 − 1 (default: sim.seed).
+    #[arg(
+        long,
+        value_name = "N",
+        value_parser = config::parse_seed,
+        allow_negative_numbers = true
+    )]
     seed: Option<u64>,
     /// Write the flight report (JSON) to FILE: the fly report plus, over the hover window
     /// (true state against the set point), alt_rms_m, alt_max_err_m, pos_max_err_m
@@ -157,7 +168,7 @@ struct SimArgs {
     /// Folder under which the run folder is created (default: log.dir of the profile).
     #[arg(long, value_name = "DIR")]
     log_dir: Option<PathBuf>,
-    /// Inject a fault at T simulated seconds (repeatable): imu-stall (frames stop),
+    /// Inject a fault at T simulated seconds, 0 to 86400 (repeatable): imu-stall (frames stop),
     /// esc-nack (every I2C write fails), gps-loss (fixes stop), log-stall (the x_hat
     /// logger blocks for 500 ms), thrust-loss (motor m0 loses 30 % of its thrust). With
     /// --realtime: imu-stall and esc-nack.
@@ -232,9 +243,19 @@ struct SetArgs {
 impl SetArgs {
     /// Loads and validates the profile at `path` with these overrides.
     fn load(&self, path: &Path) -> anyhow::Result<Profile> {
-        config::load(path, &self.sets).map_err(|e| anyhow::anyhow!("invalid configuration:\n{e}"))
+        config::load(path, &self.sets)
+            .map_err(|e| Refused(format!("invalid configuration:\n{e}")).into())
     }
 }
+
+/// A refused configuration or command line, as opposed to a run that failed: it exits with
+/// `REFUSED_EXIT`, the status clap gives a bad argument, so a script can tell the two apart.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+struct Refused(String);
+
+/// Exit status of a refused configuration or command line.
+const REFUSED_EXIT: u8 = 2;
 
 /// The profile arguments of the commands that fly or design: `--config` and `--set`.
 #[derive(clap::Args, Debug)]
@@ -248,7 +269,7 @@ struct ProfileArgs {
 
 impl ProfileArgs {
     fn load(&self) -> anyhow::Result<Profile> {
-        let path = config::resolve_path(self.config.as_deref()).map_err(anyhow::Error::msg)?;
+        let path = config::resolve_path(self.config.as_deref()).map_err(Refused)?;
         self.sets.load(&path)
     }
 }
@@ -297,7 +318,11 @@ fn main() -> ExitCode {
         Ok(code) => code,
         Err(e) => {
             eprintln!("error: {e:#}");
-            ExitCode::FAILURE
+            if e.is::<Refused>() {
+                ExitCode::from(REFUSED_EXIT)
+            } else {
+                ExitCode::FAILURE
+            }
         }
     }
 }
@@ -332,7 +357,7 @@ impl CheckConfigArgs {
                     eprintln!("{p}");
                 }
                 eprintln!("{} problem(s) found", e.problems.len());
-                Ok(ExitCode::FAILURE)
+                Ok(ExitCode::from(REFUSED_EXIT))
             }
         }
     }
@@ -383,10 +408,9 @@ impl SimArgs {
     fn run(self) -> anyhow::Result<ExitCode> {
         let mode = self.mode();
         if let Some((f, _)) = self.inject.iter().find(|(f, _)| !mode.supports(*f)) {
-            anyhow::bail!(
-                "--inject {}: with --realtime only imu-stall and esc-nack can be injected",
-                f.name()
-            );
+            let name = f.name();
+            let why = "with --realtime only imu-stall and esc-nack can be injected";
+            return Err(Refused(format!("--inject {name}: {why}")).into());
         }
         let profile = self.profile.load()?;
         let opts = SimOptions {
@@ -453,8 +477,10 @@ impl LqrArgs {
         let integrators = &self.integrators;
         let set = Integrators::parse(integrators)
             .filter(|s| *s != Integrators::ZTheta)
-            .with_context(|| {
-                format!("--integrators {integrators:?}: expected psi,phi,z,theta or x,y,z,theta")
+            .ok_or_else(|| {
+                Refused(format!(
+                    "--integrators {integrators:?}: expected psi,phi,z,theta or x,y,z,theta"
+                ))
             })?;
         let profile = self.profile.load()?;
         let outcome = uquad::app::lqr::run(&profile, set, &self.out)?;
@@ -476,10 +502,11 @@ impl ReplayArgs {
             None => {
                 let p = self.run_dir.join("config.toml");
                 if !p.is_file() {
-                    anyhow::bail!(
+                    return Err(Refused(format!(
                         "{} has no config.toml; pass --config FILE (config/flight-2012-05.toml for the 2012 runs)",
                         self.run_dir.display()
-                    );
+                    ))
+                    .into());
                 }
                 p
             }

@@ -1,12 +1,16 @@
 //! A bad configuration is refused by `check-config` and by every command that loads it, with a
-//! message naming the file and the key (or the position in a data file); never a panic.
+//! message naming the file and the key (or the position in a data file) and exit status 2 (a
+//! run that fails exits 1); never a panic. So is a bad number on `sim`'s command line.
 
 mod common;
 use common::*;
 use std::path::Path;
 
-/// Runs check-config and replay with the given profile and extra args; both must fail with a
-/// message containing every one of `needles`. Returns check-config's stderr.
+/// Exit status of a refused configuration or command line.
+const REFUSED: Option<i32> = Some(2);
+
+/// Runs check-config and replay with the given profile and extra args; both must be refused
+/// with a message containing every one of `needles`. Returns check-config's stderr.
 fn refused(cfg: &Path, extra: &[&str], needles: &[&str]) -> String {
     let cfg = cfg.to_str().unwrap();
     let mut check = vec!["check-config", cfg];
@@ -27,7 +31,7 @@ fn refused(cfg: &Path, extra: &[&str], needles: &[&str]) -> String {
         let o = uquad(&root(), &args);
         let err = String::from_utf8_lossy(&o.stderr).to_string();
         assert!(!o.status.success(), "{args:?} accepted the configuration");
-        assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
+        assert_eq!(o.status.code(), REFUSED, "{args:?}: {err}");
         assert!(!err.contains("panicked"), "{err}");
         for n in needles {
             assert!(err.contains(n), "{args:?}: {n:?} missing from:\n{err}");
@@ -66,6 +70,112 @@ fn valid_profiles_pass() {
         ],
     );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // The limits the tests give runs on this shared machine stay accepted.
+    let mut args = vec!["check-config", "config/uquad.toml"];
+    args.extend(REALTIME_TOLERANT);
+    let o = uquad(&root(), &args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+/// Values that once passed and would fly unsafely: a mass so light (or a top speed so high)
+/// that the slowest motor command is below the ESC start threshold, no settling before the
+/// ESC start, an IMU silence of seconds.
+#[test]
+fn unsafe_values_are_refused_with_their_key() {
+    let cases = [
+        (
+            "vehicle.mass_kg=0.5",
+            "vehicle.mass_kg",
+            "ESC start threshold",
+        ),
+        (
+            "motor.w_max_rad_s=500",
+            "motor.w_max_rad_s",
+            "100 to 368.1 rad/s",
+        ),
+        (
+            "imu.settle_frames=0",
+            "imu.settle_frames",
+            "1 to 10000 frames",
+        ),
+        (
+            "watchdog.imu_timeout_ms=5000",
+            "watchdog.imu_timeout_ms",
+            "11 to 100 ms",
+        ),
+    ];
+    for (set, key, allowed) in cases {
+        let err = refused(
+            &root().join("config/uquad.toml"),
+            &["--set", set],
+            &["uquad.toml", key, "(from --set)", allowed],
+        );
+        assert!(err.contains("1 problem(s) found"), "{set}: {err}");
+    }
+}
+
+#[test]
+fn the_manual_mass_keys_may_not_reach_a_mass_too_light() {
+    refused(
+        &profile_2012(),
+        &["--set", "control.manual.mass_min_kg=0.5"],
+        &[
+            "control.manual.mass_min_kg",
+            "the lightest mass the manual mass keys reach, 0.5 kg",
+            "motor.w_max_rad_s = 368",
+            "-18.2 rad/s",
+        ],
+    );
+}
+
+#[test]
+fn a_refused_profile_stops_sim_with_status_2() {
+    let dir = tempfile::tempdir().unwrap();
+    let log_dir = dir.path().to_str().unwrap();
+    let o = uquad(
+        &root(),
+        &[
+            "sim",
+            "--set",
+            "watchdog.sanity_max=10000",
+            "--log-dir",
+            log_dir,
+        ],
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), REFUSED, "{err}");
+    assert!(
+        err.contains("watchdog.sanity_max") && err.contains("1 to 100"),
+        "{err}"
+    );
+}
+
+/// `sim` with a bad number on its command line: refused with status 2, the flag and the
+/// value named, before anything runs.
+#[test]
+fn bad_sim_numbers_are_refused_naming_the_flag() {
+    let dir = tempfile::tempdir().unwrap();
+    let log_dir = dir.path().to_str().unwrap();
+    let cases = [
+        ("--duration=-1", "--duration", "-1"),
+        ("--duration=nan", "--duration", "nan"),
+        ("--duration=0", "--duration", "more than 0, at most 86400 s"),
+        ("--inject=imu-stall@1e9", "--inject", "imu-stall@1e9"),
+        (
+            "--seed=18446744073709551615",
+            "--seed",
+            "18446744073709551615",
+        ),
+    ];
+    for (arg, flag, value) in cases {
+        let o = uquad(&root(), &["sim", arg, "--log-dir", log_dir]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), REFUSED, "{arg}: {err}");
+        assert!(err.contains(flag) && err.contains(value), "{arg}: {err}");
+        assert!(!err.contains("panicked"), "{arg}: {err}");
+    }
+    let runs = std::fs::read_dir(dir.path()).map_or(0, |d| d.count());
+    assert_eq!(runs, 0, "no run folder is written");
 }
 
 #[test]
@@ -246,7 +356,7 @@ fn default_config_under_working_directory() {
     // replay needs a config: without --config and without RUN_DIR/config.toml it says so.
     let dir = tempfile::tempdir().unwrap();
     let o = uquad(dir.path(), &["check-config", "nope.toml"]);
-    assert!(!o.status.success());
+    assert_eq!(o.status.code(), REFUSED);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(
         err.contains("nope.toml") && err.contains("cannot read"),

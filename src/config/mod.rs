@@ -24,3 +24,4 @@ pub use schema::{
     Config, Console, Control, Ekf, Esc, Gps, GpsMode, Imu, Integrals, Log, Motor, Sim, Vehicle,
     WatchdogConfig,
 };
+pub use validate::{parse_duration_s, parse_fault_time_s, parse_seed};

@@ -4,6 +4,8 @@
 
 use super::schema::{Config, Esc, Imu, Sim, WatchdogConfig};
 use crate::core::control::{IntegralRule, Integrators};
+use crate::core::model::{MotorLimits, mass_for_w_min_kg};
+use crate::core::motor::{I2C_MAX, esc_max_rad_s, esc_start_rad_s};
 use std::fmt;
 use std::ops::Bound::{self, Excluded, Included, Unbounded};
 use std::ops::{RangeBounds, RangeInclusive};
@@ -15,16 +17,40 @@ const MASS_KG: RangeInclusive<f64> = 0.1..=2.3;
 const HOVER_Z_M: RangeInclusive<f64> = 0.0..=10.0;
 /// Highest altitude a manual command may reach, m.
 const MANUAL_Z_MAX_M: f64 = 20.0;
+/// Consecutive good frame intervals before calibrating, frames. 0 would skip settling, and
+/// with it the ESC start that follows it.
+const SETTLE_FRAMES: RangeInclusive<u32> = 1..=10_000;
 /// Highest settle frame count, frames.
 const SETTLE_MAX_FRAMES: u32 = 100_000;
 /// Highest accepted IMU frame interval, µs.
 const PERIOD_MAX_US: u32 = 100_000;
-/// Highest watchdog IMU timeout, ms.
-const IMU_TIMEOUT_MAX_MS: u32 = 1000;
-/// The ESC writer's own timeout must leave the watchdog this long after its deadline, ms.
-const COMMAND_TIMEOUT_MARGIN_MS: u32 = 10;
-/// Longest ESC writer timeout, ms.
-const COMMAND_TIMEOUT_MAX_MS: u32 = 2000;
+/// The IMU's frame period, ms (spec 1.5). The flight-time limits below are counted in it: a
+/// limit of seconds lets the vehicle fly blind or on a stale command for hundreds of frames.
+const IMU_PERIOD_MS: u32 = 10;
+/// Longest time from a frame to its motor command, ms: at most 10 IMU periods, which still
+/// rides out the scheduling stalls of a loaded machine (tens of ms) in `sim --realtime`.
+const DEADLINE_MS: RangeInclusive<u32> = 1..=10 * IMU_PERIOD_MS;
+/// Longest time without a frame while the motors run, ms: more than one IMU period (the
+/// normal wait for the next frame), at most 10 (the original waited 1 s: 100 frames).
+const IMU_TIMEOUT_MS: RangeInclusive<u32> = IMU_PERIOD_MS + 1..=10 * IMU_PERIOD_MS;
+/// The ESC writer's own timeout must leave the watchdog one IMU period after its deadline, ms.
+const COMMAND_TIMEOUT_MARGIN_MS: u32 = IMU_PERIOD_MS;
+/// Longest ESC writer timeout, ms: 15 IMU periods, room above the longest watchdog limits
+/// (a 100 ms deadline + the margin).
+const COMMAND_TIMEOUT_MAX_MS: u32 = 15 * IMU_PERIOD_MS;
+/// Consecutive failed ESC write cycles before a halt; the original allowed 20 missed acks.
+const MAX_MISSED_ACKS: RangeInclusive<u32> = 1..=20;
+/// Net insane steps tolerated by the sanity rules; the original: 20 (0.2 s at 100 Hz). At
+/// most 1 s of a vehicle hotter or more tilted than its limits.
+const SANITY_MAX: RangeInclusive<u32> = 1..=100;
+/// Lowest top motor speed, rad/s (a little above the ESC start threshold).
+const W_MAX_MIN_RAD_S: f64 = 100.0;
+/// The longest simulated run, s (`sim.duration_s` and `--duration`).
+const SIM_DURATION_MAX_S: f64 = 86_400.0;
+/// Simulated seconds of a run.
+const SIM_DURATION_S: (Bound<f64>, Bound<f64>) = positive_to(SIM_DURATION_MAX_S);
+/// When an injected fault strikes, s: a fault after the longest run would never strike.
+const FAULT_TIME_S: RangeInclusive<f64> = 0.0..=SIM_DURATION_MAX_S;
 /// Consecutive refused EKF updates before a halt: at least one; at most half a second of a
 /// blind estimator at 100 Hz.
 const ESTIMATOR_MAX_REFUSED: RangeInclusive<u32> = 1..=50;
@@ -147,7 +173,7 @@ fn range_text<T: Number>(range: &impl RangeBounds<T>, unit: &str) -> String {
 }
 
 /// The range "more than 0, at most `max`" (a Rust range cannot open at its start).
-fn positive_to(max: f64) -> (Bound<f64>, Bound<f64>) {
+const fn positive_to(max: f64) -> (Bound<f64>, Bound<f64>) {
     (Excluded(0.0), Included(max))
 }
 
@@ -225,6 +251,7 @@ pub(super) fn validate(c: &Config) -> Vec<Check> {
         esc_rules(&c.esc),
         watchdog_rules(&c.watchdog, &c.esc),
         log_motor_gps_rules(c),
+        lowest_speed_rules(c),
         sim_rules(&c.sim),
         vec![in_range(
             "gps.fake_span_m",
@@ -265,7 +292,13 @@ fn flight_rules(c: &Config) -> Vec<Check> {
 /// The IMU's serial link, settling and calibration.
 fn imu_rules(imu: &Imu) -> Vec<Check> {
     vec![
-        in_range("imu.settle_frames", imu.settle_frames, 0..=10_000, "frames"),
+        in_range(
+            "imu.settle_frames",
+            imu.settle_frames,
+            SETTLE_FRAMES,
+            "frames",
+        )
+        .note("0 would skip settling and the ESC start"),
         Check::new(
             "imu.settle_max_frames",
             (imu.settle_frames..=SETTLE_MAX_FRAMES).contains(&imu.settle_max_frames),
@@ -335,33 +368,32 @@ fn esc_rules(esc: &Esc) -> Vec<Check> {
 }
 
 /// The watchdog's limits, and the ESC writer's timeout, which must leave the watchdog time to
-/// act first.
+/// act first. Each is a few IMU periods at most: the vehicle flies on while they run out.
 fn watchdog_rules(wd: &WatchdogConfig, esc: &Esc) -> Vec<Check> {
-    // Saturating: a deadline near u32::MAX (itself refused) leaves no timeout above it.
-    let deadline_margin_ms = wd.deadline_ms.saturating_add(COMMAND_TIMEOUT_MARGIN_MS);
-    let timeout_ms = esc.command_timeout_ms;
+    let imu_timeout_ms = wd.imu_timeout_ms;
+    // Saturating: the products and sums of values far out of range must not overflow.
+    let failing_ms = wd.max_missed_acks.saturating_mul(esc.resend_ms);
+    let failing_max_ms = *IMU_TIMEOUT_MS.end();
     vec![
-        in_range("watchdog.deadline_ms", wd.deadline_ms, 1..=1000, "ms"),
-        above_key(
+        in_range("watchdog.deadline_ms", wd.deadline_ms, DEADLINE_MS, "ms"),
+        in_range(
             "watchdog.imu_timeout_ms",
-            wd.imu_timeout_ms,
-            "esc.resend_ms",
-            esc.resend_ms,
-            IMU_TIMEOUT_MAX_MS,
+            imu_timeout_ms,
+            IMU_TIMEOUT_MS,
             "ms",
+        )
+        .and(imu_timeout_ms > esc.resend_ms, "above esc.resend_ms"),
+        command_timeout_rule(wd, esc),
+        in_range(
+            "watchdog.max_missed_acks",
+            wd.max_missed_acks,
+            MAX_MISSED_ACKS,
+            "",
+        )
+        .and(
+            failing_ms <= failing_max_ms,
+            &format!("and at most {failing_max_ms} ms of failing cycles (times esc.resend_ms)"),
         ),
-        Check::new(
-            "esc.command_timeout_ms",
-            timeout_ms > wd.imu_timeout_ms
-                && timeout_ms > deadline_margin_ms
-                && timeout_ms <= COMMAND_TIMEOUT_MAX_MS,
-            timeout_ms.to_string(),
-            format!(
-                "above watchdog.imu_timeout_ms and watchdog.deadline_ms + \
-                 {COMMAND_TIMEOUT_MARGIN_MS}, at most {COMMAND_TIMEOUT_MAX_MS} ms"
-            ),
-        ),
-        in_range("watchdog.max_missed_acks", wd.max_missed_acks, 1..=1000, ""),
         in_range(
             "watchdog.sanity_temp_max_c",
             wd.sanity_temp_max_c,
@@ -374,7 +406,7 @@ fn watchdog_rules(wd: &WatchdogConfig, esc: &Esc) -> Vec<Check> {
             positive_to(1.57),
             "rad",
         ),
-        in_range("watchdog.sanity_max", wd.sanity_max, 0..=10_000, ""),
+        in_range("watchdog.sanity_max", wd.sanity_max, SANITY_MAX, "steps"),
         in_range(
             "watchdog.estimator_max_refused",
             wd.estimator_max_refused,
@@ -390,6 +422,26 @@ fn watchdog_rules(wd: &WatchdogConfig, esc: &Esc) -> Vec<Check> {
     ]
 }
 
+/// The ESC writer's own timeout: a backup that must leave the watchdog, which names the
+/// reason, time to act first. Compared only with watchdog limits that are themselves in
+/// range, so one bad value is reported once.
+fn command_timeout_rule(wd: &WatchdogConfig, esc: &Esc) -> Check {
+    let timeout_ms = esc.command_timeout_ms;
+    let after_imu_timeout =
+        !IMU_TIMEOUT_MS.contains(&wd.imu_timeout_ms) || timeout_ms > wd.imu_timeout_ms;
+    let after_deadline = !DEADLINE_MS.contains(&wd.deadline_ms)
+        || timeout_ms > wd.deadline_ms + COMMAND_TIMEOUT_MARGIN_MS;
+    Check::new(
+        "esc.command_timeout_ms",
+        after_imu_timeout && after_deadline && timeout_ms <= COMMAND_TIMEOUT_MAX_MS,
+        timeout_ms.to_string(),
+        format!(
+            "above watchdog.imu_timeout_ms and watchdog.deadline_ms + \
+             {COMMAND_TIMEOUT_MARGIN_MS}, at most {COMMAND_TIMEOUT_MAX_MS} ms"
+        ),
+    )
+}
+
 /// The log queue, the motors' top speed (the mass must hover below it) and gpsd's address.
 fn log_motor_gps_rules(c: &Config) -> Vec<Check> {
     let server_ok = c
@@ -402,9 +454,12 @@ fn log_motor_gps_rules(c: &Config) -> Vec<Check> {
         in_range(
             "motor.w_max_rad_s",
             c.motor.w_max_rad_s,
-            100.0..=1000.0,
+            w_max_range_rad_s(),
             "rad/s",
-        ),
+        )
+        .note(&format!(
+            "the speed of the ESC's largest I2C value, {I2C_MAX}"
+        )),
         hover_rule(c),
         Check::new(
             "gps.server",
@@ -413,6 +468,11 @@ fn log_motor_gps_rules(c: &Config) -> Vec<Check> {
             "HOST:PORT, e.g. 127.0.0.1:2947",
         ),
     ]
+}
+
+/// The top motor speeds allowed, rad/s: up to the fastest the ESC's I2C value range carries.
+fn w_max_range_rad_s() -> RangeInclusive<f64> {
+    W_MAX_MIN_RAD_S..=esc_max_rad_s()
 }
 
 /// The mass must hover below the motors' top speed. Checked only when the mass is itself in
@@ -429,6 +489,59 @@ fn hover_rule(c: &Config) -> Check {
     )
 }
 
+/// The slowest motor command, w_min = 2·w_hover − motor.w_max_rad_s (spec 4.2), falls with
+/// the mass: at or below the ESC start threshold a motor is commanded to stop in flight. So the
+/// lightest mass flown - vehicle.mass_kg, or control.manual.mass_min_kg when the manual mass
+/// keys go lower - must keep it above. Checked only when the keys it derives from are in
+/// range, so one bad value is reported once.
+fn lowest_speed_rules(c: &Config) -> Vec<Check> {
+    let w_max_rad_s = c.motor.w_max_rad_s;
+    let mass_kg = c.vehicle.mass_kg;
+    let mass_min_kg = c.control.manual.mass_min_kg;
+    let Some(lightest_kg) = lightest_mass_kg(w_max_rad_s) else {
+        return Vec::new();
+    };
+    let rule = |key: &str, what: &str, mass_kg: f64| {
+        in_range(key, mass_kg, lightest_kg.., "kg").note(&lowest_speed_reason(
+            what,
+            mass_kg,
+            w_max_rad_s,
+        ))
+    };
+    let mut checks = Vec::new();
+    if holds(&MASS_KG, mass_kg) {
+        checks.push(rule("vehicle.mass_kg", "the profile's mass", mass_kg));
+    }
+    if holds(&MASS_KG, mass_min_kg) && mass_min_kg < mass_kg {
+        let what = "the lightest mass the manual mass keys reach";
+        checks.push(rule("control.manual.mass_min_kg", what, mass_min_kg));
+    }
+    checks
+}
+
+/// The lightest mass that keeps the slowest motor command above the ESC start threshold at
+/// top speed `w_max_rad_s`, kg; None when that top speed is itself out of range. It is the
+/// mass where w_min meets the threshold, rounded up to the next 0.01 kg: the bound checked is
+/// the bound printed, and every mass from it on is strictly above the threshold.
+fn lightest_mass_kg(w_max_rad_s: f64) -> Option<f64> {
+    if !holds(&w_max_range_rad_s(), w_max_rad_s) {
+        return None;
+    }
+    let exact_kg = mass_for_w_min_kg(esc_start_rad_s(), w_max_rad_s);
+    Some(((exact_kg * 100.0).floor() + 1.0) / 100.0)
+}
+
+/// Why a mass is too light: the slowest motor command it gives, against the threshold.
+fn lowest_speed_reason(what: &str, mass_kg: f64, w_max_rad_s: f64) -> String {
+    let w_min_rad_s = MotorLimits::new(mass_kg, w_max_rad_s).w_min_rad_s;
+    format!(
+        "at {what}, {mass_kg} kg, with motor.w_max_rad_s = {w_max_rad_s}, the lowest motor \
+         speed 2·w_hover − w_max is {w_min_rad_s:.1} rad/s; it must stay above the ESC start \
+         threshold {:.1} rad/s",
+        esc_start_rad_s()
+    )
+}
+
 /// The simulator's physics and sensors.
 fn sim_rules(sim: &Sim) -> Vec<Check> {
     let physics_hz = sim.physics_hz;
@@ -436,7 +549,7 @@ fn sim_rules(sim: &Sim) -> Vec<Check> {
     // the range) is safe here.
     let divides = 1_000_000u32.is_multiple_of(physics_hz) && (physics_hz / 100).is_multiple_of(2);
     vec![
-        in_range("sim.duration_s", sim.duration_s, positive_to(86_400.0), "s"),
+        in_range("sim.duration_s", sim.duration_s, SIM_DURATION_S, "s"),
         in_range("sim.settle_s", sim.settle_s, 0.0..=3600.0, "s"),
         in_range("sim.physics_hz", physics_hz, 1000..=100_000, "").and(
             divides,
@@ -520,7 +633,9 @@ fn manual_rules(c: &Config) -> Vec<Check> {
     let z_m = c.control.hover_z_m;
     let mass_kg = c.vehicle.mass_kg;
     let z_ok = holds(&HOVER_Z_M, z_m);
-    let mass_ok = holds(&MASS_KG, mass_kg);
+    // A mass too light for the ESC start threshold is reported by its own rule.
+    let mass_ok = holds(&MASS_KG, mass_kg)
+        && lightest_mass_kg(c.motor.w_max_rad_s).is_none_or(|lightest_kg| mass_kg >= lightest_kg);
     let (mass_lo_kg, mass_hi_kg) = (*MASS_KG.start(), *MASS_KG.end());
     vec![
         in_range(
@@ -606,6 +721,40 @@ fn integral_rule(name: &str, rule: &IntegralRule) -> Vec<Check> {
         "within ± the cap",
     ));
     checks
+}
+
+/// A number given on the command line, checked against the range of what it stands for; the
+/// error says what is allowed (the parser's caller names the flag).
+fn number_arg(text: &str, range: impl RangeBounds<f64>, unit: &str) -> Result<f64, String> {
+    let allowed = range_text(&range, unit);
+    match text.trim().parse::<f64>() {
+        Ok(value) if holds(&range, value) => Ok(value),
+        Ok(_) => Err(format!("{text} is out of range: allowed {allowed}")),
+        Err(_) => Err(format!("{text:?} is not a number: allowed {allowed}")),
+    }
+}
+
+/// `--duration S`: simulated seconds, in the range of `sim.duration_s`.
+pub fn parse_duration_s(text: &str) -> Result<f64, String> {
+    number_arg(text, SIM_DURATION_S, "s")
+}
+
+/// The time T of `--inject FAULT@T`, simulated seconds: from 0 up to the longest run.
+pub fn parse_fault_time_s(text: &str) -> Result<f64, String> {
+    number_arg(text, FAULT_TIME_S, "s")
+}
+
+/// `--seed N`: any integer from 0 that the run folder's config.toml can hold as `sim.seed`
+/// (a TOML integer is at most `i64::MAX`), so that the run replays.
+pub fn parse_seed(text: &str) -> Result<u64, String> {
+    let allowed = format!("an integer from 0 to {}", i64::MAX);
+    match text.trim().parse::<i128>() {
+        Ok(seed) if (0..=i128::from(i64::MAX)).contains(&seed) => {
+            u64::try_from(seed).map_err(|_| format!("{text} is out of range: allowed {allowed}"))
+        }
+        Ok(_) => Err(format!("{text} is out of range: allowed {allowed}")),
+        Err(_) => Err(format!("{text:?} is not an integer: allowed {allowed}")),
+    }
 }
 
 #[cfg(test)]
@@ -723,5 +872,143 @@ mod tests {
     #[test]
     fn the_default_configuration_meets_every_rule() {
         assert_eq!(validate(&Config::default()), Vec::new());
+    }
+
+    /// The keys of the rules `change` makes the default configuration fail.
+    fn failing_keys(change: impl FnOnce(&mut Config)) -> Vec<String> {
+        let mut c = Config::default();
+        change(&mut c);
+        validate(&c).into_iter().map(|check| check.key).collect()
+    }
+
+    #[test]
+    fn a_light_mass_is_refused_where_it_is_set() {
+        assert_eq!(
+            failing_keys(|c| c.vehicle.mass_kg = 0.5),
+            ["vehicle.mass_kg"]
+        );
+        assert_eq!(
+            failing_keys(|c| c.control.manual.mass_min_kg = 0.5),
+            ["control.manual.mass_min_kg"]
+        );
+        let mut c = Config::default();
+        c.vehicle.mass_kg = 0.5;
+        let check = &validate(&c)[0];
+        assert!(
+            check.allowed.starts_with("at least 0.92 kg"),
+            "{}",
+            check.allowed
+        );
+        assert!(check.allowed.contains("-18.2 rad/s"), "{}", check.allowed);
+        assert!(check.allowed.contains("ESC start threshold 96.0 rad/s"));
+    }
+
+    #[test]
+    fn every_mass_allowed_keeps_the_motors_above_the_esc_start() {
+        for w_max_rad_s in [W_MAX_MIN_RAD_S, 250.0, 368.0, esc_max_rad_s()] {
+            let Some(lightest_kg) = lightest_mass_kg(w_max_rad_s) else {
+                panic!("{w_max_rad_s} is in range");
+            };
+            let too_light_kg = lightest_kg - 0.01;
+            let limits = |m: f64| MotorLimits::new(m, w_max_rad_s).w_min_rad_s;
+            assert!(limits(too_light_kg) <= esc_start_rad_s(), "{w_max_rad_s}");
+            // From the bound up to the heaviest mass, by the manual keys' step.
+            let steps = ((*MASS_KG.end() - lightest_kg) / 0.05) as u32;
+            for m in (0..=steps).map(|i| lightest_kg + f64::from(i) * 0.05) {
+                assert!(limits(m) > esc_start_rad_s(), "{w_max_rad_s} rad/s, {m} kg");
+            }
+        }
+        assert_eq!(lightest_mass_kg(500.0), None);
+    }
+
+    #[test]
+    fn a_top_speed_beyond_the_esc_byte_is_refused() {
+        assert_eq!(
+            failing_keys(|c| c.motor.w_max_rad_s = 500.0),
+            ["motor.w_max_rad_s"]
+        );
+        assert_eq!(
+            failing_keys(|c| c.motor.w_max_rad_s = 368.2),
+            ["motor.w_max_rad_s"]
+        );
+        assert!(failing_keys(|c| c.motor.w_max_rad_s = 368.1).is_empty());
+    }
+
+    #[test]
+    fn frame_and_sanity_counts_start_at_one() {
+        assert_eq!(
+            failing_keys(|c| c.imu.settle_frames = 0),
+            ["imu.settle_frames"]
+        );
+        for bad in [0, 101, 10_000] {
+            assert_eq!(
+                failing_keys(|c| c.watchdog.sanity_max = bad),
+                ["watchdog.sanity_max"]
+            );
+        }
+        assert!(failing_keys(|c| c.watchdog.sanity_max = 100).is_empty());
+    }
+
+    #[test]
+    fn timeouts_are_a_few_imu_periods() {
+        assert_eq!(
+            failing_keys(|c| c.watchdog.imu_timeout_ms = 5000),
+            ["watchdog.imu_timeout_ms"]
+        );
+        assert_eq!(
+            failing_keys(|c| c.watchdog.imu_timeout_ms = 10),
+            ["watchdog.imu_timeout_ms"]
+        );
+        assert_eq!(
+            failing_keys(|c| c.watchdog.deadline_ms = 5000),
+            ["watchdog.deadline_ms"]
+        );
+        assert_eq!(
+            failing_keys(|c| c.esc.command_timeout_ms = 5000),
+            ["esc.command_timeout_ms"]
+        );
+        // The limits a loaded machine's runs use.
+        let tolerant = failing_keys(|c| {
+            c.watchdog.deadline_ms = 100;
+            c.watchdog.imu_timeout_ms = 100;
+            c.esc.command_timeout_ms = 150;
+        });
+        assert!(tolerant.is_empty(), "{tolerant:?}");
+    }
+
+    #[test]
+    fn failing_esc_writes_are_bounded_in_count_and_time() {
+        assert!(failing_keys(|c| c.watchdog.max_missed_acks = 20).is_empty());
+        for change in [
+            |c: &mut Config| c.watchdog.max_missed_acks = 21,
+            |c: &mut Config| {
+                // 120 ms of failing cycles at the slowest re-send period.
+                c.watchdog.max_missed_acks = 6;
+                c.esc.resend_ms = 20;
+                c.watchdog.imu_timeout_ms = 50;
+                c.esc.command_timeout_ms = 60;
+            },
+        ] {
+            assert_eq!(failing_keys(change), ["watchdog.max_missed_acks"]);
+        }
+    }
+
+    #[test]
+    fn command_line_numbers_are_checked() {
+        assert_eq!(parse_duration_s("40"), Ok(40.0));
+        for bad in ["0", "-1", "nan", "inf", "1e9", "soon"] {
+            let err = parse_duration_s(bad).err().unwrap_or_default();
+            assert!(
+                err.contains(bad) && err.contains("at most 86400 s"),
+                "{bad}: {err}"
+            );
+        }
+        assert_eq!(parse_fault_time_s("0"), Ok(0.0));
+        assert!(parse_fault_time_s("-0.5").is_err() && parse_fault_time_s("1e9").is_err());
+        assert_eq!(parse_seed("0"), Ok(0));
+        assert_eq!(parse_seed("9223372036854775807"), Ok(i64::MAX as u64));
+        for bad in ["-1", "9223372036854775808", "1.5", "x"] {
+            assert!(parse_seed(bad).is_err(), "{bad}");
+        }
     }
 }

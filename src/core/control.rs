@@ -351,7 +351,9 @@ impl Default for ManualBounds {
             max_yaw_offset_rad: 3.2,
             z_min_m: 0.2,
             z_max_m: 3.0,
-            mass_min_kg: 0.5,
+            // Lighter than about 0.92 kg, the slowest motor command at w_max = 368 rad/s falls
+            // under the ESC start threshold (config::validate refuses it).
+            mass_min_kg: 1.0,
             mass_max_kg: 2.2,
         }
     }

@@ -41,6 +41,17 @@ pub fn w_hover_rad_s(mass_kg: f64) -> f64 {
     (-F_B2 + (F_B2 * F_B2 + 4.0 * F_B1 * c).sqrt()) / (2.0 * F_B1)
 }
 
+/// The mass four motors hold at `w_rad_s`, kg: the inverse of `w_hover_rad_s`.
+pub fn mass_hovering_at_kg(w_rad_s: f64) -> f64 {
+    4.0 * thrust_n(w_rad_s) / GRAVITY_M_S2
+}
+
+/// The mass at which `MotorLimits::new(mass, w_max_rad_s)` has the minimum `w_min_rad_s`, kg:
+/// hover midway between the two (for w_min ≤ w_max). Lighter, w_min is lower.
+pub fn mass_for_w_min_kg(w_min_rad_s: f64, w_max_rad_s: f64) -> f64 {
+    mass_hovering_at_kg(0.5 * (w_min_rad_s + w_max_rad_s))
+}
+
 /// Motor speed limits around hover: w_hover clamped to w_max, and the symmetric minimum
 /// `w_min = w_hover − (w_max − w_hover)` (spec 4.2).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -74,6 +85,12 @@ mod tests {
                 w_hover_rad_s(m)
             );
             assert!((4.0 * thrust_n(w_hover_rad_s(m)) - GRAVITY_M_S2 * m).abs() < 1e-12);
+        }
+        for m in [0.5, 1.0, 1.55, 2.2] {
+            assert!((mass_hovering_at_kg(w_hover_rad_s(m)) - m).abs() < 1e-12);
+            let l = MotorLimits::new(m, W_MAX_2012_RAD_S);
+            let back = mass_for_w_min_kg(l.w_min_rad_s, W_MAX_2012_RAD_S);
+            assert!((back - m).abs() < 1e-12, "{m}: {back}");
         }
         let l = MotorLimits::new(1.55, W_MAX_2012_RAD_S);
         // The floor w.log shows for the 2012-05-25 flight.

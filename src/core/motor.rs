@@ -97,6 +97,24 @@ pub fn rad_s_from_i2c(value: u8) -> f64 {
     0.5 * (lo + hi)
 }
 
+/// The ESC start threshold in rad/s: the speed of the lowest I2C value above
+/// `I2C_START_THRESHOLD`, about 96.0 rad/s. The driver starts the ESCs only when all four
+/// values exceed the threshold (spec 6.4, `MIN_SPEED`): the lowest speeds it takes as running.
+/// Slower commands are values it would not start at, down to 0, which stops a motor. So the
+/// slowest flight command (w_min) must stay above this speed. A function, not a constant: the inverse of the fit is
+/// not a `const fn`.
+pub fn esc_start_rad_s() -> f64 {
+    rad_s_from_i2c(I2C_START_THRESHOLD + 1)
+}
+
+/// The top of the ESC's byte range in rad/s: the speed of `I2C_MAX` (368.16 rad/s, the 2012
+/// flights' `MOT_W_MAX`), rounded down to 0.1 rad/s so that a bound built from it prints as
+/// it is checked. Every faster command is sent as `I2C_MAX`, so a w_max above it would let the
+/// controller count on thrust the motors never give.
+pub fn esc_max_rad_s() -> f64 {
+    (rad_s_from_i2c(I2C_MAX) * 10.0).floor() / 10.0
+}
+
 /// ESC registers (SMBus write-byte-data, spec 6.3).
 pub const REG_ENABLE: u8 = 0xA0;
 pub const REG_DISABLE: u8 = 0xA1;
@@ -226,6 +244,18 @@ mod tests {
         for v in [1u8, 50, 110, 156, 220] {
             assert_eq!(i2c_from_rad_s(rad_s_from_i2c(v)), v);
         }
+    }
+
+    #[test]
+    fn esc_range_in_rad_s() {
+        let start = esc_start_rad_s();
+        assert!((start - 96.01).abs() < 0.01, "{start}");
+        // Every speed above the threshold is sent as a value the driver starts at.
+        assert_eq!(i2c_from_rad_s(start.next_up()), I2C_START_THRESHOLD + 1);
+        assert_eq!(i2c_from_rad_s(start - 1.2), I2C_START_THRESHOLD);
+        assert_eq!(esc_max_rad_s(), 368.1);
+        assert_eq!(i2c_from_rad_s(esc_max_rad_s()), I2C_MAX);
+        assert!(esc_max_rad_s() >= crate::core::model::W_MAX_2012_RAD_S);
     }
 
     #[test]

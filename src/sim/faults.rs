@@ -57,11 +57,7 @@ pub fn parse_injection(s: &str) -> Result<(Fault, f64), String> {
         .find(|(n, _)| *n == name)
         .map(|(_, f)| *f)
         .ok_or_else(|| format!("{name:?} is not a fault; one of {names}"))?;
-    let t: f64 = at
-        .parse()
-        .ok()
-        .filter(|t: &f64| t.is_finite() && *t >= 0.0)
-        .ok_or_else(|| format!("{at:?} is not a time in seconds"))?;
+    let t = crate::config::parse_fault_time_s(at).map_err(|e| format!("the time {e}"))?;
     Ok((fault, t))
 }
 
@@ -150,7 +146,11 @@ mod tests {
         assert_eq!(parse_injection("imu-stall@30"), Ok((Fault::ImuStall, 30.0)));
         assert!(parse_injection("imu-stall").is_err());
         assert!(parse_injection("bogus@1").is_err());
-        assert!(parse_injection("esc-nack@-1").is_err());
+        for bad_time in ["-1", "nan", "inf", "1e9", "soon"] {
+            let err = parse_injection(&format!("esc-nack@{bad_time}"));
+            assert!(err.is_err_and(|e| e.contains(bad_time)), "{bad_time}");
+        }
+        assert_eq!(parse_injection("esc-nack@0"), Ok((Fault::EscNack, 0.0)));
         let s = FaultSchedule::new(&[(Fault::EscNack, 2.0), (Fault::EscNack, 1.5)]);
         assert_eq!(s.at_us(Fault::EscNack), Some(1_500_000));
         assert!(!s.active(Fault::EscNack, 1_499_999));
