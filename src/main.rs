@@ -44,8 +44,9 @@ wait for a stable IMU sampling period (motors off), run the ESC start-up ramp, c
 (512 frames, motors idling), ramp the motors up over 100 steps, then hover at control.hover_z_m. \
 Logs go to <log dir>/<run-id>/ (imu_raw, kalman_in, x_hat, w, int, gps, err, and the resolved \
 config.toml with copies of its data files, so `uquad replay <run folder>` reruns it).\n\n\
-SIGINT/SIGTERM zero and disable the motors, then the logs are flushed; a second signal exits at \
-once. The original's manual-mode keys work from stdin (j/g roll, y/h pitch, q/w yaw, e/d \
+SIGINT, SIGTERM, SIGHUP and SIGQUIT zero and disable the motors, then the report and logs are \
+written; a second signal is noted, a third exits once the motors are stopped. SIGTSTP is ignored \
+(a suspended flight could not stop its motors). The original's manual-mode keys work from stdin (j/g roll, y/h pitch, q/w yaw, e/d \
 altitude, i/k mass, 0 reset mass, ESC quit).")]
     Fly(FlyArgs),
     /// Simulate: fly the real code against a physics model of the uQuad (the main job).

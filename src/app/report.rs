@@ -30,8 +30,12 @@ pub struct FlySummary {
     pub esc_failed_writes: u64,
     pub esc_commands: u64,
     pub esc_stop_reason: Option<String>,
-    /// Records dropped per stream (a logger could not keep up).
+    /// Records dropped per stream (a logger could not keep up, or its write failed).
     pub log_drops: PerStream<u64>,
+    /// Failed writes per stream (an I/O error, a full disk).
+    pub log_io_errors: PerStream<u64>,
+    /// Console events a slow console missed.
+    pub console_drops: u64,
     /// Records written per stream.
     pub log_records: PerStream<u64>,
     /// Frame arrival → ESC write, µs.
@@ -101,6 +105,8 @@ pub struct FlyReport {
     pub halt: Option<HaltReport>,
     pub run_dir: PathBuf,
     pub log_drops_by_stream: PerStream<u64>,
+    pub log_io_errors_by_stream: PerStream<u64>,
+    pub console_drops: u64,
     pub esc: EscReport,
     pub imu: ImuReport,
     pub gps: GpsReport,
@@ -178,6 +184,8 @@ impl FlySummary {
             }),
             run_dir: std::fs::canonicalize(&self.run_dir).unwrap_or_else(|_| self.run_dir.clone()),
             log_drops_by_stream: self.log_drops,
+            log_io_errors_by_stream: self.log_io_errors,
+            console_drops: self.console_drops,
             esc: EscReport {
                 commands: self.esc_commands,
                 writes: self.esc_writes,
@@ -215,6 +223,18 @@ impl FlySummary {
             lines.push(Record::note(format!(
                 "log stream {}: {n} records dropped",
                 s.name()
+            )));
+        }
+        for (s, n) in self.log_io_errors.iter().filter(|(_, n)| *n > 0) {
+            lines.push(Record::note(format!(
+                "log stream {}: {n} failed writes",
+                s.name()
+            )));
+        }
+        if self.console_drops > 0 {
+            lines.push(Record::note(format!(
+                "console: {} events missed by slow consoles",
+                self.console_drops
             )));
         }
         lines.push(Record::note(format!(

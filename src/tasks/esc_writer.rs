@@ -76,10 +76,46 @@ impl EscMailbox {
         });
     }
 
+    /// [`EscMailbox::halt`] unless the inbox is locked (the panic hook must not wait).
+    fn try_halt(&self, reason: &str) {
+        if let Ok(mut r) = self.req.try_lock() {
+            if r.halt.is_none() {
+                r.halt = Some(reason.to_string());
+            }
+            drop(r);
+            self.wake.notify_all();
+        }
+    }
+
     /// Zero, disable and end the writer thread.
     pub fn shutdown(&self) {
         self.with(|r| r.shutdown = true);
     }
+}
+
+/// The ESC writers of the runs in this process, for the panic hook.
+static RUNS: Mutex<Vec<std::sync::Weak<EscMailbox>>> = Mutex::new(Vec::new());
+
+/// From now on a panic anywhere in the process — a flight thread, a task, a logger — halts
+/// `mailbox`'s motors before the panic is even reported: the default report of a panic
+/// (a backtrace) can take longer than the watchdog's limits. Installed once per process.
+pub fn halt_on_any_panic(mailbox: &Arc<EscMailbox>) {
+    static HOOK: std::sync::Once = std::sync::Once::new();
+    HOOK.call_once(|| {
+        let report = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            // try_lock: the panicking thread may hold a lock; the guards halt then.
+            if let Ok(runs) = RUNS.try_lock() {
+                for m in runs.iter().filter_map(std::sync::Weak::upgrade) {
+                    m.try_halt("panic");
+                }
+            }
+            report(info);
+        }));
+    });
+    let mut runs = RUNS.lock().unwrap_or_else(|p| p.into_inner());
+    runs.retain(|w| w.strong_count() > 0);
+    runs.push(Arc::downgrade(mailbox));
 }
 
 /// Held by every flight thread and control task: dropped during a panic (the unwinding of the

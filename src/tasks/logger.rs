@@ -2,14 +2,19 @@
 //!
 //! In: records through a bounded channel per stream; producers use `try_send` only, so a slow
 //! disk never slows the control path: what cannot be queued is dropped and counted.
-//! Out: the stream's file, written in batches and flushed when the stream closes.
+//! Out: the stream's file, written in batches. err.log and gps.log (what an operator reads
+//! after a crash: the start-up, the halts, the fixes) reach the kernel after every batch and
+//! the disk at most a second later (`sync_data`), so a killed process or a power cut loses at
+//! most a second of them; the other streams reach the kernel at least once a second. A write
+//! that fails (a full disk) loses its batch, counted as dropped and as a write error of the
+//! stream, and the logger goes on with the next.
 //! Ends: when every sender is gone and the queue is drained.
 
 use crate::logs::{PerStream, Record, Stream};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 use tokio::io::AsyncWriteExt;
 use tokio::sync::mpsc;
 
@@ -27,6 +32,7 @@ pub struct LogStall {
 pub struct LogHub {
     senders: Vec<mpsc::Sender<Record>>,
     dropped: Arc<[AtomicU64; 7]>,
+    io_errors: Arc<[AtomicU64; 7]>,
 }
 
 impl LogHub {
@@ -44,10 +50,17 @@ impl LogHub {
         self.log(Record::note(line));
     }
 
-    /// Dropped records per stream.
+    /// Dropped records per stream (a full queue, or a failed write).
     pub fn dropped(&self) -> PerStream<u64> {
         PerStream(std::array::from_fn(|i| {
             self.dropped[i].load(Ordering::Relaxed)
+        }))
+    }
+
+    /// Failed writes per stream (an I/O error, a full disk).
+    pub fn io_errors(&self) -> PerStream<u64> {
+        PerStream(std::array::from_fn(|i| {
+            self.io_errors[i].load(Ordering::Relaxed)
         }))
     }
 }
@@ -72,18 +85,30 @@ pub async fn spawn_all(
 )> {
     let mut senders = Vec::new();
     let mut handles = Vec::new();
+    let dropped: Arc<[AtomicU64; 7]> = Arc::new(std::array::from_fn(|_| AtomicU64::new(0)));
+    let io_errors: Arc<[AtomicU64; 7]> = Arc::new(std::array::from_fn(|_| AtomicU64::new(0)));
     for stream in Stream::ALL {
         let path = dir.join(format!("{}.log", stream.name()));
         let file = tokio::fs::File::create(&path).await?;
         let (tx, rx) = mpsc::channel(capacity);
         senders.push(tx);
-        let stall = stall.filter(|s| s.stream == stream);
-        handles.push(tokio::spawn(run(stream, path, file, rx, stall)));
+        let w = StreamWriter {
+            stream,
+            file,
+            stall: stall.filter(|s| s.stream == stream),
+            dropped: dropped.clone(),
+            io_errors: io_errors.clone(),
+            flushed: Instant::now(),
+            synced: Instant::now(),
+            lost: 0,
+        };
+        handles.push(tokio::spawn(run(w, path, rx)));
     }
     Ok((
         LogHub {
             senders,
-            dropped: Arc::new(std::array::from_fn(|_| AtomicU64::new(0))),
+            dropped,
+            io_errors,
         },
         handles,
     ))
@@ -92,47 +117,125 @@ pub async fn spawn_all(
 /// Bytes gathered before a write.
 const BATCH_BYTES: usize = 64 * 1024;
 
-async fn run(
+/// How often a stream reaches the kernel at least, and err.log and gps.log the disk.
+const FLUSH_EVERY: Duration = Duration::from_secs(1);
+
+/// One stream's file and its bookkeeping.
+struct StreamWriter {
     stream: Stream,
-    path: PathBuf,
     file: tokio::fs::File,
+    stall: Option<LogStall>,
+    dropped: Arc<[AtomicU64; 7]>,
+    io_errors: Arc<[AtomicU64; 7]>,
+    /// When the stream last reached the kernel, and the disk.
+    flushed: Instant,
+    synced: Instant,
+    /// Records lost in failed writes.
+    lost: u64,
+}
+
+impl StreamWriter {
+    /// The streams read after a crash: each batch reaches the kernel at once.
+    fn durable(&self) -> bool {
+        matches!(self.stream, Stream::Err | Stream::Gps)
+    }
+
+    /// Writes `buf` (holding `records` more records) when due or `force`d: at once for the
+    /// durable streams, else once it is large or a second old; a failed write drops the
+    /// batch, counted.
+    async fn write(&mut self, buf: &mut String, records: u64, pending: &mut u64, force: bool) {
+        *pending += records;
+        let due = force
+            || self.durable()
+            || buf.len() >= BATCH_BYTES
+            || self.flushed.elapsed() >= FLUSH_EVERY;
+        if !due || buf.is_empty() {
+            return;
+        }
+        let i = self.stream as usize;
+        if let Err(e) = self.file.write_all(buf.as_bytes()).await {
+            if self.io_errors[i].fetch_add(1, Ordering::Relaxed) == 0 {
+                tracing::error!(stream = self.stream.name(), "log write failed: {e}");
+            }
+            self.dropped[i].fetch_add(*pending, Ordering::Relaxed);
+            self.lost += *pending;
+        }
+        buf.clear();
+        *pending = 0;
+        self.flushed = Instant::now();
+        if self.durable() && self.synced.elapsed() >= FLUSH_EVERY {
+            self.sync().await;
+        }
+    }
+
+    async fn sync(&mut self) {
+        if let Err(e) = self.file.sync_data().await {
+            let i = self.stream as usize;
+            if self.io_errors[i].fetch_add(1, Ordering::Relaxed) == 0 {
+                tracing::error!(stream = self.stream.name(), "log sync failed: {e}");
+            }
+        }
+        self.synced = Instant::now();
+    }
+
+    /// Fault injection: the stream's writes block once, after `after_records`.
+    async fn maybe_stall(&mut self, records: u64) {
+        if let Some(s) = self.stall
+            && records >= s.after_records
+        {
+            tracing::warn!(
+                stream = self.stream.name(),
+                ms = s.duration.as_millis() as u64,
+                "log writes stalled"
+            );
+            tokio::time::sleep(s.duration).await;
+            self.stall = None;
+        }
+    }
+}
+
+async fn run(
+    mut w: StreamWriter,
+    path: PathBuf,
     mut rx: mpsc::Receiver<Record>,
-    mut stall: Option<LogStall>,
 ) -> std::io::Result<LoggerReport> {
-    let mut out = tokio::io::BufWriter::new(file);
+    // Records are formatted into `buf`; `pending` of them are not yet written.
     let mut buf = String::with_capacity(BATCH_BYTES + 1024);
-    let mut records = 0u64;
-    while let Some(rec) = rx.recv().await {
+    let (mut records, mut pending) = (0u64, 0u64);
+    loop {
+        // Wake at least once a second so that a quiet stream's last records are written.
+        let rec = match tokio::time::timeout(FLUSH_EVERY, rx.recv()).await {
+            Ok(Some(rec)) => rec,
+            Ok(None) => break,
+            Err(_) => {
+                w.write(&mut buf, 0, &mut pending, true).await;
+                continue;
+            }
+        };
         rec.write(&mut buf);
-        records += 1;
+        let mut batch = 1;
         // Take what else is queued before touching the file.
         while buf.len() < BATCH_BYTES {
             match rx.try_recv() {
                 Ok(r) => {
                     r.write(&mut buf);
-                    records += 1;
+                    batch += 1;
                 }
                 Err(_) => break,
             }
         }
-        if let Some(s) = stall
-            && records >= s.after_records
-        {
-            tracing::warn!(
-                stream = stream.name(),
-                ms = s.duration.as_millis() as u64,
-                "log writes stalled"
-            );
-            tokio::time::sleep(s.duration).await;
-            stall = None;
-        }
-        out.write_all(buf.as_bytes()).await?;
-        buf.clear();
+        records += batch;
+        w.maybe_stall(records).await;
+        w.write(&mut buf, batch, &mut pending, false).await;
     }
-    out.flush().await?;
+    // The end of the run: everything to the kernel, the durable streams to the disk.
+    w.write(&mut buf, 0, &mut pending, true).await;
+    if w.durable() {
+        w.sync().await;
+    }
     Ok(LoggerReport {
-        stream,
-        records,
+        stream: w.stream,
+        records: records - w.lost.min(records),
         path,
     })
 }

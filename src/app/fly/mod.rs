@@ -90,6 +90,8 @@ struct RunHandles {
     imu_stats: Arc<ImuStats>,
     gps_stats: Arc<GpsStats>,
     live: watch::Receiver<Option<Live>>,
+    /// Console events missed by slow consoles.
+    console_drops: Arc<std::sync::atomic::AtomicU64>,
     /// systemd's notification socket, when run as a `Type=notify` service.
     notifier: Option<Arc<crate::hw::notify::Notifier>>,
     cancel: CancellationToken,
@@ -122,9 +124,11 @@ pub async fn run(
         imu_stats: Arc::new(ImuStats::default()),
         gps_stats: Arc::new(GpsStats::default()),
         live: live_tx.subscribe(),
+        console_drops: Arc::default(),
         notifier: crate::hw::notify::Notifier::from_env().map(Arc::new),
         cancel,
     };
+    crate::tasks::esc_writer::halt_on_any_panic(&h.mailbox);
     let esc = start_actuator(profile, edges.bus, &h, opts.realtime)?;
     // Any early return from here on (a thread that cannot start) still stops the ESCs.
     let _esc_guard = operators::StopEscOnDrop(h.mailbox.clone());
@@ -244,11 +248,16 @@ fn serve_operator(
     if opts.stdin_keys {
         tokio::spawn(operators::read_keys(manual_tx.clone(), h.cancel.clone()));
     }
-    // The first signal stops the motors and ends the run; a second exits at once.
+    // The first signal stops the motors and ends the run in order; a third exits once the
+    // motors' stop has settled.
     if opts.handle_signals {
+        let settle = Duration::from_millis(u64::from(cfg.watchdog.halt_retry_ms) + 500);
         tokio::spawn(operators::handle_signals(
             h.mailbox.clone(),
+            h.esc_status.clone(),
+            Some(h.logs.clone()),
             h.cancel.clone(),
+            settle,
         ));
     }
     if !cfg.console.socket.as_os_str().is_empty() {
@@ -257,7 +266,7 @@ fn serve_operator(
             Arc::new(move || operators::console_stats(&h))
         };
         let path = cfg.console.socket.clone();
-        let drops = Arc::new(std::sync::atomic::AtomicU64::new(0));
+        let drops = h.console_drops.clone();
         let (tx, cancel) = (manual_tx.clone(), h.cancel.clone());
         tokio::spawn(async move {
             if let Err(e) = crate::console::serve(path.clone(), stats, tx, drops, cancel).await {
@@ -350,6 +359,8 @@ fn summarise(h: &RunHandles, r: control::Reports, error: Option<String>) -> FlyS
         esc_commands: load(&h.esc_status.commands),
         esc_stop_reason: h.esc_status.stop_reason(),
         log_drops: h.logs.dropped(),
+        log_io_errors: h.logs.io_errors(),
+        console_drops: load(&h.console_drops),
         log_records: Default::default(),
         latencies_us,
         deadline_misses: load(&h.wd_status.deadline_misses),

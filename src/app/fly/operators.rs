@@ -110,29 +110,101 @@ pub(super) async fn read_keys(tx: mpsc::Sender<ManualCommand>, cancel: Cancellat
     }
 }
 
-/// SIGINT/SIGTERM: the first zeroes and disables the motors and ends the run; a second exits.
-pub(super) async fn handle_signals(mailbox: Arc<EscMailbox>, cancel: CancellationToken) {
-    use tokio::signal::unix::{SignalKind, signal};
-    let (Ok(mut int), Ok(mut term)) = (
-        signal(SignalKind::interrupt()),
-        signal(SignalKind::terminate()),
-    ) else {
+/// The signals that end a run, and those that must not stop the process while the motors
+/// are enabled (a stopped process cannot stop its motors).
+const STOP_SIGNALS: [(&str, i32); 4] = [
+    ("SIGINT", libc::SIGINT),
+    ("SIGTERM", libc::SIGTERM),
+    ("SIGHUP", libc::SIGHUP),
+    ("SIGQUIT", libc::SIGQUIT),
+];
+const IGNORED_SIGNALS: [(&str, i32); 3] = [
+    ("SIGTSTP", libc::SIGTSTP),
+    ("SIGTTIN", libc::SIGTTIN),
+    ("SIGTTOU", libc::SIGTTOU),
+];
+
+/// SIGINT, SIGTERM, SIGHUP (the ssh link of `fly`'s terminal dropped) and SIGQUIT: the first
+/// zeroes and disables the motors and ends the run in order; a second is noted (the orderly
+/// stop goes on: motors, then the report and the logs); a third exits once the motors' stop
+/// has settled, skipping the logs' drain. SIGTSTP, SIGTTIN and SIGTTOU (a suspend key, a
+/// read of the terminal from the background) are ignored for the whole run.
+pub(super) async fn handle_signals(
+    mailbox: Arc<EscMailbox>,
+    esc: Arc<crate::tasks::esc_writer::EscStatus>,
+    mut logs: Option<crate::tasks::logger::LogHub>,
+    cancel: CancellationToken,
+    settle: Duration,
+) {
+    use tokio::signal::unix::{Signal, SignalKind, signal};
+    let listen = |list: &[(&'static str, i32)]| -> Option<Vec<(&'static str, Signal)>> {
+        list.iter()
+            .map(|&(name, n)| signal(SignalKind::from_raw(n)).ok().map(|s| (name, s)))
+            .collect()
+    };
+    let (Some(mut stop), Some(mut ignored)) = (listen(&STOP_SIGNALS), listen(&IGNORED_SIGNALS))
+    else {
         tracing::error!("cannot install signal handlers");
         return;
     };
-    for n in 0..2 {
-        tokio::select! {
-            _ = int.recv() => {}
-            _ = term.recv() => {}
+    let mut stops = 0;
+    loop {
+        let (name, stopping) = tokio::select! {
+            n = next(&mut stop) => (n, true),
+            n = next(&mut ignored) => (n, false),
+            // The loggers end once every sender is gone: this one goes with the run.
+            _ = cancel.cancelled(), if logs.is_some() => {
+                logs = None;
+                continue;
+            }
+        };
+        if !stopping {
+            tracing::warn!("{name} ignored: the motors are under this program's control");
+            continue;
         }
-        if n == 0 {
-            tracing::info!("signal: stopping the motors and ending the run");
-            mailbox.shutdown();
-            cancel.cancel();
-        } else {
-            tracing::warn!("second signal: exiting now");
-            std::process::exit(130);
+        stops += 1;
+        match stops {
+            1 => {
+                tracing::info!("{name}: stopping the motors and ending the run");
+                if let Some(l) = logs.take() {
+                    l.err(format!(
+                        "signal {name}: stopping the motors and ending the run"
+                    ));
+                }
+                mailbox.shutdown();
+                cancel.cancel();
+            }
+            2 => tracing::warn!(
+                "{name}: already stopping (motors first, then the report and logs); a third signal exits once the motors are stopped"
+            ),
+            _ => {
+                wait_for_motor_stop(&esc, settle).await;
+                tracing::warn!("{name}: exiting without draining the logs");
+                std::process::exit(130);
+            }
         }
+    }
+}
+
+/// The name of the first of `signals` to arrive.
+async fn next(signals: &mut [(&'static str, tokio::signal::unix::Signal)]) -> &'static str {
+    std::future::poll_fn(|cx| {
+        for (name, s) in signals.iter_mut() {
+            if s.poll_recv(cx).is_ready() {
+                return std::task::Poll::Ready(*name);
+            }
+        }
+        std::task::Poll::Pending
+    })
+    .await
+}
+
+/// Waits until the ESC writer's stop has settled (confirmed, or out of retries), at most
+/// `settle`.
+async fn wait_for_motor_stop(esc: &crate::tasks::esc_writer::EscStatus, settle: Duration) {
+    let asked = Instant::now();
+    while esc.stop_outcome().is_none() && asked.elapsed() < settle {
+        tokio::time::sleep(Duration::from_millis(5)).await;
     }
 }
 
