@@ -10,7 +10,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, OnceLock};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
 use tokio::net::{UnixListener, UnixStream};
 use tokio::sync::{broadcast, mpsc};
@@ -95,8 +95,18 @@ impl Filter {
 /// The once-a-second statistics line, made by the run that serves the console.
 pub type StatsFn = Arc<dyn Fn() -> String + Send + Sync>;
 
+/// Longest line a console client may send, bytes: a longer one is refused and the client is
+/// told why and disconnected (an endless line must not grow this process's locked memory).
+pub const MAX_LINE_BYTES: usize = 1024;
+/// Consoles attached at once; more are told so and closed.
+pub const MAX_CLIENTS: usize = 8;
+/// Commands a console may send per second; the rest are refused, each with a reply.
+pub const MAX_COMMANDS_PER_S: u32 = 20;
+
 /// Serves the console socket at `path` until `cancel`. The socket is created readable and
-/// writable by its owner and group only.
+/// writable by its owner and group only, at a private name first and then renamed into
+/// place, so it is never open to others, and never follows a symlink. A socket that another
+/// run still answers on is left alone: this run then serves no console, and says why.
 pub async fn serve(
     path: PathBuf,
     stats: StatsFn,
@@ -104,44 +114,74 @@ pub async fn serve(
     dropped: Arc<AtomicU64>,
     cancel: CancellationToken,
 ) -> std::io::Result<()> {
-    use std::os::unix::fs::{FileTypeExt, PermissionsExt};
-    if let Ok(meta) = std::fs::symlink_metadata(&path) {
-        // A socket left by a run that died is replaced; anything else at that path is not
-        // ours to delete.
-        if !meta.file_type().is_socket() {
-            return Err(std::io::Error::new(
-                std::io::ErrorKind::AlreadyExists,
-                format!("{} exists and is not a socket", path.display()),
-            ));
-        }
-        std::fs::remove_file(&path)?;
-    }
-    if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir)?;
-    }
-    let listener = UnixListener::bind(&path)?;
-    std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o660))?;
+    let listener = bind(&path).await?;
     tracing::info!(socket = %path.display(), "console socket ready");
+    let clients = Arc::new(std::sync::atomic::AtomicUsize::new(0));
     loop {
         let conn = tokio::select! {
             _ = cancel.cancelled() => break,
             c = listener.accept() => c,
         };
         match conn {
-            Ok((stream, _)) => {
-                tokio::spawn(client(
-                    stream,
+            Ok((mut stream, _)) => {
+                if clients.fetch_add(1, Ordering::SeqCst) >= MAX_CLIENTS {
+                    clients.fetch_sub(1, Ordering::SeqCst);
+                    let msg = format!("console: {MAX_CLIENTS} consoles already attached\n");
+                    let _ = stream.write_all(msg.as_bytes()).await;
+                    continue;
+                }
+                let (stats, manual, dropped, cancel, clients) = (
                     stats.clone(),
                     manual.clone(),
                     dropped.clone(),
                     cancel.clone(),
-                ));
+                    clients.clone(),
+                );
+                tokio::spawn(async move {
+                    client(stream, stats, manual, dropped, cancel).await;
+                    clients.fetch_sub(1, Ordering::SeqCst);
+                });
             }
             Err(e) => tracing::warn!("console accept: {e}"),
         }
     }
     let _ = std::fs::remove_file(&path);
     Ok(())
+}
+
+/// Binds the console socket at `path` (see [`serve`]).
+async fn bind(path: &Path) -> std::io::Result<UnixListener> {
+    use std::os::unix::fs::{FileTypeExt, PermissionsExt};
+    if let Ok(meta) = std::fs::symlink_metadata(path) {
+        // A socket left by a run that died is replaced; a live one, or anything else at that
+        // path, is not ours to delete.
+        if !meta.file_type().is_socket() {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::AlreadyExists,
+                format!("{} exists and is not a socket", path.display()),
+            ));
+        }
+        if UnixStream::connect(path).await.is_ok() {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::AddrInUse,
+                format!(
+                    "{} is the console of another running uquad; this run serves no console",
+                    path.display()
+                ),
+            ));
+        }
+    }
+    let dir = path.parent().filter(|d| !d.as_os_str().is_empty());
+    if let Some(dir) = dir {
+        std::fs::create_dir_all(dir)?;
+    }
+    let private = path.with_extension(format!("{}.new", std::process::id()));
+    let _ = std::fs::remove_file(&private);
+    let listener = UnixListener::bind(&private)?;
+    std::fs::set_permissions(&private, std::fs::Permissions::from_mode(0o660))?;
+    // rename replaces a stale socket (or a symlink put there meanwhile) without following it.
+    std::fs::rename(&private, path)?;
+    Ok(listener)
 }
 
 async fn client(
@@ -152,7 +192,11 @@ async fn client(
     cancel: CancellationToken,
 ) {
     let (read, mut write) = stream.into_split();
-    let mut lines = BufReader::new(read).lines();
+    let mut lines = tokio_util::codec::FramedRead::new(
+        read,
+        tokio_util::codec::LinesCodec::new_with_max_length(MAX_LINE_BYTES),
+    );
+    let mut rate = RateLimit::default();
     let mut rx = events().subscribe();
     let mut filter = Filter::parse("info");
     let mut tick = tokio::time::interval(Duration::from_secs(1));
@@ -162,8 +206,16 @@ async fn client(
     loop {
         let out: Option<String> = tokio::select! {
             _ = cancel.cancelled() => None,
-            line = lines.next_line() => match line {
-                Ok(Some(l)) => Some(command(&l, &mut filter, &manual)),
+            line = futures_util::StreamExt::next(&mut lines) => match line {
+                Some(Ok(l)) if rate.allows(Instant::now()) => Some(command(&l, &mut filter, &manual)),
+                Some(Ok(_)) => Some(format!(
+                    "console: more than {MAX_COMMANDS_PER_S} commands a second; refused\n"
+                )),
+                Some(Err(tokio_util::codec::LinesCodecError::MaxLineLengthExceeded)) => {
+                    let msg = format!("console: line longer than {MAX_LINE_BYTES} bytes; disconnecting\n");
+                    let _ = write.write_all(msg.as_bytes()).await;
+                    None
+                }
                 _ => None,
             },
             ev = rx.recv() => match ev {
@@ -181,6 +233,28 @@ async fn client(
         if !out.is_empty() && write.write_all(out.as_bytes()).await.is_err() {
             break;
         }
+    }
+}
+
+/// At most [`MAX_COMMANDS_PER_S`] commands in any one-second window.
+#[derive(Debug, Default)]
+pub struct RateLimit {
+    window_start: Option<Instant>,
+    count: u32,
+}
+
+impl RateLimit {
+    /// Whether a command arriving `now` is taken.
+    pub fn allows(&mut self, now: Instant) -> bool {
+        match self.window_start {
+            Some(start) if now.duration_since(start) < Duration::from_secs(1) => {}
+            _ => {
+                self.window_start = Some(now);
+                self.count = 0;
+            }
+        }
+        self.count += 1;
+        self.count <= MAX_COMMANDS_PER_S
     }
 }
 

@@ -119,3 +119,99 @@ fn two_consoles_watch_and_steer_a_running_flight() {
     assert_eq!(r["deadline_misses"], 0);
     assert!(r["halt"].is_null(), "{r}");
 }
+
+/// Resident memory of a process, kB.
+fn rss_kb(pid: u32) -> u64 {
+    std::fs::read_to_string(format!("/proc/{pid}/status"))
+        .unwrap()
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
+        .and_then(|v| v.split_whitespace().next()?.parse().ok())
+        .unwrap()
+}
+
+/// The first line a console sends when it attaches.
+fn banner(sock: &std::path::Path) -> String {
+    let s = UnixStream::connect(sock).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+    let mut line = String::new();
+    BufReader::new(s).read_line(&mut line).unwrap();
+    line
+}
+
+#[test]
+fn an_endless_line_is_cut_off_and_a_second_run_leaves_the_live_console_alone() {
+    let dir = tempfile::tempdir().unwrap();
+    let sock = dir.path().join("console.sock");
+    let socket = format!("console.socket=\"{}\"", sock.display());
+    let first_dir = dir.path().join("first");
+    let mut first = Uquad::spawn(&mut realtime_sim(
+        &["--duration", "14", "--set", &socket],
+        &first_dir,
+    ));
+    let t0 = Instant::now();
+    while !sock.exists() {
+        assert!(t0.elapsed() < Duration::from_secs(10), "no console socket");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_secs(1));
+    let rss_before = rss_kb(first.child.id());
+
+    // 64 MiB without a newline: the console answers, then hangs up.
+    let mut hostile = UnixStream::connect(&sock).unwrap();
+    let replies = reader(hostile.try_clone().unwrap());
+    let chunk = vec![b'x'; 1 << 20];
+    let mut sent = 0usize;
+    for _ in 0..64 {
+        match hostile.write_all(&chunk) {
+            Ok(()) => sent += chunk.len(),
+            Err(_) => break,
+        }
+    }
+    std::thread::sleep(Duration::from_millis(300));
+    let rss_after = rss_kb(first.child.id());
+    assert!(
+        replies
+            .lock()
+            .unwrap()
+            .iter()
+            .any(|l| l == "console: line longer than 1024 bytes; disconnecting"),
+        "{:?}",
+        replies.lock().unwrap()
+    );
+    assert!(sent < 64 << 20, "the console kept reading all {sent} bytes");
+    assert!(
+        rss_after < rss_before + 10_000,
+        "resident memory grew from {rss_before} kB to {rss_after} kB"
+    );
+
+    // A second run with the same socket path: it flies, but serves no console and says why.
+    let second_dir = dir.path().join("second");
+    let second = Uquad::spawn(&mut realtime_sim(
+        &["--duration", "4", "--set", &socket],
+        &second_dir,
+    ));
+    let t1 = Instant::now();
+    while !second.stderr().contains("console of another running uquad") {
+        assert!(
+            t1.elapsed() < Duration::from_secs(10),
+            "no refusal:\n{}",
+            second.stderr()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(banner(&sock).starts_with("uquad console:"));
+    drop(second);
+    assert!(
+        banner(&sock).starts_with("uquad console:"),
+        "the first run's console still answers"
+    );
+
+    let status = first.child.wait().unwrap();
+    assert!(status.success(), "{status}\n{}", first.stderr());
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(first_dir.join("report.json")).unwrap())
+            .unwrap();
+    assert_eq!(r["deadline_misses"], 0, "{r}");
+    assert!(r["halt"].is_null(), "{r}");
+}

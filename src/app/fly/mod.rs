@@ -267,10 +267,11 @@ fn serve_operator(
         };
         let path = cfg.console.socket.clone();
         let drops = h.console_drops.clone();
-        let (tx, cancel) = (manual_tx.clone(), h.cancel.clone());
+        let (tx, cancel, logs) = (manual_tx.clone(), h.cancel.clone(), h.logs.clone());
         tokio::spawn(async move {
             if let Err(e) = crate::console::serve(path.clone(), stats, tx, drops, cancel).await {
                 tracing::error!("console socket {}: {e}", path.display());
+                logs.err(format!("console socket {}: {e}", path.display()));
             }
         });
     }

@@ -91,6 +91,7 @@ pub(super) async fn read_keys(tx: mpsc::Sender<ManualCommand>, cancel: Cancellat
     use tokio::io::AsyncReadExt;
     let mut stdin = tokio::io::stdin();
     let mut byte = [0u8; 1];
+    let mut rate = crate::console::RateLimit::default();
     loop {
         let n = tokio::select! {
             _ = cancel.cancelled() => return,
@@ -102,9 +103,17 @@ pub(super) async fn read_keys(tx: mpsc::Sender<ManualCommand>, cancel: Cancellat
         if n == 0 {
             return;
         }
-        if let Some(cmd) = ManualCommand::from_key(byte[0])
-            && tx.send(cmd).await.is_err()
-        {
+        let Some(cmd) = ManualCommand::from_key(byte[0]) else {
+            continue;
+        };
+        if !rate.allows(Instant::now()) {
+            tracing::warn!(
+                "stdin: more than {} commands a second; {cmd:?} refused",
+                crate::console::MAX_COMMANDS_PER_S
+            );
+            continue;
+        }
+        if tx.send(cmd).await.is_err() {
             return;
         }
     }
