@@ -254,7 +254,6 @@ fn a_watchdog_halt_ends_the_sequence_in_every_phase() {
                 decided_us: b.t_us + 12_000,
             },
             halt_us: b.t_us + 13_000,
-            confirmed: true,
             unconfirmed: [None; 4],
         };
         b.estimator.on_halt(halt, &mut b.out);

@@ -86,7 +86,8 @@ fn free_port() -> u16 {
 }
 
 /// A gpsd process, stopped when dropped (also when a test fails).
-struct Gpsd(Child);
+/// A gpsd for one test; its stderr is kept and printed if the test fails.
+struct Gpsd(Child, tempfile::NamedTempFile);
 
 impl Gpsd {
     fn start(port: u16, source_port: u16) -> Gpsd {
@@ -94,16 +95,17 @@ impl Gpsd {
             .into_iter()
             .find(|p| std::path::Path::new(p).exists())
             .unwrap_or("gpsd");
+        let stderr = tempfile::NamedTempFile::new().unwrap();
         let child = Command::new(bin)
             .args(["-N", "-n", "-S", &port.to_string()])
             .arg(format!("tcp://127.0.0.1:{source_port}"))
             .stdout(Stdio::null())
-            .stderr(Stdio::null())
+            .stderr(stderr.reopen().unwrap())
             .spawn()
             .unwrap_or_else(|e| {
                 panic!("cannot start gpsd ({bin}): {e}; tests/run.sh installs Debian's gpsd")
             });
-        Gpsd(child)
+        Gpsd(child, stderr)
     }
 }
 
@@ -111,6 +113,10 @@ impl Drop for Gpsd {
     fn drop(&mut self) {
         let _ = self.0.kill();
         let _ = self.0.wait();
+        if std::thread::panicking() {
+            let text = std::fs::read_to_string(self.1.path()).unwrap_or_default();
+            eprintln!("--- gpsd's stderr ---\n{text}");
+        }
     }
 }
 

@@ -46,7 +46,7 @@ async fn expect_halt(
     let bound_ms = max_latency_ms + STALL_MS;
     // A refused stop is retried (watchdog.halt_retry_ms) before it settles: then only the
     // decision is bound by the cause's limit.
-    let settled_ms = if halt.confirmed {
+    let settled_ms = if halt.confirmed() {
         latency
     } else {
         halt.decision_ms()
@@ -64,7 +64,7 @@ async fn expect_halt(
         err.contains(&format!("watchdog: halt, reason {reason}")),
         "{err}"
     );
-    let stop = if halt.confirmed {
+    let stop = if halt.confirmed() {
         "stop confirmed by every ESC"
     } else {
         "stop NOT confirmed by 0x"
@@ -139,7 +139,7 @@ async fn missed_acks_trip_esc_ack() {
     // watchdog.halt_retry_ms (500 ms): unconfirmed by every ESC.
     assert!(s.esc_failed_writes >= 8);
     let halt = s.halt.unwrap();
-    assert!(!halt.confirmed, "{}", s.text());
+    assert!(!halt.confirmed(), "{}", s.text());
     assert_eq!(
         halt.unconfirmed_addresses().collect::<Vec<_>>(),
         uquad::core::motor::MotorMap::UQUAD.addresses.to_vec()
@@ -175,7 +175,7 @@ async fn a_refused_stop_is_retried_until_every_esc_acknowledges_it() {
     )
     .await;
     let halt = s.halt.unwrap();
-    assert!(halt.confirmed, "{}", s.text());
+    assert!(halt.confirmed(), "{}", s.text());
     assert!(
         halt.latency_ms() >= 250.0,
         "confirmed {} ms after the event",

@@ -176,7 +176,7 @@ impl FlySummary {
                 decision_ms: h.decision_ms(),
                 event_s: h.trip.event_us as f64 / 1e6,
                 halt_s: h.halt_us as f64 / 1e6,
-                confirmed: h.confirmed,
+                confirmed: h.confirmed(),
                 unconfirmed: h
                     .unconfirmed_addresses()
                     .map(|a| format!("0x{a:02x}"))
@@ -260,7 +260,7 @@ impl FlySummary {
                 "HALT, reason {}, {:.3} ms after the event{}",
                 h.trip.reason.name(),
                 h.latency_ms(),
-                if h.confirmed {
+                if h.confirmed() {
                     ""
                 } else {
                     " (stop NOT confirmed by every ESC)"

@@ -92,7 +92,6 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
         handle_signals: true,
         ..Default::default()
     };
-    let esc_model = model;
     let summary = fly::run(&run_profile, edges, opts, cancel).await;
     timer.abort();
     stop.store(true, Ordering::SeqCst);
@@ -101,7 +100,7 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
         .ok()
         .and_then(Result::ok)
         .unwrap_or_default();
-    let esc_end = esc_model.lock().map(|m| m.end_state()).unwrap_or_default();
+    let esc_end = model.lock().map(|m| m.end_state()).unwrap_or_default();
     Ok(SimSummary {
         esc_end,
         fly: summary?,

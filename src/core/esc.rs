@@ -45,15 +45,19 @@ pub enum CycleKind {
 /// How a stop ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct StopOutcome {
-    /// Every ESC acknowledged a zero speed and then a disable.
-    pub confirmed: bool,
-    /// The addresses that never did, in motor order.
+    /// The addresses of the ESCs that never acknowledged a zero speed and then a disable, in
+    /// motor order; none when the stop was confirmed.
     pub unconfirmed: [Option<u8>; 4],
     /// When the last acknowledgement came (confirmed) or the retries ran out, µs since start.
     pub settled_us: i64,
 }
 
 impl StopOutcome {
+    /// Every ESC acknowledged a zero speed and then a disable.
+    pub fn confirmed(&self) -> bool {
+        self.unconfirmed.iter().all(Option::is_none)
+    }
+
     /// The addresses that never confirmed their stop.
     pub fn unconfirmed_addresses(&self) -> Vec<u8> {
         self.unconfirmed.iter().flatten().copied().collect()
@@ -64,7 +68,6 @@ impl StopOutcome {
         Halt {
             trip,
             halt_us: self.settled_us,
-            confirmed: self.confirmed,
             unconfirmed: self.unconfirmed,
         }
     }
@@ -179,7 +182,6 @@ impl EscDriver {
             // Never enabled: nothing spins, nothing to write.
             self.phase = EscPhase::Stopped;
             self.outcome = Some(StopOutcome {
-                confirmed: true,
                 unconfirmed: [None; 4],
                 settled_us: now_us,
             });
@@ -229,7 +231,6 @@ impl EscDriver {
         let unconfirmed =
             std::array::from_fn(|m| (!r.disable_acked[m]).then_some(self.map.addresses[m]));
         self.outcome = Some(StopOutcome {
-            confirmed: r.disable_acked.iter().all(|&a| a),
             unconfirmed,
             settled_us: at_us,
         });
@@ -567,7 +568,7 @@ mod tests {
     #[test]
     fn an_acknowledged_stop_is_confirmed_at_once() {
         let (o, writes) = stop_with(|_, _| false);
-        assert!(o.confirmed);
+        assert!(o.confirmed());
         assert_eq!(o.unconfirmed, [None; 4]);
         assert_eq!(o.settled_us, 10_000_000);
         assert_eq!(writes.len(), 8, "zero, then disable, once each");
@@ -577,7 +578,7 @@ mod tests {
     fn a_refused_stop_is_retried_until_acknowledged() {
         // 0x6a refuses for 30 ms: retried every 2 ms, confirmed by its first acks.
         let (o, writes) = stop_with(|a, t| a == 0x6a && t < 10_030_000);
-        assert!(o.confirmed, "{o:?}");
+        assert!(o.confirmed(), "{o:?}");
         assert_eq!(o.settled_us, 10_030_000);
         let last: Vec<_> = writes.iter().rev().take(8).collect();
         assert!(last[..4].iter().all(|w| w.1 == REG_DISABLE), "disable last");
@@ -590,7 +591,7 @@ mod tests {
     #[test]
     fn a_stop_refused_to_the_end_names_the_escs_within_the_retry_time() {
         let (o, writes) = stop_with(|a, _| a == 0x6a || a == 0x68);
-        assert!(!o.confirmed);
+        assert!(!o.confirmed());
         assert_eq!(o.unconfirmed_addresses(), vec![0x6a, 0x68]);
         assert_eq!(o.settled_us, 10_000_000 + TIMING.halt_retry_us);
         assert!(
@@ -626,7 +627,7 @@ mod tests {
             || 10_002_000,
             |_, _| {},
         );
-        assert!(d.stop_outcome().unwrap().confirmed);
+        assert!(d.stop_outcome().unwrap().confirmed());
     }
 
     #[test]

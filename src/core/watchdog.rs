@@ -49,9 +49,8 @@ pub struct Halt {
     /// When the stop settled, µs since start: the last ESC acknowledged its disable
     /// (confirmed), or the retries ran out.
     pub halt_us: i64,
-    /// Every ESC acknowledged a zero speed and then a disable.
-    pub confirmed: bool,
-    /// The addresses of the ESCs that never did, in motor order.
+    /// The addresses of the ESCs that never acknowledged a zero speed and then a disable,
+    /// in motor order; none when the stop was confirmed.
     pub unconfirmed: [Option<u8>; 4],
 }
 
@@ -64,6 +63,11 @@ impl Halt {
     /// From the triggering event to the decision, ms.
     pub fn decision_ms(&self) -> f64 {
         (self.trip.decided_us - self.trip.event_us) as f64 / 1000.0
+    }
+
+    /// Every ESC acknowledged a zero speed and then a disable.
+    pub fn confirmed(&self) -> bool {
+        self.unconfirmed.iter().all(Option::is_none)
     }
 
     /// The addresses of the ESCs that never confirmed the stop.

@@ -171,7 +171,7 @@ impl Record {
 
 /// The err.log line of a watchdog halt: the same words in every mode.
 pub fn halt_line(h: &Halt) -> String {
-    let stop = if h.confirmed {
+    let stop = if h.confirmed() {
         "stop confirmed by every ESC".to_string()
     } else {
         let addrs: Vec<String> = h

@@ -376,7 +376,7 @@ fn settle_stop(w: &mut Writer, driver: &mut EscDriver, cycles: &mut Vec<(CycleKi
     }
     w.finish(driver);
     if let Some(o) = driver.stop_outcome()
-        && !o.confirmed
+        && !o.confirmed()
     {
         tracing::error!(
             unconfirmed = ?o.unconfirmed_addresses(),

@@ -121,7 +121,6 @@ fn halt_motors(trip: Trip, path: &HaltPath, beats: &Heartbeats) -> Halt {
             return Halt {
                 trip,
                 halt_us: beats.us(Instant::now()),
-                confirmed: false,
                 unconfirmed: path.addresses.map(Some),
             };
         }
