@@ -21,7 +21,7 @@ fn bench_step(c: &mut Criterion) {
         u_rad_s: [w + 3.0, w - 2.0, w + 1.0, w],
         mass_kg: 1.55,
         dt_us: 10_000,
-        gps_m: None,
+        gps: None,
     };
     // Each iteration starts from the same state, so the filter cannot drift into an
     // unrepresentative (diverged or refused) regime over millions of iterations.
@@ -36,7 +36,7 @@ fn bench_step(c: &mut Criterion) {
             black_box(&ekf.x);
         })
     });
-    input.gps_m = Some([0.0; 3]);
+    input.gps = Some(uquad::core::gps::GpsSample::at([0.0; 3]));
     c.bench_function("ekf_step_gps_12_rows", |b| {
         b.iter(|| {
             ekf.x = start.x;

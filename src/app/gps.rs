@@ -10,11 +10,13 @@ pub struct FixLine {
     pub mode: u8,
     pub lat_deg: f64,
     pub lon_deg: f64,
-    pub alt_m: f64,
-    /// Local frame: north, west, up from the first fix printed, m.
+    /// null for a 2D fix without altitude.
+    pub alt_m: Option<f64>,
+    /// Local frame: north, west, up from the first fix printed (with an altitude), m; z_m is
+    /// null for a fix without altitude.
     pub x_m: f64,
     pub y_m: f64,
-    pub z_m: f64,
+    pub z_m: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub time: Option<String>,
 }
@@ -30,7 +32,8 @@ pub async fn run(server: &str, count: u64, out: &mut impl Write) -> anyhow::Resu
         match session.next_report().await? {
             Some(Report::Tpv(tpv)) => match tpv.fix() {
                 Some(fix) => {
-                    let [x, y, z] = frame.to_local(fix.lat_deg, fix.lon_deg, fix.alt_m);
+                    let local = frame.to_local(fix.lat_deg, fix.lon_deg, fix.alt_m);
+                    let [x, y] = local.xy_m;
                     let line = FixLine {
                         mode: fix.mode,
                         lat_deg: fix.lat_deg,
@@ -38,7 +41,7 @@ pub async fn run(server: &str, count: u64, out: &mut impl Write) -> anyhow::Resu
                         alt_m: fix.alt_m,
                         x_m: x,
                         y_m: y,
-                        z_m: z,
+                        z_m: local.z_m,
                         time: tpv.time.clone(),
                     };
                     writeln!(out, "{}", serde_json::to_string(&line)?)?;

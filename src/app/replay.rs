@@ -200,14 +200,16 @@ fn gps_source(
                         alt_m,
                     } if fix_mode >= 2 => samples.push((
                         t_us,
-                        GpsSample {
-                            // uquad's own logs hold the local position the filter used; the
-                            // original's hold absolute UTM, so convert from latitude/longitude.
-                            pos_m: if local_positions {
-                                pos_m
-                            } else {
-                                frame.to_local(lat_deg, lon_deg, alt_m)
-                            },
+                        // uquad's own logs hold the local position the filter used (z not a
+                        // number for a fix without altitude); the original's hold absolute
+                        // UTM, so convert from latitude/longitude.
+                        if local_positions {
+                            GpsSample {
+                                xy_m: [pos_m[0], pos_m[1]],
+                                z_m: pos_m[2].is_finite().then_some(pos_m[2]),
+                            }
+                        } else {
+                            frame.to_local(lat_deg, lon_deg, alt_m.is_finite().then_some(alt_m))
                         },
                     )),
                     GpsLogRecord::Gpsd { .. } => {}

@@ -7,6 +7,7 @@
 //! Fixed-size nalgebra matrices: a step allocates nothing. The observation matrices are pure
 //! selections (each row reads one state), so H·P·Hᵀ and P·Hᵀ are index gathers, not products.
 
+use crate::core::gps::GpsSample;
 use crate::core::imu::calib::{ImuSample, unwrap_theta};
 use crate::core::math;
 use crate::core::model::{
@@ -106,7 +107,7 @@ pub struct StepInput {
     /// Filter dt before clamping, µs.
     pub dt_us: i64,
     /// A GPS position (local frame, m) to fuse in this step.
-    pub gps_m: Option<[f64; 3]>,
+    pub gps: Option<GpsSample>,
 }
 
 /// What a step did, for counters and logs.
@@ -427,7 +428,7 @@ impl Ekf {
         let e = sample.euler_rad;
         let az_pred = total_thrust_n(u) / input.mass_kg + x_pred[idx::BAZ];
         let imu9 = [e[0], e[1], theta_m, a[0], a[1], a[2], w[0], w[1], w[2]];
-        let result = match input.gps_m {
+        let result = match input.gps {
             None => {
                 let z: [f64; IMU_ROWS] =
                     std::array::from_fn(|i| if i < 9 { imu9[i] } else { sample.alt_m });
@@ -435,9 +436,18 @@ impl Ekf {
                 self.update::<IMU_ROWS>(&z, &IMU_OBS, az_pred, &r)
             }
             Some(g) => {
-                let z: [f64; GPS_ROWS] =
-                    std::array::from_fn(|i| if i < 9 { imu9[i] } else { g[i - 9] });
-                let r = self.params.r_gps_diag;
+                let z: [f64; GPS_ROWS] = std::array::from_fn(|i| {
+                    if i < 9 {
+                        imu9[i]
+                    } else {
+                        gps_row(&g, i - 9, sample.alt_m)
+                    }
+                });
+                let mut r = self.params.r_gps_diag;
+                if g.z_m.is_none() {
+                    // A fix without altitude: the barometer's row, with its noise, stands in.
+                    r[GPS_ROWS - 1] = self.params.r_imu_diag[IMU_ROWS - 1];
+                }
                 self.update::<GPS_ROWS>(&z, &GPS_OBS, az_pred, &r)
             }
         };
@@ -493,6 +503,15 @@ impl Ekf {
             }
         }
         Ok(())
+    }
+}
+
+/// Row `k` (x, y, z) of a GPS measurement; a fix without altitude reads the barometer's
+/// altitude `alt_m` for z.
+fn gps_row(g: &GpsSample, k: usize, alt_m: f64) -> f64 {
+    match k {
+        0 | 1 => g.xy_m[k],
+        _ => g.z_m.unwrap_or(alt_m),
     }
 }
 
@@ -599,7 +618,7 @@ mod tests {
                 u_rad_s: [w; 4],
                 mass_kg: m,
                 dt_us: 20_000,
-                gps_m: Some([1.0, -1.0, 0.0]),
+                gps: Some(GpsSample::at([1.0, -1.0, 0.0])),
             },
         );
         res.unwrap();
@@ -617,10 +636,43 @@ mod tests {
                 u_rad_s: [w; 4],
                 mass_kg: m,
                 dt_us: 10_000,
-                gps_m: None,
+                gps: None,
             },
         );
         assert_eq!(res, Err(EkfError::NonFiniteMeasurement));
         assert!(ekf.x.iter().all(|v| v.is_finite()));
+    }
+
+    #[test]
+    fn a_fix_without_altitude_leaves_the_altitude_to_the_barometer() {
+        // The barometer reads 2 m. A 2D fix (no z) leaves the altitude where the barometer
+        // alone puts it; a 3D fix at z = 0 pulls it down.
+        let null = crate::core::imu::calib::ImuSample {
+            acc_m_s2: [0.0, 0.0, 9.81],
+            ..Default::default()
+        };
+        let z_after = |gps: Option<GpsSample>| {
+            let mut ekf = Ekf::new(EkfParams::flight_2012(), &null);
+            let mut s = null;
+            s.alt_m = 2.0;
+            for _ in 0..300 {
+                let input = StepInput {
+                    u_rad_s: [w_hover_rad_s(1.55); 4],
+                    mass_kg: 1.55,
+                    dt_us: 10_000,
+                    gps,
+                };
+                ekf.step(&s, &input).1.unwrap();
+            }
+            ekf.x[idx::Z]
+        };
+        let baro_only = z_after(None);
+        let two_d = z_after(Some(GpsSample {
+            xy_m: [0.0, 0.0],
+            z_m: None,
+        }));
+        let three_d = z_after(Some(GpsSample::at([0.0, 0.0, 0.0])));
+        assert!((two_d - baro_only).abs() < 1e-6, "{two_d} vs {baro_only}");
+        assert!(three_d < baro_only - 0.5, "{three_d} vs {baro_only}");
     }
 }

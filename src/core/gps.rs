@@ -83,8 +83,8 @@ pub struct Fix {
     pub mode: u8,
     pub lat_deg: f64,
     pub lon_deg: f64,
-    /// Altitude, m (MSL when gpsd gives it; 0 for a 2D fix without one).
-    pub alt_m: f64,
+    /// Altitude, m (MSL when gpsd gives it); none for a 2D fix without one.
+    pub alt_m: Option<f64>,
 }
 
 impl Tpv {
@@ -101,8 +101,7 @@ impl Tpv {
             .alt_msl
             .or(self.alt)
             .or(self.alt_hae)
-            .filter(|a| a.is_finite())
-            .unwrap_or(0.0);
+            .filter(|a| a.is_finite());
         Some(Fix {
             mode: self.mode,
             lat_deg: lat,
@@ -133,10 +132,27 @@ pub struct LiveFix {
     pub stamp_us: i64,
 }
 
-/// One GPS sample for the filter: position in the local frame, m.
+/// One GPS sample for the filter: position in the local frame, m. A fix without altitude (2D)
+/// has no z: the filter then keeps the barometer's altitude row instead of inventing one.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct GpsSample {
-    pub pos_m: [f64; 3],
+    pub xy_m: [f64; 2],
+    pub z_m: Option<f64>,
+}
+
+impl GpsSample {
+    /// A sample with all three coordinates.
+    pub fn at(pos_m: [f64; 3]) -> Self {
+        GpsSample {
+            xy_m: [pos_m[0], pos_m[1]],
+            z_m: Some(pos_m[2]),
+        }
+    }
+
+    /// x, y, z with z not a number when unknown (the gps.log column).
+    pub fn pos_m(&self) -> [f64; 3] {
+        [self.xy_m[0], self.xy_m[1], self.z_m.unwrap_or(f64::NAN)]
+    }
 }
 
 /// Small deterministic generator (SplitMix64) for the seeded fake-random GPS mode: the same
@@ -174,12 +190,12 @@ pub enum FakePositions {
 impl FakePositions {
     pub fn next_sample(&mut self) -> GpsSample {
         match self {
-            FakePositions::Zero => GpsSample { pos_m: [0.0; 3] },
+            FakePositions::Zero => GpsSample::at([0.0; 3]),
             FakePositions::Random { rng, span_m } => {
                 let x = (rng.next_f64() - 0.5) * *span_m;
                 let y = (rng.next_f64() - 0.5) * *span_m;
                 let z = (rng.next_f64() * 2.0 - 1.0) * *span_m;
-                GpsSample { pos_m: [x, y, z] }
+                GpsSample::at([x, y, z])
             }
         }
     }
@@ -250,11 +266,21 @@ pub struct Utm {
 /// Latitude/longitude (degrees) to UTM, with the fractions 3/4, 5/3 and 35/27 evaluated as
 /// real numbers (the gpsd-era copy of the original truncated them to integers).
 pub fn deg_to_utm(lat_deg: f64, lon_deg: f64) -> Utm {
+    deg_to_utm_in_zone(lat_deg, lon_deg, utm_zone(lon_deg))
+}
+
+/// The UTM zone of a longitude, degrees.
+pub fn utm_zone(lon_deg: f64) -> i32 {
+    (lon_deg / 6.0 + 31.0).floor() as i32
+}
+
+/// [`deg_to_utm`] projected in a given zone (its central meridian), so that positions on both
+/// sides of a zone boundary stay in one plane.
+pub fn deg_to_utm_in_zone(lat_deg: f64, lon_deg: f64, zone: i32) -> Utm {
     let ee = 0.006_739_496_742_333_46;
     let c = 6_399_593.625_758_67;
     let lat = lat_deg.to_radians();
     let lon = lon_deg.to_radians();
-    let zone = (lon_deg / 6.0 + 31.0).floor() as i32;
     let s = f64::from(6 * zone - 183);
     let d_lambda = lon - s.to_radians();
     let cos_lat = lat.cos();
@@ -284,22 +310,29 @@ pub fn deg_to_utm(lat_deg: f64, lon_deg: f64) -> Utm {
     }
 }
 
-/// The local frame (x north, y west, z up) anchored at the first fix it sees.
+/// The local frame (x north, y west, z up) anchored at the first fix it sees, projected in
+/// that fix's UTM zone for the whole run (a fix across a zone boundary would otherwise jump by
+/// hundreds of km); its altitude origin is the first fix that has an altitude.
 #[derive(Debug, Clone, Default)]
 pub struct LocalFrame {
-    origin: Option<(Utm, f64)>,
+    origin: Option<Utm>,
+    alt_origin_m: Option<f64>,
 }
 
 impl LocalFrame {
-    /// Position of a fix in the local frame, m. The first fix becomes the origin.
-    pub fn to_local(&mut self, lat_deg: f64, lon_deg: f64, alt_m: f64) -> [f64; 3] {
-        let utm = deg_to_utm(lat_deg, lon_deg);
-        let (o, o_alt) = *self.origin.get_or_insert((utm, alt_m));
-        [
-            utm.northing_m - o.northing_m,
-            -(utm.easting_m - o.easting_m),
-            alt_m - o_alt,
-        ]
+    /// Position of a fix in the local frame, m; no z for a fix without altitude.
+    pub fn to_local(&mut self, lat_deg: f64, lon_deg: f64, alt_m: Option<f64>) -> GpsSample {
+        let zone = self.origin.map_or_else(|| utm_zone(lon_deg), |o| o.zone);
+        let utm = deg_to_utm_in_zone(lat_deg, lon_deg, zone);
+        let o = *self.origin.get_or_insert(utm);
+        let z_m = alt_m.map(|a| a - *self.alt_origin_m.get_or_insert(a));
+        GpsSample {
+            xy_m: [
+                utm.northing_m - o.northing_m,
+                -(utm.easting_m - o.easting_m),
+            ],
+            z_m,
+        }
     }
 }
 
@@ -323,7 +356,7 @@ mod tests {
         assert_eq!(f.mode, 3);
         assert_eq!(
             (f.lat_deg, f.lon_deg, f.alt_m),
-            (-34.919588333, -56.166258333, 27.7)
+            (-34.919588333, -56.166258333, Some(27.7))
         );
         assert_eq!(
             parse_report(VERSION).unwrap(),
@@ -367,19 +400,20 @@ mod tests {
             panic!()
         };
         assert_eq!(t.fix(), None);
-        // 2D fix without altitude: altitude 0; older gpsd's "alt" is used when altMSL is absent.
+        // 2D fix without altitude: none (not 0 m); older gpsd's "alt" is used when altMSL is
+        // absent.
         let Report::Tpv(t) =
             parse_report(r#"{"class":"TPV","mode":2,"lat":-34.9,"lon":-56.1}"#).unwrap()
         else {
             panic!()
         };
-        assert_eq!(t.fix().unwrap().alt_m, 0.0);
+        assert_eq!(t.fix().unwrap().alt_m, None);
         let Report::Tpv(t) =
             parse_report(r#"{"class":"TPV","mode":3,"lat":-34.9,"lon":-56.1,"alt":12.5}"#).unwrap()
         else {
             panic!()
         };
-        assert_eq!(t.fix().unwrap().alt_m, 12.5);
+        assert_eq!(t.fix().unwrap().alt_m, Some(12.5));
         // No mode at all.
         let Report::Tpv(t) = parse_report(r#"{"class":"TPV"}"#).unwrap() else {
             panic!()
@@ -407,13 +441,36 @@ mod tests {
         // Offsets from PROJ for the same points: 0.001° north moves +110.8985 m in northing and
         // +0.9303 m in easting (grid convergence); 0.001° east moves +91.3660 m in easting.
         let mut f = LocalFrame::default();
-        assert_eq!(f.to_local(-34.9, -56.16, 30.0), [0.0, 0.0, 0.0]);
-        let p = f.to_local(-34.899, -56.16, 31.0);
+        assert_eq!(
+            f.to_local(-34.9, -56.16, Some(30.0)),
+            GpsSample::at([0.0, 0.0, 0.0])
+        );
+        let p = f.to_local(-34.899, -56.16, Some(31.0)).pos_m();
         assert!((p[0] - 110.8985).abs() < 0.01, "{p:?}");
         assert!((p[1] + 0.9303).abs() < 0.01, "{p:?}");
         assert_eq!(p[2], 1.0);
-        let p = f.to_local(-34.9, -56.159, 30.0);
+        let p = f.to_local(-34.9, -56.159, Some(30.0)).pos_m();
         assert!((p[1] + 91.3660).abs() < 0.01, "{p:?}");
+    }
+
+    #[test]
+    fn a_fix_without_altitude_has_no_z_and_does_not_set_the_altitude_origin() {
+        let mut f = LocalFrame::default();
+        assert_eq!(f.to_local(-34.9, -56.16, None).z_m, None);
+        assert_eq!(f.to_local(-34.9, -56.16, Some(30.0)).z_m, Some(0.0));
+        assert_eq!(f.to_local(-34.9, -56.16, Some(31.5)).z_m, Some(1.5));
+    }
+
+    #[test]
+    fn the_utm_zone_stays_the_origins_across_a_boundary() {
+        // 54° W is the boundary of zones 21 and 22: 0.001° east of it is 91 m east, not the
+        // hundreds of km a projection in zone 22 would put it.
+        let mut f = LocalFrame::default();
+        f.to_local(-34.9, -54.0005, Some(30.0));
+        let p = f.to_local(-34.9, -53.9995, Some(30.0)).pos_m();
+        assert_eq!(utm_zone(-53.9995), 22);
+        assert!((p[1] + 91.37).abs() < 0.05, "{p:?}");
+        assert!(p[0].abs() < 5.0, "{p:?}");
     }
 
     #[test]
@@ -429,9 +486,7 @@ mod tests {
 
     #[test]
     fn recorded_samples_apply_to_the_next_step() {
-        let s = GpsSample {
-            pos_m: [1.0, 2.0, 3.0],
-        };
+        let s = GpsSample::at([1.0, 2.0, 3.0]);
         let mut r = RecordedGps::new(vec![(100, s), (250, s)]);
         assert_eq!(r.take_before(100), None);
         assert_eq!(r.take_before(101), Some(s));
@@ -450,7 +505,8 @@ mod tests {
         for _ in 0..1000 {
             let (p, q) = (a.next_sample(), b.next_sample());
             assert_eq!(p, q);
-            assert!(p.pos_m[0].abs() <= 0.5 && p.pos_m[1].abs() <= 0.5 && p.pos_m[2].abs() <= 1.0);
+            let p = p.pos_m();
+            assert!(p[0].abs() <= 0.5 && p[1].abs() <= 0.5 && p[2].abs() <= 1.0);
         }
     }
 }

@@ -153,7 +153,7 @@ impl Record {
                 *t_us,
                 fix.stamp_us,
                 fix.fix.mode,
-                fix.sample.pos_m,
+                fix.sample.pos_m(),
                 fix.fix.lat_deg,
                 fix.fix.lon_deg,
             ),

@@ -51,9 +51,9 @@ pub fn gps_fix(seq: &mut u64, pos_m: [f64; 3], t_us: i64) -> LiveFix {
             mode: 3,
             lat_deg: 0.0,
             lon_deg: 0.0,
-            alt_m: pos_m[2],
+            alt_m: Some(pos_m[2]),
         },
-        sample: GpsSample { pos_m },
+        sample: GpsSample::at(pos_m),
         stamp_us: t_us,
     }
 }

@@ -6,7 +6,7 @@
 //! Rate: as gpsd reports (about 1 Hz). Ends: on cancel. When gpsd is unreachable or goes away
 //! it reconnects with a capped, logged backoff while the filter goes on without GPS.
 
-use crate::core::gps::{GpsSample, LiveFix, LocalFrame, Report, parse_report};
+use crate::core::gps::{LiveFix, LocalFrame, Report, parse_report};
 use futures_util::StreamExt;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -122,11 +122,11 @@ pub async fn run(
                             if let Some(fix) = tpv.fix() {
                                 seq += 1;
                                 stats.fixes.fetch_add(1, Ordering::Relaxed);
-                                let pos_m = frame.to_local(fix.lat_deg, fix.lon_deg, fix.alt_m);
+                                let sample = frame.to_local(fix.lat_deg, fix.lon_deg, fix.alt_m);
                                 tx.send_replace(Some(LiveFix {
                                     seq,
                                     fix,
-                                    sample: GpsSample { pos_m },
+                                    sample,
                                     stamp_us: start.elapsed().as_micros() as i64,
                                 }));
                             }

@@ -123,7 +123,7 @@ impl EstimatorCore {
                 u_rad_s,
                 mass_kg,
                 dt_us,
-                gps_m: gps.map(|g| g.pos_m),
+                gps,
             },
         );
         sample.euler_rad[2] = report.theta_unwrapped_rad;
