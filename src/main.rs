@@ -516,8 +516,15 @@ impl ReplayArgs {
     }
 
     fn run(self) -> anyhow::Result<ExitCode> {
-        let profile = self.profile()?;
         let run_dir = &self.run_dir;
+        if uquad::app::replay::out_is_the_run_folder(run_dir, &self.out) {
+            return Err(Refused(format!(
+                "--out {}: that is the run folder being replayed, whose logs would be overwritten; choose another folder",
+                self.out.display()
+            ))
+            .into());
+        }
+        let profile = self.profile()?;
         let summary = uquad::app::replay::run(run_dir, &profile, &self.out)
             .with_context(|| format!("replay of {} failed", run_dir.display()))?;
         tracing::info!(

@@ -126,3 +126,40 @@ fn replay_names_the_line_of_a_corrupt_record() {
         "{err}"
     );
 }
+
+#[test]
+fn replay_refuses_to_write_into_the_folder_it_reads() {
+    // A copy of the flight, replayed into itself by another spelling of its path: refused
+    // with exit status 2, and its logs untouched.
+    let copy = tempfile::tempdir().unwrap();
+    for name in ["imu_raw.log", "kalman_in.log", "w.log", "int.log"] {
+        std::fs::copy(flight_dir().join(name), copy.path().join(name)).unwrap();
+    }
+    let before = std::fs::read(copy.path().join("kalman_in.log")).unwrap();
+    let same = copy
+        .path()
+        .join(".")
+        .join("..")
+        .join(copy.path().file_name().unwrap());
+    let o = uquad(
+        &root(),
+        &[
+            "replay",
+            copy.path().to_str().unwrap(),
+            "--config",
+            profile_2012().to_str().unwrap(),
+            "--out",
+            same.to_str().unwrap(),
+        ],
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("that is the run folder being replayed"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read(copy.path().join("kalman_in.log")).unwrap(),
+        before
+    );
+}

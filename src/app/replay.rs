@@ -227,6 +227,16 @@ fn gps_source(
     })
 }
 
+/// Whether `out_dir` is `run_dir` itself (through any symlink or `..`): a replay there would
+/// overwrite the logs it reads.
+pub fn out_is_the_run_folder(run_dir: &Path, out_dir: &Path) -> bool {
+    let (Ok(run), Ok(out)) = (run_dir.canonicalize(), out_dir.canonicalize()) else {
+        // A folder that does not exist yet is not the run folder, which exists.
+        return false;
+    };
+    run == out
+}
+
 /// Replays `run_dir` with `profile`, writing the logs into `out_dir` (created if missing).
 pub fn run(run_dir: &Path, profile: &Profile, out_dir: &Path) -> anyhow::Result<ReplaySummary> {
     run_observed(run_dir, profile, out_dir, |_| {})
