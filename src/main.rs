@@ -128,6 +128,11 @@ struct FlyArgs {
     /// deadline_misses, log_drops, watchdog_trips, halt, run_dir) to FILE at the end.
     #[arg(long, value_name = "FILE")]
     report: Option<PathBuf>,
+    /// Fly even when SCHED_FIFO or locked memory is refused (a bench test as an ordinary
+    /// user): without them nothing bounds the control path's latency, and the 2 ms between
+    /// the 10 ms frame period and the 12 ms IMU timeout can be lost to any other process.
+    #[arg(long)]
+    allow_no_rt: bool,
 }
 
 #[derive(clap::Args, Debug)]
@@ -369,6 +374,14 @@ impl FlyArgs {
         use uquad::app::fly::{Edges, FlyOptions};
         let profile = self.profile.load()?;
         let cfg = &profile.config;
+        // Before any device is opened: a flight without real-time guarantees is refused.
+        if !self.allow_no_rt
+            && let Err(why) = uquad::tasks::realtime_permitted()
+        {
+            anyhow::bail!(
+                "real-time scheduling refused: {why}. Run as the uquad service (its unit sets LimitRTPRIO and LimitMEMLOCK) or as root, or pass --allow-no-rt to fly without it"
+            );
+        }
         let opts = FlyOptions {
             log_dir: self.log_dir,
             realtime: true,

@@ -54,6 +54,45 @@ pub fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
         .unwrap_or_else(|| "a panic without a message".to_string())
 }
 
+/// Locks the process's memory, now and to come, so that no page fault stalls the control
+/// path.
+pub fn lock_memory() -> Result<(), String> {
+    // SAFETY: mlockall takes flags only.
+    let rc = unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) };
+    if rc != 0 {
+        return Err(format!(
+            "mlockall not permitted ({})",
+            std::io::Error::last_os_error()
+        ));
+    }
+    Ok(())
+}
+
+/// Whether the flight can run as it must: SCHED_FIFO at the watchdog's priority (tried on a
+/// short-lived thread) and its memory locked. Why not, when it cannot.
+pub fn realtime_permitted() -> Result<(), String> {
+    let fifo = std::thread::spawn(|| set_fifo(WATCHDOG_PRIORITY))
+        .join()
+        .unwrap_or_else(|_| Err("the priority probe failed".to_string()));
+    fifo.and_then(|()| lock_memory())
+}
+
+/// SCHED_FIFO at `priority` for the calling thread.
+fn set_fifo(priority: i32) -> Result<(), String> {
+    let param = libc::sched_param {
+        sched_priority: priority,
+    };
+    // SAFETY: sets the calling thread's scheduling policy; no memory is passed but `param`.
+    let rc = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
+    if rc != 0 {
+        return Err(format!(
+            "SCHED_FIFO at priority {priority} not permitted ({})",
+            std::io::Error::last_os_error()
+        ));
+    }
+    Ok(())
+}
+
 /// Starts a named OS thread running `f`, first raised to SCHED_FIFO `priority` when
 /// `realtime` (a warning when not permitted).
 pub fn spawn_thread<T: Send + 'static>(
@@ -74,16 +113,7 @@ pub fn spawn_thread<T: Send + 'static>(
 
 /// Asks for SCHED_FIFO at `priority` for the calling thread; warns when not permitted.
 fn raise_priority(thread: &str, priority: i32) {
-    let param = libc::sched_param {
-        sched_priority: priority,
-    };
-    // SAFETY: sets the calling thread's scheduling policy; no memory is passed but `param`.
-    let rc = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
-    if rc != 0 {
-        tracing::warn!(
-            thread,
-            "SCHED_FIFO not permitted ({}); running at normal priority",
-            std::io::Error::last_os_error()
-        );
+    if let Err(e) = set_fifo(priority) {
+        tracing::warn!(thread, "{e}; running at normal priority");
     }
 }

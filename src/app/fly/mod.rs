@@ -178,7 +178,9 @@ async fn open_run_folder(
     ));
     tracing::info!(run_dir = %run_dir.display(), "run started");
     if opts.realtime {
-        lock_memory();
+        if let Err(e) = crate::tasks::lock_memory() {
+            tracing::warn!("{e}; memory may be paged");
+        }
     }
     Ok((run_dir, logs, loggers))
 }
@@ -367,16 +369,5 @@ fn summarise(h: &RunHandles, r: control::Reports, error: Option<String>) -> FlyS
         deadline_misses: load(&h.wd_status.deadline_misses),
         halt: h.wd_status.halt(),
         error,
-    }
-}
-
-fn lock_memory() {
-    // SAFETY: mlockall takes flags only.
-    let rc = unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) };
-    if rc != 0 {
-        tracing::warn!(
-            "mlockall not permitted ({}); memory may be paged",
-            std::io::Error::last_os_error()
-        );
     }
 }
