@@ -177,10 +177,10 @@ async fn open_run_folder(
         run_dir.display()
     ));
     tracing::info!(run_dir = %run_dir.display(), "run started");
-    if opts.realtime {
-        if let Err(e) = crate::tasks::lock_memory() {
-            tracing::warn!("{e}; memory may be paged");
-        }
+    if opts.realtime
+        && let Err(e) = crate::tasks::lock_memory()
+    {
+        tracing::warn!("{e}; memory may be paged");
     }
     Ok((run_dir, logs, loggers))
 }
