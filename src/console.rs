@@ -92,6 +92,20 @@ impl Filter {
     }
 }
 
+/// Lines the stderr writer dropped because stderr could not keep up (a stalled terminal);
+/// set once by the binary that installs the writer.
+static STDERR_DROPS: OnceLock<tracing_appender::non_blocking::ErrorCounter> = OnceLock::new();
+
+/// Counts the stderr writer's drops from now on (see [`stderr_drops`]).
+pub fn count_stderr_drops(counter: tracing_appender::non_blocking::ErrorCounter) {
+    let _ = STDERR_DROPS.set(counter);
+}
+
+/// Log lines stderr could not take so far.
+pub fn stderr_drops() -> u64 {
+    STDERR_DROPS.get().map_or(0, |c| c.dropped_lines() as u64)
+}
+
 /// The once-a-second statistics line, made by the run that serves the console.
 pub type StatsFn = Arc<dyn Fn() -> String + Send + Sync>;
 

@@ -283,16 +283,23 @@ impl ProfileArgs {
 /// Logs to stderr, filtered by RUST_LOG: compact and coloured on a terminal; under systemd
 /// (JOURNAL_STREAM set) no colours and no timestamps, which the journal adds itself. Every
 /// event also reaches the attached consoles.
-fn init_tracing() {
+fn init_tracing() -> tracing_appender::non_blocking::WorkerGuard {
     use std::io::IsTerminal;
     use tracing_subscriber::layer::SubscriberExt;
     use tracing_subscriber::util::SubscriberInitExt;
+    // Events reach stderr through a queue and a thread of their own: a stalled terminal (a
+    // paused ssh session, a full pipe) must never stall the thread that logs — the control
+    // path, the ESC writer. What the queue cannot hold is dropped and counted.
+    let (stderr, guard) = tracing_appender::non_blocking::NonBlockingBuilder::default()
+        .lossy(true)
+        .finish(std::io::stderr());
+    uquad::console::count_stderr_drops(stderr.error_counter());
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
     let journal = std::env::var_os("JOURNAL_STREAM").is_some();
     let terminal = std::io::stderr().is_terminal();
     let fmt = tracing_subscriber::fmt::layer()
-        .with_writer(std::io::stderr)
+        .with_writer(stderr)
         .with_target(false)
         .with_ansi(terminal && !journal);
     let registry = tracing_subscriber::registry()
@@ -305,11 +312,13 @@ fn init_tracing() {
     } else {
         registry.with(fmt).init();
     }
+    guard
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    init_tracing();
+    // Held to the end of main: dropping it writes out what is still queued for stderr.
+    let _stderr = init_tracing();
     let result = match cli.command {
         Command::CheckConfig(a) => a.run(),
         Command::Fly(a) => a.run(),

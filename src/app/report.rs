@@ -36,6 +36,8 @@ pub struct FlySummary {
     pub log_io_errors: PerStream<u64>,
     /// Console events a slow console missed.
     pub console_drops: u64,
+    /// Log lines stderr could not take (a stalled terminal).
+    pub stderr_drops: u64,
     /// Records written per stream.
     pub log_records: PerStream<u64>,
     /// Frame arrival → ESC write, µs.
@@ -107,6 +109,7 @@ pub struct FlyReport {
     pub log_drops_by_stream: PerStream<u64>,
     pub log_io_errors_by_stream: PerStream<u64>,
     pub console_drops: u64,
+    pub stderr_drops: u64,
     pub esc: EscReport,
     pub imu: ImuReport,
     pub gps: GpsReport,
@@ -186,6 +189,7 @@ impl FlySummary {
             log_drops_by_stream: self.log_drops,
             log_io_errors_by_stream: self.log_io_errors,
             console_drops: self.console_drops,
+            stderr_drops: self.stderr_drops,
             esc: EscReport {
                 commands: self.esc_commands,
                 writes: self.esc_writes,
@@ -229,6 +233,12 @@ impl FlySummary {
             lines.push(Record::note(format!(
                 "log stream {}: {n} failed writes",
                 s.name()
+            )));
+        }
+        if self.stderr_drops > 0 {
+            lines.push(Record::note(format!(
+                "stderr: {} log lines dropped (it could not keep up)",
+                self.stderr_drops
             )));
         }
         if self.console_drops > 0 {

@@ -155,7 +155,8 @@ impl SimThread {
             if self.progress && t_us % 5_000_000 == 0 {
                 let phase = if view.ramp_done { "Flight" } else { "start-up" };
                 let steps = self.live.borrow().map_or(0, |l| u64::from(l.step));
-                eprintln!("{}", progress_line(t_us, &plant, phase, steps));
+                // Through the log queue: a stalled terminal must not stall the physics.
+                tracing::info!("{}", progress_line(t_us, &plant, phase, steps));
             }
         }
         (t_us, hover.stats())

@@ -22,7 +22,18 @@ pub trait EscBus: Send {
     fn write_byte_data(&mut self, addr: u8, reg: u8, value: u8) -> Result<(), BusError>;
 }
 
-/// Linux i2c-dev: one device handle per ESC address on the bus (e.g. `/dev/i2c-2`).
+/// `I2C_RETRIES` and `I2C_TIMEOUT` of linux/i2c-dev.h: the adapter's retries after a lost
+/// arbitration, and its transfer timeout in units of 10 ms.
+const I2C_RETRIES: libc::Ioctl = 0x0701;
+const I2C_TIMEOUT: libc::Ioctl = 0x0702;
+/// The longest an ESC write may block the writer thread, in the adapter's 10 ms units: one
+/// unit, a tenth of the watchdog's tolerance for missed acks. The adapter's default (often
+/// a second) would stall the ESC writer, and with it every motor, behind one stuck transfer.
+const I2C_TIMEOUT_10MS: libc::c_ulong = 1;
+
+/// Linux i2c-dev: one device handle per ESC address on the bus (e.g. `/dev/i2c-2`). Each
+/// transfer fails after 10 ms at most and is not retried by the adapter: the ESC writer
+/// counts the failure and retries itself.
 pub struct LinuxEscBus {
     path: PathBuf,
     devices: HashMap<u8, i2cdev::linux::LinuxI2CDevice>,
@@ -41,6 +52,8 @@ impl LinuxEscBus {
                         path.display()
                     )
                 })?;
+            bound_transfers(&dev)
+                .with_context(|| format!("cannot set the I2C timeout on {}", path.display()))?;
             devices.insert(a, dev);
         }
         Ok(LinuxEscBus {
@@ -48,6 +61,22 @@ impl LinuxEscBus {
             devices,
         })
     }
+}
+
+/// Sets the adapter's transfer timeout and retries (they apply to the whole adapter).
+fn bound_transfers(dev: &i2cdev::linux::LinuxI2CDevice) -> std::io::Result<()> {
+    use std::os::fd::AsRawFd;
+    let fd = dev.as_raw_fd();
+    for (request, value) in [
+        (I2C_TIMEOUT, I2C_TIMEOUT_10MS),
+        (I2C_RETRIES, 0 as libc::c_ulong),
+    ] {
+        // SAFETY: an i2c-dev ioctl taking an integer argument on a descriptor we own.
+        if unsafe { libc::ioctl(fd, request, value) } < 0 {
+            return Err(std::io::Error::last_os_error());
+        }
+    }
+    Ok(())
 }
 
 impl EscBus for LinuxEscBus {

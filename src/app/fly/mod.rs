@@ -364,6 +364,7 @@ fn summarise(h: &RunHandles, r: control::Reports, error: Option<String>) -> FlyS
         log_drops: h.logs.dropped(),
         log_io_errors: h.logs.io_errors(),
         console_drops: load(&h.console_drops),
+        stderr_drops: crate::console::stderr_drops(),
         log_records: Default::default(),
         latencies_us,
         deadline_misses: load(&h.wd_status.deadline_misses),
