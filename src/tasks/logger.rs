@@ -153,7 +153,13 @@ impl StreamWriter {
             return;
         }
         let i = self.stream as usize;
-        if let Err(e) = self.file.write_all(buf.as_bytes()).await {
+        // tokio's File completes a write in the background: the flush waits for it, so that a
+        // failure is counted against the batch that failed.
+        let written = match self.file.write_all(buf.as_bytes()).await {
+            Ok(()) => self.file.flush().await,
+            Err(e) => Err(e),
+        };
+        if let Err(e) = written {
             if self.io_errors[i].fetch_add(1, Ordering::Relaxed) == 0 {
                 tracing::error!(stream = self.stream.name(), "log write failed: {e}");
             }
@@ -238,4 +244,51 @@ async fn run(
         records: records - w.lost.min(records),
         path,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[tokio::test]
+    async fn a_full_disk_loses_records_counted_and_the_logger_goes_on() {
+        // /dev/full refuses every write with ENOSPC, as a full disk does.
+        let Ok(file) = tokio::fs::OpenOptions::new()
+            .write(true)
+            .open("/dev/full")
+            .await
+        else {
+            return;
+        };
+        let (dropped, io_errors): (Arc<[AtomicU64; 7]>, Arc<[AtomicU64; 7]>) = (
+            Arc::new(std::array::from_fn(|_| AtomicU64::new(0))),
+            Arc::new(std::array::from_fn(|_| AtomicU64::new(0))),
+        );
+        let w = StreamWriter {
+            stream: Stream::Err,
+            file,
+            stall: None,
+            dropped: dropped.clone(),
+            io_errors: io_errors.clone(),
+            flushed: Instant::now(),
+            synced: Instant::now(),
+            lost: 0,
+        };
+        let (tx, rx) = mpsc::channel(16);
+        let logger = tokio::spawn(run(w, PathBuf::from("/dev/full"), rx));
+        for k in 0..10 {
+            tx.send(Record::note(format!("line {k}"))).await.unwrap();
+            tokio::task::yield_now().await;
+        }
+        drop(tx);
+        let report = logger.await.unwrap().unwrap();
+        let i = Stream::Err as usize;
+        assert_eq!(report.records, 0, "nothing reached the file");
+        assert_eq!(
+            dropped[i].load(Ordering::Relaxed),
+            10,
+            "every record counted"
+        );
+        assert!(io_errors[i].load(Ordering::Relaxed) >= 1);
+    }
 }
