@@ -101,6 +101,25 @@ fn idle(
     move |_| Box::pin(tokio::time::sleep(max))
 }
 
+/// The mock bus refuses every write from 4.5 s (in flight) on, for `lasting` or to the end.
+fn refusing_writes(
+    lasting: Option<Duration>,
+) -> impl FnOnce(
+    uquad::hw::esc_bus::MockBus,
+) -> std::pin::Pin<Box<dyn std::future::Future<Output = ()> + Send>> {
+    move |bus| {
+        Box::pin(async move {
+            tokio::time::sleep(Duration::from_millis(4_500)).await;
+            bus.set_failing(true);
+            if let Some(d) = lasting {
+                tokio::time::sleep(d).await;
+                bus.set_failing(false);
+            }
+            tokio::time::sleep(Duration::from_secs(3)).await;
+        })
+    }
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn silent_imu_trips_imu_timeout() {
     // The IMU falls silent mid-flight: 12 ms timeout + 2 ms.
@@ -119,18 +138,11 @@ async fn silent_imu_trips_imu_timeout() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn missed_acks_trip_esc_ack() {
     // Every I2C write fails from 4.5 s on: 3 failed cycles (6 ms) decide; 12 ms is the bound.
-    let during = |bus: uquad::hw::esc_bus::MockBus| -> std::pin::Pin<Box<dyn std::future::Future<Output = ()> + Send>> {
-        Box::pin(async move {
-            tokio::time::sleep(Duration::from_millis(4_500)).await;
-            bus.set_failing(true);
-            tokio::time::sleep(Duration::from_secs(3)).await;
-        })
-    };
     let s = expect_halt(
         &DEADLINE_ABOVE_STALLS,
         Default::default(),
         no_fault(),
-        during,
+        refusing_writes(None),
         "esc-ack",
         12.0,
     )
@@ -155,20 +167,11 @@ async fn missed_acks_trip_esc_ack() {
 async fn a_refused_stop_is_retried_until_every_esc_acknowledges_it() {
     // Every I2C write fails from 4.5 s for 300 ms: the halt (esc-ack) is decided within the
     // refusals, its zero and disable retried until the bus answers again, then confirmed.
-    let during = |bus: uquad::hw::esc_bus::MockBus| -> std::pin::Pin<Box<dyn std::future::Future<Output = ()> + Send>> {
-        Box::pin(async move {
-            tokio::time::sleep(Duration::from_millis(4_500)).await;
-            bus.set_failing(true);
-            tokio::time::sleep(Duration::from_millis(300)).await;
-            bus.set_failing(false);
-            tokio::time::sleep(Duration::from_secs(3)).await;
-        })
-    };
     let s = expect_halt(
         &DEADLINE_ABOVE_STALLS,
         Default::default(),
         no_fault(),
-        during,
+        refusing_writes(Some(Duration::from_millis(300))),
         "esc-ack",
         // To the last acknowledgement: the 300 ms of refusals.
         300.0,
