@@ -254,8 +254,10 @@ pub fn deg_to_utm(lat_deg: f64, lon_deg: f64) -> Utm {
     let c = 6_399_593.625_758_67;
     let lat = lat_deg.to_radians();
     let lon = lon_deg.to_radians();
+    // Saturating for a longitude far outside ±180° (an unchecked log): the zone's central
+    // meridian is then computed in f64, where it cannot overflow.
     let zone = (lon_deg / 6.0 + 31.0).floor() as i32;
-    let s = f64::from(6 * zone - 183);
+    let s = 6.0 * f64::from(zone) - 183.0;
     let d_lambda = lon - s.to_radians();
     let cos_lat = lat.cos();
     let a = cos_lat * d_lambda.sin();
@@ -400,6 +402,23 @@ mod tests {
             (u.northing_m + 1.0 - 6_135_557.035_31).abs() < 0.02,
             "{u:?}"
         );
+    }
+
+    #[test]
+    fn any_coordinates_convert_without_a_panic() {
+        // An original gps.log is replayed from its unchecked latitude and longitude; a
+        // longitude beyond about ±2.1e9° once overflowed the zone's central meridian (i32).
+        for (lat, lon) in [
+            (0.0, -9.26e234),
+            (0.0, 1e12),
+            (f64::MAX, f64::MIN),
+            (f64::NAN, f64::INFINITY),
+            (90.0, 180.0),
+        ] {
+            let _ = deg_to_utm(lat, lon);
+            let _ = LocalFrame::default().to_local(lat, lon, f64::NAN);
+        }
+        assert_eq!(deg_to_utm(0.0, 1e12).zone, i32::MAX);
     }
 
     #[test]
