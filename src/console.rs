@@ -272,8 +272,9 @@ impl RateLimit {
     }
 }
 
-/// One line from a client: a filter change or a manual-mode command.
-fn command(line: &str, filter: &mut Filter, manual: &mpsc::Sender<ManualCommand>) -> String {
+/// One line from a client: a filter change or a manual-mode command; returns the reply.
+/// Public for the fuzz tests (`tests/fuzz.rs`), which feed it generated lines.
+pub fn command(line: &str, filter: &mut Filter, manual: &mpsc::Sender<ManualCommand>) -> String {
     let line = line.trim();
     if let Some(f) = line.strip_prefix("filter") {
         *filter = Filter::parse(f);

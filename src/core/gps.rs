@@ -281,7 +281,9 @@ pub fn deg_to_utm_in_zone(lat_deg: f64, lon_deg: f64, zone: i32) -> Utm {
     let c = 6_399_593.625_758_67;
     let lat = lat_deg.to_radians();
     let lon = lon_deg.to_radians();
-    let s = f64::from(6 * zone - 183);
+    // In f64: for a longitude far outside ±180° (an unchecked log) the zone saturates, and
+    // 6·zone would overflow an i32.
+    let s = 6.0 * f64::from(zone) - 183.0;
     let d_lambda = lon - s.to_radians();
     let cos_lat = lat.cos();
     let a = cos_lat * d_lambda.sin();
@@ -325,7 +327,10 @@ impl LocalFrame {
         let zone = self.origin.map_or_else(|| utm_zone(lon_deg), |o| o.zone);
         let utm = deg_to_utm_in_zone(lat_deg, lon_deg, zone);
         let o = *self.origin.get_or_insert(utm);
-        let z_m = alt_m.map(|a| a - *self.alt_origin_m.get_or_insert(a));
+        // An altitude that is not a number is no altitude.
+        let z_m = alt_m
+            .filter(|a| a.is_finite())
+            .map(|a| a - *self.alt_origin_m.get_or_insert(a));
         GpsSample {
             xy_m: [
                 utm.northing_m - o.northing_m,
@@ -434,6 +439,23 @@ mod tests {
             (u.northing_m + 1.0 - 6_135_557.035_31).abs() < 0.02,
             "{u:?}"
         );
+    }
+
+    #[test]
+    fn any_coordinates_convert_without_a_panic() {
+        // An original gps.log is replayed from its unchecked latitude and longitude; a
+        // longitude beyond about ±2.1e9° once overflowed the zone's central meridian (i32).
+        for (lat, lon) in [
+            (0.0, -9.26e234),
+            (0.0, 1e12),
+            (f64::MAX, f64::MIN),
+            (f64::NAN, f64::INFINITY),
+            (90.0, 180.0),
+        ] {
+            let _ = deg_to_utm(lat, lon);
+            let _ = LocalFrame::default().to_local(lat, lon, Some(f64::NAN));
+        }
+        assert_eq!(deg_to_utm(0.0, 1e12).zone, i32::MAX);
     }
 
     #[test]
