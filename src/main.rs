@@ -176,10 +176,18 @@ struct SimArgs {
     log_dir: Option<PathBuf>,
     /// Inject a fault at T simulated seconds, 0 to 86400 (repeatable): imu-stall (frames stop),
     /// esc-nack (every I2C write fails), gps-loss (fixes stop), log-stall (the x_hat
-    /// logger blocks for 500 ms), thrust-loss (motor m0 loses 30 % of its thrust). With
-    /// --realtime: imu-stall and esc-nack.
+    /// logger blocks for 500 ms), thrust-loss (motor m0 loses 30 % of its thrust), baro-fail,
+    /// gyro-stuck, imu-garbage, link-loss (the simulated operator's heartbeats and commands
+    /// stop), gust (a push north of sim.gust_n for sim.gust_s).
     #[arg(long, value_name = "FAULT@T", value_parser = parse_injection)]
     inject: Vec<(Fault, f64)>,
+    /// The simulated operator's commands at simulated seconds, e.g. "arm@2,takeoff 1.5@10,
+    /// land@45" (arm, takeoff [ALT_M], hold [X Y Z], land, disarm, kill); the run ends once
+    /// the vehicle is disarmed after them. "none": no operator (use the console). The
+    /// operator also sends a ground station's link heartbeats each second. Default: the whole
+    /// cycle, "arm@2,takeoff@10,land@45" (none when commander.start = "flying").
+    #[arg(long, value_name = "SCRIPT", value_parser = uquad::sim::operator::Script::parse)]
+    script: Option<uquad::sim::operator::Script>,
 }
 
 #[derive(clap::Args, Debug)]
@@ -442,6 +450,7 @@ impl SimArgs {
             seed: self.seed,
             log_dir: self.log_dir,
             progress: true,
+            script: self.script,
         };
         let summary = match mode {
             SimMode::Realtime => on_runtime(

@@ -3,6 +3,7 @@
 //! sides as a profile builds them (`flight`), the run folder (`run_dir`), the simulation
 //! options (`sim`) and the reports (`report`).
 
+pub mod commander_report;
 pub mod flight;
 pub mod fly;
 pub mod gps;

@@ -13,7 +13,9 @@
 //! Replay is deterministic: the same inputs give byte-identical outputs.
 
 use crate::config::{GpsMode, Profile};
+use crate::core::commander::Commander;
 use crate::core::ekf::Ekf;
+use crate::core::flight::ArmCheck;
 use crate::core::flight::{
     ControllerSide, EscState, EstimatorSide, FlightRecord, FrameAction, FrameTimes, GpsFeed,
     Outputs, RecordedClock,
@@ -53,6 +55,8 @@ struct Records {
     /// Time and integrators; only the first `n_int` values are meaningful.
     int: Vec<(i64, [f64; 4])>,
     n_int: usize,
+    /// The mode stream, formatted as it goes (a few lines).
+    mode: String,
 }
 
 impl Outputs for Records {
@@ -71,6 +75,9 @@ impl Outputs for Records {
             FlightRecord::Int { t_us, x_int, n_int } => {
                 self.n_int = n_int;
                 self.int.push((t_us, x_int));
+            }
+            r @ (FlightRecord::Commander(_) | FlightRecord::Operator { .. }) => {
+                logs::Record::Flight(r).write(&mut self.mode)
             }
             FlightRecord::Frame { .. }
             | FlightRecord::FakeGps(_)
@@ -114,11 +121,13 @@ impl Records {
             }
             s
         };
-        let jobs: [(&str, &(dyn Fn() -> String + Sync)); 4] = [
+        let mode = || self.mode.clone();
+        let jobs: [(&str, &(dyn Fn() -> String + Sync)); 5] = [
             ("kalman_in.log", &kalman_in),
             ("x_hat.log", &x_hat),
             ("w.log", &w),
             ("int.log", &int),
+            ("mode.log", &mode),
         ];
         std::thread::scope(|scope| {
             let handles: Vec<_> = jobs
@@ -281,12 +290,16 @@ pub fn run_observed(
         .is_ok_and(|t| t.starts_with(logs::UQUAD_GPS_HEADER));
     let gps = gps_source(profile, recorded_gps, local_positions)?;
     // The original's imu_raw.log holds no settling frames (spec 1.6): start with calibration.
-    let mut estimator =
-        EstimatorSide::new(profile.estimator_core(true), gps).with_clock(RecordedClock {
-            kalman_us: recorded_times,
-            ctrl_us: ctrl_times,
-            cmd_us: cmd_times,
-        });
+    let mut estimator = EstimatorSide::new(
+        profile.estimator_core(true),
+        gps,
+        Commander::new(cfg.commander_params()),
+    )
+    .with_clock(RecordedClock {
+        kalman_us: recorded_times,
+        ctrl_us: ctrl_times,
+        cmd_us: cmd_times,
+    });
     let mut controller = ControllerSide::new(profile.controller_core());
     let mut feedback = controller.first_feedback();
     let mut out = Records::default();
@@ -294,11 +307,17 @@ pub fn run_observed(
         raw_frames: raw.len(),
         ..ReplaySummary::default()
     };
+    let mut inputs = recorded_inputs(run_dir)?.into_iter().peekable();
     for rec in &raw {
         let times = FrameTimes {
             t_main_us: rec.t_main_us,
             t_frame_us: rec.t_frame_us,
         };
+        // The operator's inputs, at the frame the run applied them at (earlier ones, before
+        // the calibration the log starts with, at the first frame).
+        while let Some((t_us, input, verdict)) = inputs.next_if(|i| i.0 <= times.t_frame_us) {
+            estimator.operator(input, t_us, ArmCheck::Recorded(&verdict), &mut out);
+        }
         let sample = match estimator.on_frame(&rec.frame, times, EscState::ABSENT, &mut out) {
             FrameAction::Step(s) => s,
             FrameAction::Abort(why) => bail!("{why}"),
@@ -333,4 +352,16 @@ pub fn run_observed(
         .with_context(|| format!("cannot create {}", out_dir.display()))?;
     summary.outputs = out.write(out_dir)?;
     Ok(summary)
+}
+
+/// The operator's inputs of a run (its mode.log); none for runs without one (the 2012
+/// flights, which started flying).
+fn recorded_inputs(run_dir: &Path) -> anyhow::Result<Vec<logs::mode_log::RecordedInput>> {
+    let path = run_dir.join("mode.log");
+    match std::fs::read_to_string(&path) {
+        Ok(text) => logs::mode_log::read_inputs(&text)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display())),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(Vec::new()),
+        Err(e) => Err(anyhow::anyhow!("cannot read {}: {e}", path.display())),
+    }
 }

@@ -1,6 +1,7 @@
 //! What a run did: the counters every mode fills ([`FlySummary`]), the closing lines of its
 //! err.log, the exit summary for a person, and the JSON report (`--report FILE`) as types.
 
+use crate::app::commander_report::{CommanderReport, CommanderSummary};
 use crate::core::watchdog::Halt;
 use crate::logs::{PerStream, Record};
 use crate::sim::esc::EscEnd;
@@ -47,6 +48,8 @@ pub struct FlySummary {
     pub halt: Option<Halt>,
     /// Why the run ended with an error, if it did (motors were stopped first).
     pub error: Option<String>,
+    /// Modes, failsafes, refusals, takeoff and touchdown.
+    pub commander: CommanderSummary,
 }
 
 /// Frame → ESC write latency percentiles, µs.
@@ -114,6 +117,8 @@ pub struct FlyReport {
     pub imu: ImuReport,
     pub gps: GpsReport,
     pub error: Option<String>,
+    #[serde(flatten)]
+    pub commander: CommanderReport,
 }
 
 /// The simulator's report: the flight report plus the hover figures and what the simulated
@@ -208,6 +213,7 @@ impl FlySummary {
                 gpsd_fixes: self.gpsd_fixes,
             },
             error: self.error.clone(),
+            commander: self.commander.report(),
         }
     }
 
@@ -283,7 +289,7 @@ impl FlySummary {
              ESC: {} commands, {} writes, {} failed; stopped: {}\n  \
              latency frame -> ESC write: p50 {} us, p99 {} us, max {} us; deadline misses {}\n  \
              watchdog: {watchdog}\n  \
-             log drops: {}{}",
+             log drops: {}\n  {}{}",
             self.run_dir.display(),
             self.frames,
             self.discarded_bytes,
@@ -304,6 +310,7 @@ impl FlySummary {
             } else {
                 drops.join(", ")
             },
+            self.commander.text(),
             self.error
                 .as_ref()
                 .map(|e| format!("\n  error: {e}"))

@@ -16,6 +16,21 @@ pub struct SimOptions {
     pub log_dir: Option<PathBuf>,
     /// Print a progress line on stderr every 5 simulated seconds.
     pub progress: bool,
+    /// The simulated operator's commands (None: the profile's default, [`default_script`]).
+    pub script: Option<crate::sim::operator::Script>,
+}
+
+/// The operator's script of a simulation: the given one, else the whole cycle for a vehicle
+/// that starts disarmed and none for one that starts flying (the original's way).
+pub fn script(opts: &SimOptions, profile: &crate::config::Profile) -> crate::sim::operator::Script {
+    use crate::sim::operator::{DEFAULT_SCRIPT, Script};
+    match (&opts.script, profile.config.commander.start) {
+        (Some(s), _) => s.clone(),
+        (None, crate::core::commander::Start::Flying) => Script::default(),
+        (None, crate::core::commander::Start::Disarmed) => {
+            Script::parse(DEFAULT_SCRIPT).unwrap_or_default()
+        }
+    }
 }
 
 /// The two ways of flying the real code against the models.

@@ -15,7 +15,9 @@ use crate::app::report::{FlySummary, SimSummary};
 use crate::app::run_dir::{create_run_dir, write_run_config};
 use crate::app::sim::SimOptions;
 use crate::config::{GpsMode, Profile};
+use crate::core::commander::{ArmFacts, Mode, OperatorInput};
 use crate::core::esc::{CycleKind, CycleRunner, EscDriver, EscPhase};
+use crate::core::flight::ArmCheck;
 use crate::core::flight::{
     Command, ControllerSide, EscState, EstimatorSide, Feedback, FlightRecord, FrameAction,
     FrameTimes, Outputs,
@@ -27,7 +29,8 @@ use crate::core::watchdog::{Event, Trip, Watchdog};
 use crate::logs::{PerStream, Record, Stream};
 use crate::sim::esc::EscModel;
 use crate::sim::faults::{Fault, FaultSchedule, WireFaults};
-use crate::sim::hover::{FlightView, HoverWindow, TrueState, progress_line};
+use crate::sim::hover::{CycleTrace, FlightView, HoverWindow, TrueState, progress_line};
+use crate::sim::operator::SimOperator;
 use crate::sim::{FRAME_US, frame_start_byte, gps_fix, imu::SimImu, physics::Plant};
 use anyhow::Context;
 use bytes::BytesMut;
@@ -83,6 +86,7 @@ impl Outputs for FastOutputs {
 /// The vehicle, its edges and the flight, on one simulated clock.
 struct FastSim<'a> {
     opts: &'a SimOptions,
+    cfg: crate::config::Config,
     faults: FaultSchedule,
     wire: WireFaults,
     step_us: i64,
@@ -108,6 +112,14 @@ struct FastSim<'a> {
     out: FastOutputs,
     fly: FlySummary,
     hover: HoverWindow,
+    operator: SimOperator,
+    /// The operator's inputs due at this frame.
+    inputs: Vec<OperatorInput>,
+    /// The newest fix simulated gpsd gave (the pre-arm GPS check).
+    newest_fix: Option<LiveFix>,
+    /// The ESCs were started once: a disarmed vehicle has flown.
+    armed_once: bool,
+    trace: CycleTrace,
 }
 
 pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSummary> {
@@ -159,6 +171,7 @@ impl<'a> FastSim<'a> {
         }
         FastSim {
             opts,
+            cfg: cfg.clone(),
             wire: WireFaults::new(seed),
             step_us: 1_000_000 / i64::from(cfg.sim.physics_hz),
             gps_live,
@@ -182,6 +195,14 @@ impl<'a> FastSim<'a> {
             out,
             fly: FlySummary::empty(run_dir),
             hover: HoverWindow::new(cfg.sim.settle_s),
+            operator: SimOperator::new(
+                &crate::app::sim::script(opts, profile),
+                faults.at_us(Fault::LinkLoss),
+            ),
+            inputs: Vec::with_capacity(4),
+            newest_fix: None,
+            armed_once: false,
+            trace: CycleTrace::default(),
             faults,
         }
     }
@@ -194,6 +215,7 @@ impl<'a> FastSim<'a> {
         if self.faults.active(Fault::ThrustLoss, t) {
             self.plant.thrust_scale[0] = 0.7;
         }
+        self.plant.push_n = crate::sim::gust_n(&self.faults, &self.cfg.sim, t);
         // The motors follow what the ESCs were last told, then the physics advances.
         self.plant.w_cmd_rad_s = self.escs.commands_rad_s(t);
         self.plant.step(self.step_us);
@@ -202,6 +224,7 @@ impl<'a> FastSim<'a> {
         }
         if self.gps_live && t % 1_000_000 == 0 && !self.faults.active(Fault::GpsLoss, t) {
             self.pending_fix = Some(gps_fix(&mut self.gps_seq, self.plant.position_m(), t));
+            self.newest_fix = self.pending_fix;
         }
         if self.faults.active(Fault::GpsLoss, t) {
             self.pending_fix = None;
@@ -219,9 +242,45 @@ impl<'a> FastSim<'a> {
             let steps = self.estimator.counts().steps;
             eprintln!("{}", progress_line(t, &self.plant, &phase, steps));
         }
-        // The run ends once the motors' stop has settled (confirmed, or out of retries).
-        let ended = self.trip.is_some() || self.fly.error.is_some();
+        // The run ends once the motors' stop has settled (confirmed, or out of retries): after
+        // a halt, an error, or a landing once the script is done.
+        let landed =
+            self.armed_once && self.estimator.mode() == Mode::Disarmed && self.operator.done(t);
+        let ended = self.trip.is_some() || self.fly.error.is_some() || landed;
         !(ended && self.driver.stop_outcome().is_some())
+    }
+
+    /// The operator's inputs due now, into the flight sequence before the frame.
+    fn operate(&mut self) {
+        let t = self.t_us;
+        self.operator.due(t, &mut self.inputs);
+        if self.inputs.is_empty() {
+            return;
+        }
+        let facts = self.arm_facts();
+        for input in std::mem::take(&mut self.inputs) {
+            let check = ArmCheck::Facts(&facts);
+            if self.estimator.operator(input, t, check, &mut self.out) {
+                self.driver.stop("disarmed", t, &mut self.cycles);
+            }
+        }
+        self.dispatch_events();
+    }
+
+    /// The pre-arm facts as the simulator observes them (real time is waived: a simulation).
+    fn arm_facts(&self) -> ArmFacts {
+        let cfg = &self.cfg;
+        let fresh =
+            |f: &LiveFix| (self.t_us - f.stamp_us) as f64 / 1e6 <= cfg.control.gps_hold_timeout_s;
+        ArmFacts {
+            imu_stable: false,
+            gps_required: self.gps_live,
+            gps_eph_m: self.newest_fix.filter(fresh).and_then(|f| f.fix.eph_m),
+            gps_max_eph_m: cfg.commander.gps_max_eph_m,
+            log_error: crate::app::run_dir::log_dir_problem(&self.fly.run_dir),
+            realtime: true,
+            esc_silent: self.driver.silent_addresses(),
+        }
     }
 
     /// The IMU's next frame, through the byte decoder, into the flight sequence.
@@ -241,13 +300,17 @@ impl<'a> FastSim<'a> {
 
     /// The flight step's order (`core::flight::sequence`), in lock-step.
     fn on_frame(&mut self, frame: &RawFrame, times: FrameTimes) {
+        self.operate();
         let esc = EscState {
             phase: self.driver.phase(),
             stop_reason: self.driver.stop_reason(),
         };
         let sample = match self.estimator.on_frame(frame, times, esc, &mut self.out) {
             FrameAction::Wait | FrameAction::Ended => return,
-            FrameAction::StartEscs => return self.driver.start(self.t_us),
+            FrameAction::StartEscs => {
+                self.armed_once = true;
+                return self.driver.start(self.t_us);
+            }
             FrameAction::Abort(why) => {
                 self.fly.error = Some(why.to_string());
                 return self.driver.stop("shutdown", self.t_us, &mut self.cycles);
@@ -263,7 +326,13 @@ impl<'a> FastSim<'a> {
         };
         self.dispatch_events();
         let (t, driver, cycles) = (self.t_us, &mut self.driver, &mut self.cycles);
-        let send = |c: &Command| driver.command(&c.w_rad_s, t, t, cycles);
+        let send = |c: &Command| {
+            if c.stop_escs {
+                driver.stop("disarmed", t, cycles)
+            } else {
+                driver.command(&c.w_rad_s, t, t, cycles)
+            }
+        };
         self.feedback = self.controller.control(&est, send, &mut self.out).feedback;
     }
 
@@ -339,13 +408,16 @@ impl<'a> FastSim<'a> {
         if self.t_us % FRAME_US != 0 {
             return;
         }
+        let mode = self.estimator.mode();
         let flight = FlightView {
-            ramp_done: self.controller.counts().steps >= u64::from(FLIGHT_RAMP_STEPS),
+            ramp_done: self.controller.counts().flying_steps >= u64::from(FLIGHT_RAMP_STEPS),
             setpoint_m: self.controller.setpoint_m().unwrap_or_default(),
-            flying: self.trip.is_none(),
+            flying: self.trip.is_none() && matches!(mode, Mode::Takeoff | Mode::Hold),
         };
-        self.hover
-            .sample(self.t_us, flight, TrueState::of(&self.plant));
+        let truth = TrueState::of(&self.plant);
+        self.hover.sample(self.t_us, flight, truth);
+        let target_z_m = self.estimator.commander().target_m()[2];
+        self.trace.sample(self.t_us, mode, target_z_m, &self.plant);
     }
 
     /// The end of the run: zero and disable, as fly's shutdown does; the closing lines; the
@@ -377,6 +449,10 @@ impl<'a> FastSim<'a> {
             .zip(self.driver.stop_outcome())
             .map(|(trip, o)| o.halt(trip));
         fly.log_drops = self.out.drops;
+        fly.commander = crate::core::commander::Summary {
+            events: self.estimator.history().to_vec(),
+            figures: self.trace.figures(),
+        };
         fly.discarded_bytes = self.decoder.stats().discarded_bytes;
         fly.rejected_frames = self.decoder.stats().rejected_frames;
         for r in fly.closing_records() {

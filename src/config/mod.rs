@@ -11,12 +11,14 @@
 //! - `validate`: the rules a configuration must meet;
 //! - `profile`: the loaded profile and the core objects it describes.
 
+mod commander;
 mod load;
 mod overrides;
 mod profile;
 mod schema;
 mod validate;
 
+pub use commander::{CommanderConfig, FailsafeConfig, Fence};
 pub use load::{ConfigError, DEFAULT_CONFIG, Problem, load, resolve_path};
 pub use overrides::parse_set;
 pub use profile::Profile;

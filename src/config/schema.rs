@@ -20,6 +20,9 @@ pub struct Config {
     pub sim: Sim,
     pub console: Console,
     pub log: Log,
+    pub commander: super::CommanderConfig,
+    pub failsafe: super::FailsafeConfig,
+    pub fence: super::Fence,
 }
 
 /// The ESC writer (spec 6.3, 6.4).
@@ -76,6 +79,9 @@ pub struct Sim {
     pub initial_yaw_rad: f64,
     /// Seed of every random draw of the simulation.
     pub seed: u64,
+    /// The `gust` fault: a push northward of this force, N, for this long, s.
+    pub gust_n: f64,
+    pub gust_s: f64,
 }
 
 impl Default for Sim {
@@ -95,6 +101,8 @@ impl Default for Sim {
             temp_c: 30.0,
             initial_yaw_rad: 0.3,
             seed: 1,
+            gust_n: 4.0,
+            gust_s: 3.0,
         }
     }
 }

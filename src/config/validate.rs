@@ -263,6 +263,7 @@ pub(super) fn validate(c: &Config) -> Vec<Check> {
         states_rule(c),
         manual_rules(c),
         integral_rules(c),
+        commander_rules(c),
     ];
     rules.into_iter().flatten().filter(|r| !r.passed).collect()
 }
@@ -575,6 +576,95 @@ fn sim_rules(sim: &Sim) -> Vec<Check> {
         in_range("sim.mag_noise", sim.mag_noise, 0.0..=1.0, ""),
         in_range("sim.temp_c", sim.temp_c, -20.0..=50.0, "°C"),
         within("sim.initial_yaw_rad", sim.initial_yaw_rad, 3.2, "rad"),
+        in_range("sim.gust_n", sim.gust_n, 0.0..=100.0, "N"),
+        in_range("sim.gust_s", sim.gust_s, 0.0..=600.0, "s"),
+    ]
+}
+
+/// Arming, takeoff, landing, the failsafes and the fence.
+fn commander_rules(c: &Config) -> Vec<Check> {
+    let (m, f, fence) = (&c.commander, &c.failsafe, &c.fence);
+    let unknown: Vec<&String> = f
+        .link_sources
+        .iter()
+        .filter(|s| crate::core::commander::LinkSource::from_name(s).is_none())
+        .collect();
+    vec![
+        in_range("commander.climb_m_s", m.climb_m_s, positive_to(5.0), "m/s"),
+        in_range(
+            "commander.climb_acc_m_s2",
+            m.climb_acc_m_s2,
+            positive_to(10.0),
+            "m/s²",
+        ),
+        in_range(
+            "commander.takeoff_tolerance_m",
+            m.takeoff_tolerance_m,
+            positive_to(2.0),
+            "m",
+        ),
+        in_range("commander.land_m_s", m.land_m_s, positive_to(3.0), "m/s"),
+        in_range(
+            "commander.land_slow_m_s",
+            m.land_slow_m_s,
+            positive_to(1.0),
+            "m/s",
+        ),
+        in_range(
+            "commander.touchdown_v_m_s",
+            m.touchdown_v_m_s,
+            positive_to(1.0),
+            "m/s",
+        ),
+        in_range(
+            "commander.touchdown_thrust",
+            m.touchdown_thrust,
+            positive_to(1.0),
+            "",
+        ),
+        in_range(
+            "commander.touchdown_s",
+            m.touchdown_s,
+            positive_to(10.0),
+            "s",
+        ),
+        in_range(
+            "commander.gps_max_eph_m",
+            m.gps_max_eph_m,
+            positive_to(100.0),
+            "m",
+        ),
+        Check::new(
+            "failsafe.link_sources",
+            unknown.is_empty(),
+            format!("{:?}", f.link_sources),
+            "a list of \"terminal\", \"console\", \"gcs\"",
+        ),
+        in_range(
+            "failsafe.link_timeout_s",
+            f.link_timeout_s,
+            positive_to(600.0),
+            "s",
+        ),
+        in_range(
+            "failsafe.gps_loss_land_s",
+            f.gps_loss_land_s,
+            0.0..=600.0,
+            "s",
+        ),
+        in_range("failsafe.ekf_bad_s", f.ekf_bad_s, positive_to(600.0), "s"),
+        in_range(
+            "fence.radius_m",
+            fence.radius_m,
+            positive_to(100_000.0),
+            "m",
+        ),
+        in_range(
+            "fence.alt_max_m",
+            fence.alt_max_m,
+            positive_to(10_000.0),
+            "m",
+        ),
     ]
 }
 

@@ -304,6 +304,25 @@ impl Dir {
 }
 
 impl ManualCommand {
+    /// The key that gives this command (the inverse of [`ManualCommand::from_key`]).
+    pub fn key(self) -> u8 {
+        use ManualCommand::*;
+        match self {
+            Roll(Dir::Up) => b'j',
+            Roll(Dir::Down) => b'g',
+            Pitch(Dir::Up) => b'y',
+            Pitch(Dir::Down) => b'h',
+            Yaw(Dir::Up) => b'q',
+            Yaw(Dir::Down) => b'w',
+            Altitude(Dir::Up) => b'e',
+            Altitude(Dir::Down) => b'd',
+            Weight(Dir::Up) => b'i',
+            Weight(Dir::Down) => b'k',
+            ResetWeight => b'0',
+            Quit => 27,
+        }
+    }
+
     /// The original's keys (spec 5.2): j/g ψ, y/h φ, q/w θ, e/d z, i/k weight, 0 reset, ESC quit.
     pub fn from_key(key: u8) -> Option<ManualCommand> {
         use ManualCommand::*;

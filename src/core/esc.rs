@@ -40,7 +40,12 @@ pub enum CycleKind {
     /// Zero speeds, then (the next cycle) disable: the stop.
     StopZero,
     StopDisable,
+    /// A disable written to disabled ESCs: do they answer? (the pre-arm check).
+    Probe,
 }
+
+/// Disabled ESCs are probed this often, µs.
+pub const PROBE_PERIOD_US: i64 = 500_000;
 
 /// How a stop ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -110,6 +115,9 @@ pub struct EscDriver {
     stop_reason: Option<String>,
     retry: Option<StopRetry>,
     outcome: Option<StopOutcome>,
+    /// While disabled: when the next probe is due, and which ESCs acknowledged the last one.
+    next_probe_us: i64,
+    probe_acked: Option<[bool; 4]>,
 }
 
 impl EscDriver {
@@ -129,7 +137,18 @@ impl EscDriver {
             next_resend_us: 0,
             command_frame_us: None,
             stop_reason: None,
+            next_probe_us: 0,
+            probe_acked: None,
         }
+    }
+
+    /// The addresses that did not acknowledge the last probe (all of them before the first).
+    pub fn silent_addresses(&self) -> Vec<u8> {
+        let acked = self.probe_acked.unwrap_or([false; 4]);
+        (0..4)
+            .filter(|&m| !acked[m])
+            .map(|m| self.map.addresses[m])
+            .collect()
     }
 
     pub fn phase(&self) -> EscPhase {
@@ -149,7 +168,7 @@ impl EscDriver {
                 .map(|(at, _)| self.ramp_start_us + *at as i64),
             EscPhase::Running => Some(self.next_resend_us),
             EscPhase::Stopped => self.retry.map(|r| r.next_us.min(r.deadline_us)),
-            EscPhase::Disabled => None,
+            EscPhase::Disabled => Some(self.next_probe_us),
         }
     }
 
@@ -208,6 +227,10 @@ impl EscDriver {
     /// A cycle was executed: a stop's acknowledgements are noted, and the stop is confirmed
     /// once every ESC acknowledged a zero and, after it, a disable.
     pub fn on_done(&mut self, done: &CycleDone) {
+        if done.kind == CycleKind::Probe {
+            self.probe_acked = Some(done.acked);
+            return;
+        }
         let Some(r) = &mut self.retry else {
             return;
         };
@@ -298,6 +321,11 @@ impl EscDriver {
                 }
             }
             EscPhase::Stopped => self.retry_stop(now_us, out),
+            EscPhase::Disabled if now_us >= self.next_probe_us => {
+                self.next_probe_us = now_us + PROBE_PERIOD_US;
+                let disable = self.map.addresses.map(|a| (a, REG_DISABLE, 0));
+                out.push((CycleKind::Probe, disable));
+            }
             EscPhase::Disabled => {}
         }
     }
@@ -380,7 +408,10 @@ impl CycleRunner {
                 }
             }
             let at_us = now_us();
-            let failures = if ok {
+            // A probe of disabled ESCs is the pre-arm check's, not the watchdog's.
+            let failures = if kind == CycleKind::Probe {
+                None
+            } else if ok {
                 self.failed_cycles = 0;
                 None
             } else {

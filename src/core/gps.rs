@@ -50,6 +50,8 @@ pub struct Tpv {
     pub epx: Option<f64>,
     pub epy: Option<f64>,
     pub epv: Option<f64>,
+    /// Estimated horizontal position error (gpsd ≥ 3.20), m.
+    pub eph: Option<f64>,
 }
 
 /// Sky view: only the satellites' count is kept.
@@ -85,6 +87,9 @@ pub struct Fix {
     pub lon_deg: f64,
     /// Altitude, m (MSL when gpsd gives it); none for a 2D fix without one.
     pub alt_m: Option<f64>,
+    /// Horizontal error, m: gpsd's `eph`, else the larger of `epx` and `epy`; none when gpsd
+    /// gives neither.
+    pub eph_m: Option<f64>,
 }
 
 impl Tpv {
@@ -102,11 +107,16 @@ impl Tpv {
             .or(self.alt)
             .or(self.alt_hae)
             .filter(|a| a.is_finite());
+        let eph = self
+            .eph
+            .or_else(|| Some(self.epx?.max(self.epy?)))
+            .filter(|e| e.is_finite() && *e >= 0.0);
         Some(Fix {
             mode: self.mode,
             lat_deg: lat,
             lon_deg: lon,
             alt_m: alt,
+            eph_m: eph,
         })
     }
 }

@@ -14,6 +14,8 @@ pub enum TripReason {
     SanityTilt,
     /// The estimator refused its measurement update too many steps in a row: it runs blind.
     Estimator,
+    /// The operator's `kill`, or a failsafe whose action is kill.
+    Kill,
 }
 
 impl TripReason {
@@ -25,6 +27,7 @@ impl TripReason {
             TripReason::SanityTemp => "sanity-temp",
             TripReason::SanityTilt => "sanity-tilt",
             TripReason::Estimator => "estimator",
+            TripReason::Kill => "kill",
         }
     }
 }
@@ -83,6 +86,8 @@ impl Halt {
 pub enum Event {
     /// A frame arrived.
     Frame(i64),
+    /// The commander asks for a halt (`kill`).
+    Kill(i64),
     /// The ESCs were enabled (the first write of their start-up ramp): the motors may spin
     /// from now on, so a silent IMU halts them.
     MotorsEnabled(i64),
@@ -280,6 +285,7 @@ impl Watchdog {
                 self.motors_on_us.get_or_insert(at);
                 None
             }
+            Event::Kill(at) => self.decide(TripReason::Kill, at, now_us),
             Event::Command {
                 frame_us,
                 written_us,

@@ -5,7 +5,8 @@
 //! by tabs (any whitespace is accepted). Writers produce the original's exact layout.
 
 pub mod format;
+pub mod mode_log;
 pub mod record;
 
 pub use format::*;
-pub use record::{PerStream, Record, Stream, halt_line};
+pub use record::{N_STREAMS, PerStream, Record, Stream, halt_line};

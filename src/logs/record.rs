@@ -17,10 +17,14 @@ pub enum Stream {
     Int,
     Gps,
     Err,
+    Mode,
 }
 
+/// How many streams a run writes.
+pub const N_STREAMS: usize = 8;
+
 impl Stream {
-    pub const ALL: [Stream; 7] = [
+    pub const ALL: [Stream; N_STREAMS] = [
         Stream::ImuRaw,
         Stream::KalmanIn,
         Stream::XHat,
@@ -28,6 +32,7 @@ impl Stream {
         Stream::Int,
         Stream::Gps,
         Stream::Err,
+        Stream::Mode,
     ];
 
     /// The file's name without `.log`, and the name reports use.
@@ -40,6 +45,7 @@ impl Stream {
             Stream::Int => "int",
             Stream::Gps => "gps",
             Stream::Err => "err",
+            Stream::Mode => "mode",
         }
     }
 
@@ -50,7 +56,7 @@ impl Stream {
 
 /// One value per stream.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct PerStream<T>(pub [T; 7]);
+pub struct PerStream<T>(pub [T; N_STREAMS]);
 
 impl<T> Index<Stream> for PerStream<T> {
     type Output = T;
@@ -111,6 +117,7 @@ impl Record {
                 FlightRecord::Int { .. } => Stream::Int,
                 FlightRecord::FakeGps(_) | FlightRecord::GpsFix { .. } => Stream::Gps,
                 FlightRecord::Halt(_) | FlightRecord::Note(_) => Stream::Err,
+                FlightRecord::Commander(_) | FlightRecord::Operator { .. } => Stream::Mode,
             },
         }
     }
@@ -165,6 +172,12 @@ impl Record {
                 out.push_str(s);
                 out.push('\n');
             }
+            FlightRecord::Commander(e) => super::mode_log::write_event(out, e),
+            FlightRecord::Operator {
+                t_us,
+                input,
+                verdict,
+            } => super::mode_log::write_input(out, *t_us, input, verdict.as_ref()),
         }
     }
 }

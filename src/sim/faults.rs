@@ -24,10 +24,14 @@ pub enum Fault {
     GyroStuck,
     /// Random bytes on the IMU's wire instead of frames.
     ImuGarbage,
+    /// The simulated operator's link heartbeats stop.
+    LinkLoss,
+    /// A sideways push (`sim.gust_n` north, for `sim.gust_s`).
+    Gust,
 }
 
 impl Fault {
-    pub const NAMES: [(&'static str, Fault); 8] = [
+    pub const NAMES: [(&'static str, Fault); 10] = [
         ("imu-stall", Fault::ImuStall),
         ("esc-nack", Fault::EscNack),
         ("gps-loss", Fault::GpsLoss),
@@ -36,6 +40,8 @@ impl Fault {
         ("baro-fail", Fault::BaroFail),
         ("gyro-stuck", Fault::GyroStuck),
         ("imu-garbage", Fault::ImuGarbage),
+        ("link-loss", Fault::LinkLoss),
+        ("gust", Fault::Gust),
     ];
 
     pub fn name(self) -> &'static str {

@@ -4,6 +4,7 @@
 //! both ways print.
 
 use super::physics::Plant;
+use crate::core::commander::{Figures, Mode};
 use serde::Serialize;
 
 /// The hover quality of a simulated flight: the true state against the set point.
@@ -59,6 +60,56 @@ impl TrueState {
             pos_m: plant.position_m(),
             roll_rad: e[0],
             pitch_rad: e[1],
+        }
+    }
+}
+
+/// The takeoff and landing of the true vehicle: the overshoot above the takeoff's target
+/// (the climb's first peak: from the takeoff until the vehicle first stops rising in the hold
+/// that follows) and the vertical speed at which it met the ground while landing.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct CycleTrace {
+    ground_m: Option<f64>,
+    takeoff: Option<(f64, f64)>,
+    /// The climb's first peak has passed.
+    peaked: bool,
+    prev_vz_m_s: f64,
+    was_on_ground: bool,
+    touchdown: Option<(i64, f64)>,
+}
+
+impl CycleTrace {
+    /// One IMU period: the mode, the commander's target height (absolute) and the truth.
+    pub fn sample(&mut self, t_us: i64, mode: Mode, target_z_m: f64, plant: &Plant) {
+        let z = plant.position_m()[2];
+        let vz = plant.velocity_m_s()[2];
+        match mode {
+            Mode::Armed => self.ground_m = Some(z),
+            Mode::Takeoff => {
+                let ground = *self.ground_m.get_or_insert(z);
+                let (_, peak) = self.takeoff.get_or_insert((target_z_m - ground, f64::MIN));
+                *peak = peak.max(z - target_z_m);
+            }
+            Mode::Hold if !self.peaked => {
+                self.peaked = vz <= 0.0;
+                if let Some((_, peak)) = &mut self.takeoff {
+                    *peak = peak.max(z - target_z_m);
+                }
+            }
+            Mode::Land if plant.on_ground && !self.was_on_ground && self.touchdown.is_none() => {
+                self.touchdown = Some((t_us, self.prev_vz_m_s.abs()));
+            }
+            _ => {}
+        }
+        self.prev_vz_m_s = vz;
+        self.was_on_ground = plant.on_ground;
+    }
+
+    /// The figures for the report; the touchdown's time is the contact's.
+    pub fn figures(&self) -> Figures {
+        Figures {
+            takeoff: self.takeoff,
+            touchdown: self.touchdown,
         }
     }
 }

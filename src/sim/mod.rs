@@ -7,6 +7,7 @@ pub mod esc;
 pub mod faults;
 pub mod hover;
 pub mod imu;
+pub mod operator;
 pub mod physics;
 
 use crate::config::Profile;
@@ -52,6 +53,8 @@ pub fn gps_fix(seq: &mut u64, pos_m: [f64; 3], t_us: i64) -> LiveFix {
             lat_deg: 0.0,
             lon_deg: 0.0,
             alt_m: Some(pos_m[2]),
+            // The simulated fixes are the true position: no error.
+            eph_m: Some(0.0),
         },
         sample: GpsSample::at(pos_m),
         stamp_us: t_us,
@@ -64,4 +67,17 @@ pub const FRAME_US: i64 = 10_000;
 /// The start byte of the `k`-th frame: the simulated IMU alternates its two, as the real one.
 pub fn frame_start_byte(k: u64) -> u8 {
     if k.is_multiple_of(2) { b'C' } else { b'A' }
+}
+
+/// The push of the `gust` fault at `t_us` (inertial frame, N): `sim.gust_n` northward for
+/// `sim.gust_s` from its time.
+pub fn gust_n(faults: &faults::FaultSchedule, sim: &crate::config::Sim, t_us: i64) -> [f64; 3] {
+    let blowing = faults
+        .at_us(faults::Fault::Gust)
+        .is_some_and(|at| t_us >= at && ((t_us - at) as f64) < sim.gust_s * 1e6);
+    if blowing {
+        [sim.gust_n, 0.0, 0.0]
+    } else {
+        [0.0; 3]
+    }
 }

@@ -37,6 +37,8 @@ pub struct Plant {
     pub on_ground: bool,
     /// Thrust of each motor relative to the model (a damaged propeller: below 1).
     pub thrust_scale: [f64; 4],
+    /// An outside push (a gust), inertial frame, N.
+    pub push_n: [f64; 3],
 }
 
 /// Body-to-inertial rotation (ZYX: yaw θ, pitch φ, roll ψ), as the filter's kinematics use.
@@ -81,6 +83,7 @@ impl Plant {
             specific_force_m_s2: [0.0, 0.0, GRAVITY_M_S2],
             on_ground: true,
             thrust_scale: [1.0; 4],
+            push_n: [0.0; 3],
         }
     }
 
@@ -98,7 +101,8 @@ impl Plant {
         let v_in = mul(&r, &v_body);
         // Air drag on the airspeed, as a body-frame acceleration.
         let air: [f64; 3] = std::array::from_fn(|i| p.wind_m_s[i] - v_in[i]);
-        let drag_in: [f64; 3] = std::array::from_fn(|i| p.drag_n_per_m_s * air[i] / p.mass_kg);
+        let drag_in: [f64; 3] =
+            std::array::from_fn(|i| (p.drag_n_per_m_s * air[i] + self.push_n[i]) / p.mass_kg);
         let drag_body = mul_t(&r, &drag_in);
         // A motor with a scaled thrust acts as the model's motor at the speed giving that thrust.
         let w_eff: [f64; 4] = std::array::from_fn(|i| {
@@ -158,6 +162,12 @@ impl Plant {
         };
         self.x = next;
         self.t_us += dt_us;
+    }
+
+    /// Velocity in the inertial frame (x north, y west, z up), m/s.
+    pub fn velocity_m_s(&self) -> [f64; 3] {
+        let r = rotation(self.x[idx::PSI], self.x[idx::PHI], self.x[idx::THETA]);
+        mul(&r, &[self.x[idx::VQX], self.x[idx::VQY], self.x[idx::VQZ]])
     }
 
     /// Position (x north, y west, z up), m.

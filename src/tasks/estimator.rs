@@ -9,6 +9,7 @@
 //! Rate: one Kalman step per frame once calibrated. Ends: when frames stop, on a start-up
 //! abort (an error), or on cancel.
 
+use crate::core::commander::Summary as CommanderSummary;
 use crate::core::esc::EscPhase;
 use crate::core::flight::{EscState, Estimate, EstimatorSide, Feedback, FrameAction, FrameTimes};
 use crate::core::gps::LiveFix;
@@ -33,14 +34,15 @@ pub struct EstimateMsg {
 /// watchdog's to catch as a missed deadline).
 const FEEDBACK_LATE: Duration = Duration::from_millis(5);
 
-/// Counters of the estimator.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+/// Counters of the estimator, and what its commander did.
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct EstimatorReport {
     pub frames: u64,
     pub steps: u64,
     pub late_feedback: u64,
     pub ekf_errors: u64,
     pub gps_updates: u64,
+    pub commander: CommanderSummary,
 }
 
 pub struct EstimatorTask {
@@ -112,6 +114,10 @@ impl EstimatorTask {
             late_feedback,
             ekf_errors: c.ekf_errors,
             gps_updates: c.gps_updates,
+            commander: CommanderSummary {
+                events: self.side.history().to_vec(),
+                figures: self.side.commander().figures(),
+            },
         })
     }
 

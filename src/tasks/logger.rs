@@ -10,7 +10,7 @@
 //! stream, and the logger goes on with the next.
 //! Ends: when every sender is gone and the queue is drained.
 
-use crate::logs::{PerStream, Record, Stream};
+use crate::logs::{N_STREAMS, PerStream, Record, Stream};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -31,8 +31,8 @@ pub struct LogStall {
 #[derive(Debug, Clone)]
 pub struct LogHub {
     senders: Vec<mpsc::Sender<Record>>,
-    dropped: Arc<[AtomicU64; 7]>,
-    io_errors: Arc<[AtomicU64; 7]>,
+    dropped: Arc<[AtomicU64; N_STREAMS]>,
+    io_errors: Arc<[AtomicU64; N_STREAMS]>,
 }
 
 impl LogHub {
@@ -85,8 +85,9 @@ pub async fn spawn_all(
 )> {
     let mut senders = Vec::new();
     let mut handles = Vec::new();
-    let dropped: Arc<[AtomicU64; 7]> = Arc::new(std::array::from_fn(|_| AtomicU64::new(0)));
-    let io_errors: Arc<[AtomicU64; 7]> = Arc::new(std::array::from_fn(|_| AtomicU64::new(0)));
+    let dropped: Arc<[AtomicU64; N_STREAMS]> = Arc::new(std::array::from_fn(|_| AtomicU64::new(0)));
+    let io_errors: Arc<[AtomicU64; N_STREAMS]> =
+        Arc::new(std::array::from_fn(|_| AtomicU64::new(0)));
     for stream in Stream::ALL {
         let path = dir.join(format!("{}.log", stream.name()));
         let file = tokio::fs::File::create(&path).await?;
@@ -125,8 +126,8 @@ struct StreamWriter {
     stream: Stream,
     file: tokio::fs::File,
     stall: Option<LogStall>,
-    dropped: Arc<[AtomicU64; 7]>,
-    io_errors: Arc<[AtomicU64; 7]>,
+    dropped: Arc<[AtomicU64; N_STREAMS]>,
+    io_errors: Arc<[AtomicU64; N_STREAMS]>,
     /// When the stream last reached the kernel, and the disk.
     flushed: Instant,
     synced: Instant,
@@ -260,7 +261,7 @@ mod tests {
         else {
             return;
         };
-        let (dropped, io_errors): (Arc<[AtomicU64; 7]>, Arc<[AtomicU64; 7]>) = (
+        let (dropped, io_errors): (Arc<[AtomicU64; N_STREAMS]>, Arc<[AtomicU64; N_STREAMS]>) = (
             Arc::new(std::array::from_fn(|_| AtomicU64::new(0))),
             Arc::new(std::array::from_fn(|_| AtomicU64::new(0))),
         );

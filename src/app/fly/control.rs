@@ -26,7 +26,7 @@ pub(super) struct Inputs {
     pub live: watch::Sender<Option<Live>>,
 }
 
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone, Default)]
 pub(super) struct Reports {
     pub estimator: EstimatorReport,
     pub controller: ControllerReport,

@@ -370,5 +370,6 @@ fn summarise(h: &RunHandles, r: control::Reports, error: Option<String>) -> FlyS
         deadline_misses: load(&h.wd_status.deadline_misses),
         halt: h.wd_status.halt(),
         error,
+        commander: r.estimator.commander,
     }
 }

@@ -9,6 +9,7 @@
 //! control step's time minus the previous command's time. Replay is byte-identical because
 //! every mode makes these same calls in the same order with the same inputs.
 
+use crate::core::commander::{Guidance, Mode};
 use crate::core::control::{Controller, HoverPlanner, ManualCommand, ManualOutcome};
 use crate::core::ekf::{Ekf, EkfError, EkfParams, Input, State, StepInput};
 use crate::core::gps::GpsSample;
@@ -42,6 +43,12 @@ pub struct Estimate {
     pub gps_used: bool,
     pub dt_clamped: bool,
     pub ekf_error: Option<EkfError>,
+    /// The commander's guidance for this step's control.
+    pub guidance: Guidance,
+    /// A manual key for the planner, applied before this step's control.
+    pub manual: Option<ManualCommand>,
+    /// Zero and disable the ESCs instead of commanding them (disarmed on the ground).
+    pub stop_escs: bool,
 }
 
 /// The estimator half: front end (settle, calibrate, FIR, conversion) and EKF.
@@ -139,6 +146,9 @@ impl EstimatorCore {
             gps_used: gps.is_some(),
             dt_clamped: report.dt_clamped,
             ekf_error: result.err(),
+            guidance: Guidance::OFF,
+            manual: None,
+            stop_escs: false,
         })
     }
 }
@@ -179,6 +189,9 @@ pub struct ControllerCore {
     /// Roll, pitch and yaw torque-disturbance observer (not in the original), from the end of
     /// the flight ramp on.
     observer: Option<TorqueObserver>,
+    /// The Kalman step the control law started at (the takeoff): the flight ramp counts
+    /// from it.
+    ramp_from: Option<u32>,
 }
 
 /// What the hover planner is built from once the calibration yaw is known.
@@ -208,7 +221,13 @@ impl ControllerCore {
             gps_hold_timeout_us,
             last_gps_us: None,
             observer: None,
+            ramp_from: None,
         }
+    }
+
+    /// The flight ramp's step (1-based) for Kalman step `step`; none before the takeoff.
+    fn ramp_step(&self, step: u32) -> Option<u32> {
+        self.ramp_from.map(|from| step.saturating_sub(from) + 1)
     }
 
     /// Adds the torque-disturbance observer with low-pass time constant `tau_s`, for motors
@@ -251,10 +270,40 @@ impl ControllerCore {
 
     /// The EKF input for Kalman step `step` (ERRATA 6).
     pub fn input_for_step(&self, step: u32) -> Input {
+        let ramping = self.ramp_step(step).is_some_and(|r| r <= FLIGHT_RAMP_STEPS);
         match self.prev {
             None => [self.limits().w_hover_rad_s; 4],
-            Some((w_ctrl, _, _)) if step <= FLIGHT_RAMP_STEPS => w_ctrl,
+            Some((w_ctrl, _, _)) if ramping => w_ctrl,
             Some((_, w_sent, _)) => w_sent,
+        }
+    }
+
+    /// A step without the control law: idle speeds while armed on the ground, zero once
+    /// disarmed (not sent: the ESCs are stopped). The filter's model has no ground: standing
+    /// on it, the ground's push makes up the weight, so the EKF's input is the speed whose
+    /// thrust is the weight, whatever the motors do (else the estimate sinks into the ground).
+    fn rest(&mut self, est: &Estimate, t_ctrl_us: i64, t_cmd_us: i64) -> ControlOut {
+        let limits = self.limits();
+        let w = if est.guidance.mode == Mode::Armed {
+            [limits.w_min_rad_s; 4]
+        } else {
+            [0.0; 4]
+        };
+        let w_model = [limits.w_hover_rad_s; 4];
+        self.prev = Some((w_model, w_model, t_cmd_us));
+        let n_int = self.controller.x_int().len();
+        let mut x_int = [0.0; 4];
+        x_int[..n_int].copy_from_slice(self.controller.x_int());
+        ControlOut {
+            step: est.step,
+            t_ctrl_us,
+            t_cmd_us,
+            w_ctrl: w,
+            w_sent: w,
+            x_int,
+            n_int,
+            saturated: false,
+            position_hold: false,
         }
     }
 
@@ -263,19 +312,32 @@ impl ControllerCore {
         self.planner.as_mut().map(|p| p.apply(cmd))
     }
 
-    /// One control step on `est` (spec 4.4, 8.3 steps 10–11).
+    /// One control step on `est` (spec 4.4, 8.3 steps 10–11), with the commander's guidance.
     pub fn control(&mut self, est: &Estimate, t_ctrl_us: i64, t_cmd_us: i64) -> ControlOut {
+        let g = est.guidance;
+        if !g.fly {
+            return self.rest(est, t_ctrl_us, t_cmd_us);
+        }
+        let ramp_step = est
+            .step
+            .saturating_sub(*self.ramp_from.get_or_insert(est.step))
+            + 1;
         let spec = self.make_planner;
         let planner = self.planner.get_or_insert_with(|| {
             HoverPlanner::new(
-                spec.hover_z_m,
+                g.pos_m[2],
                 est.theta_cal_rad,
-                [0.0, 0.0],
+                [g.pos_m[0], g.pos_m[1]],
                 spec.mass_kg,
                 spec.w_max_rad_s,
                 spec.bounds,
             )
         });
+        // The commander's set point; the planner keeps the attitude and the weight keys'.
+        planner.sp.x[0] = g.pos_m[0];
+        planner.sp.x[1] = g.pos_m[1];
+        planner.sp.x[2] = g.pos_m[2];
+        planner.sp.x[crate::core::ekf::idx::VQZ] = g.vz_m_s;
         planner.update_setpoint();
         let limits = planner.limits();
         // T_s = this control step's time − the previous command's (ERRATA 8). The original's
@@ -288,9 +350,10 @@ impl ControllerCore {
         if est.gps_used {
             self.last_gps_us = Some(est.t_us);
         }
-        let position_hold = self
-            .last_gps_us
-            .is_some_and(|t| est.t_us - t <= self.gps_hold_timeout_us);
+        let position_hold = g.hold_xy
+            && self
+                .last_gps_us
+                .is_some_and(|t| est.t_us - t <= self.gps_hold_timeout_us);
         let mut w_ctrl =
             self.controller
                 .step_with_hold(&est.x, &planner.sp, t_s_us as f64 / 1e6, position_hold);
@@ -298,7 +361,7 @@ impl ControllerCore {
         // ground, which holds any torque, and the motors are far from the hover speeds the
         // correction is linearised around.
         if let Some(o) = &mut self.observer
-            && est.step > FLIGHT_RAMP_STEPS
+            && ramp_step > FLIGHT_RAMP_STEPS
         {
             o.observe(&est.x, est.t_us, planner.mass_kg());
             let c = o.correction_rad_s(&limits);
@@ -306,7 +369,7 @@ impl ControllerCore {
                 *w += dw;
             }
         }
-        let w_sent = command_for_step(&w_ctrl, est.step, &limits);
+        let w_sent = command_for_step(&w_ctrl, ramp_step, &limits);
         if let Some(o) = &mut self.observer {
             o.sent(&est.x, est.t_us, &w_sent);
         }

@@ -22,6 +22,9 @@
 
 use super::gps_feed::GpsFeed;
 use super::halves::{ControllerCore, Estimate, EstimatorCore};
+use crate::core::commander::{
+    self, ArmFacts, Commander, EscRequest, Mode, Observation, OperatorInput,
+};
 use crate::core::control::{ManualCommand, ManualOutcome};
 use crate::core::ekf::{Ekf, Input, idx};
 use crate::core::esc::EscPhase;
@@ -31,6 +34,7 @@ use crate::core::imu::frame::RawFrame;
 use crate::core::imu::startup::{FrontEndEvent, StartupError};
 use crate::core::motor::FLIGHT_RAMP_STEPS;
 use crate::core::watchdog::{Event, Halt};
+use std::collections::VecDeque;
 
 /// What the flight produces for the log streams; the `logs` module formats it.
 #[derive(Debug, Clone, PartialEq)]
@@ -62,6 +66,15 @@ pub enum FlightRecord {
     Halt(Halt),
     /// A line for the operator (err).
     Note(String),
+    /// A mode change, failsafe or refusal of the commander (mode).
+    Commander(commander::Event),
+    /// An operator's input as the flight applied it, with the pre-arm verdict an `arm` was
+    /// given (mode): what a replay feeds back in.
+    Operator {
+        t_us: i64,
+        input: OperatorInput,
+        verdict: Option<Result<(), String>>,
+    },
 }
 
 /// Where the flight's records and watchdog events go: loggers and the watchdog thread in
@@ -216,10 +229,24 @@ pub struct EstimatorSide {
     /// The live fix offered to the feed and not yet fused.
     offered: Option<LiveFix>,
     counts: EstimatorCounts,
+    commander: Commander,
+    /// The commander's events not yet recorded.
+    events: Vec<commander::Event>,
+    /// The newest step as the commander saw it.
+    observed: Option<Observation>,
+    /// Manual keys for the controller's planner, one per step.
+    keys: VecDeque<crate::core::control::ManualCommand>,
+    started: bool,
+    /// The commander's events so far, for the report (at most [`HISTORY_MAX`]).
+    history: Vec<commander::Event>,
 }
 
+/// Commander events a run keeps for its report; more (an operator repeating a refused
+/// command) are only logged.
+pub const HISTORY_MAX: usize = 1000;
+
 impl EstimatorSide {
-    pub fn new(core: EstimatorCore, gps: GpsFeed) -> Self {
+    pub fn new(core: EstimatorCore, gps: GpsFeed, commander: Commander) -> Self {
         EstimatorSide {
             core,
             gps,
@@ -229,6 +256,115 @@ impl EstimatorSide {
             prev_frame_us: None,
             offered: None,
             counts: EstimatorCounts::default(),
+            commander,
+            events: Vec::with_capacity(4),
+            observed: None,
+            keys: VecDeque::with_capacity(4),
+            started: false,
+            history: Vec::with_capacity(32),
+        }
+    }
+
+    /// The vehicle's mode.
+    pub fn mode(&self) -> Mode {
+        self.commander.mode()
+    }
+
+    pub fn commander(&self) -> &Commander {
+        &self.commander
+    }
+
+    /// The commander's events so far.
+    pub fn history(&self) -> &[commander::Event] {
+        &self.history
+    }
+
+    /// The commander's start, once, before the first frame or input.
+    fn start(&mut self, out: &mut impl Outputs) {
+        if !self.started {
+            self.started = true;
+            // At 0 in every mode: a replay starts at the calibration, not at the first frame.
+            self.commander.start(0, &mut self.events);
+            self.record_events(out);
+        }
+    }
+
+    /// The commander's events into the mode stream, and a line each into err.log.
+    fn record_events(&mut self, out: &mut impl Outputs) {
+        for e in self.events.drain(..) {
+            if self.history.len() < HISTORY_MAX {
+                self.history.push(e.clone());
+            }
+            out.record(FlightRecord::Note(commander_line(&e)));
+            out.record(FlightRecord::Commander(e));
+        }
+    }
+
+    /// An operator's input at `t_us`. An `arm` is checked against `arm`: the facts the
+    /// driver observed (the IMU's settling is this side's own), or a replay's recorded verdict.
+    /// `true`: zero and disable the ESCs (disarmed on the ground); the run goes on.
+    pub fn operator(
+        &mut self,
+        input: OperatorInput,
+        t_us: i64,
+        arm: ArmCheck<'_>,
+        out: &mut impl Outputs,
+    ) -> bool {
+        self.start(out);
+        let verdict = match (input, arm) {
+            (OperatorInput::Command(commander::Command::Arm, _), ArmCheck::Recorded(v)) => {
+                Some(v.clone())
+            }
+            (OperatorInput::Command(commander::Command::Arm, _), ArmCheck::Facts(f)) => {
+                let mut f = f.clone();
+                f.imu_stable = self.phase == Phase::EscStart;
+                Some(f.verdict())
+            }
+            _ => None,
+        };
+        out.record(FlightRecord::Operator {
+            t_us,
+            input,
+            verdict: verdict.clone(),
+        });
+        let request = match input {
+            OperatorInput::Beat(src) => {
+                self.commander.link_beat(src, t_us);
+                None
+            }
+            OperatorInput::Key(k) => {
+                if self.commander.manual(k) {
+                    self.keys.push_back(k);
+                }
+                None
+            }
+            OperatorInput::Command(cmd, src) => {
+                self.commander.link_beat(src, t_us);
+                let v = verdict.unwrap_or(Ok(()));
+                let o = self.observed;
+                self.commander
+                    .command(cmd, t_us, v, o.as_ref(), &mut self.events)
+            }
+        };
+        self.record_events(out);
+        self.esc_request(request, t_us, out)
+    }
+
+    /// Whether the driver stops the ESCs for the commander's request: a start waits for the
+    /// next settled frame; a kill is the watchdog's halt.
+    fn esc_request(
+        &mut self,
+        request: Option<EscRequest>,
+        t_us: i64,
+        out: &mut impl Outputs,
+    ) -> bool {
+        match request {
+            Some(EscRequest::Stop) => true,
+            Some(EscRequest::Kill) => {
+                out.watchdog(Event::Kill(t_us));
+                false
+            }
+            Some(EscRequest::Start) | None => false,
         }
     }
 
@@ -261,6 +397,7 @@ impl EstimatorSide {
         if self.phase == Phase::Ended {
             return FrameAction::Ended;
         }
+        self.start(out);
         self.counts.frames += 1;
         let record = FlightRecord::Frame {
             times,
@@ -268,7 +405,13 @@ impl EstimatorSide {
         };
         match self.core.on_frame(frame, times.t_frame_us) {
             FrontEndEvent::Settling { .. } => FrameAction::Wait,
-            FrontEndEvent::Holding => self.esc_start(esc, out),
+            FrontEndEvent::Holding => {
+                self.phase = Phase::EscStart;
+                if self.commander.mode() != Mode::Armed {
+                    return FrameAction::Wait;
+                }
+                self.esc_start(esc, out)
+            }
             FrontEndEvent::Calibrating { .. } => {
                 self.phase = Phase::Calibration;
                 out.record(record);
@@ -293,7 +436,6 @@ impl EstimatorSide {
 
     /// Settled: start the ESCs once, calibrate when their ramp is done, abort if they stopped.
     fn esc_start(&mut self, esc: EscState<'_>, out: &mut impl Outputs) -> FrameAction {
-        self.phase = Phase::EscStart;
         if !self.esc_start_asked {
             self.esc_start_asked = true;
             out.record(FlightRecord::Note(
@@ -308,9 +450,12 @@ impl EstimatorSide {
                 self.phase = Phase::Calibration;
                 FrameAction::Wait
             }
-            EscPhase::Stopped => self.abort(Abort::EscStopped(
-                esc.stop_reason.unwrap_or("no reason given").to_string(),
-            )),
+            EscPhase::Stopped => {
+                let why = esc.stop_reason.unwrap_or("no reason given").to_string();
+                self.commander.on_esc_stopped(0, &why, &mut self.events);
+                self.record_events(out);
+                self.abort(Abort::EscStopped(why))
+            }
             EscPhase::Disabled | EscPhase::Ramping => FrameAction::Wait,
         }
     }
@@ -356,6 +501,7 @@ impl EstimatorSide {
         est.t_ctrl_us = st.t_ctrl_us;
         est.t_cmd_us = st.t_cmd_us;
         self.count(&est);
+        self.guide(&mut est, fb, out);
         out.watchdog(Event::Estimate {
             step_us: est.t_us,
             temp_c: est.sample.temp_c,
@@ -370,6 +516,31 @@ impl EstimatorSide {
         });
         out.record(FlightRecord::XHat(est.x.into()));
         Some(est)
+    }
+
+    /// The commander's step: its guidance and keys for the controller, its ESC request.
+    fn guide(&mut self, est: &mut Estimate, fb: &Feedback, out: &mut impl Outputs) {
+        let thrust_n: f64 = fb
+            .u_next
+            .iter()
+            .map(|&w| crate::core::model::thrust_n(w))
+            .sum();
+        let o = Observation {
+            t_us: est.t_us,
+            pos_m: [est.x[idx::X], est.x[idx::Y], est.x[idx::Z]],
+            // Small tilts: the body's vertical speed is the world's.
+            vz_m_s: est.x[idx::VQZ],
+            thrust_ratio: thrust_n / (fb.mass_kg * crate::core::model::GRAVITY_M_S2),
+            acc_z_m_s2: est.sample.acc_m_s2[2],
+            gps_fused: est.gps_used,
+            test_ratio_max: 0.0,
+        };
+        self.observed = Some(o);
+        let (guidance, request) = self.commander.on_estimate(&o, &mut self.events);
+        self.record_events(out);
+        est.guidance = guidance;
+        est.manual = self.keys.pop_front();
+        est.stop_escs = self.esc_request(request, est.t_us, out);
     }
 
     fn count(&mut self, est: &Estimate) {
@@ -388,8 +559,31 @@ impl EstimatorSide {
     pub fn on_halt(&mut self, halt: Halt, out: &mut impl Outputs) {
         if self.phase != Phase::Ended {
             self.phase = Phase::Ended;
+            self.commander
+                .on_halt(halt.halt_us, halt.trip.reason.name(), &mut self.events);
+            self.record_events(out);
             out.record(FlightRecord::Halt(halt));
         }
+    }
+}
+
+/// How an `arm` is checked.
+#[derive(Debug, Clone, Copy)]
+pub enum ArmCheck<'a> {
+    /// Against what the driver observed.
+    Facts(&'a ArmFacts),
+    /// As the recorded run decided (replay).
+    Recorded(&'a Result<(), String>),
+}
+
+/// The err.log line of a commander event.
+pub fn commander_line(e: &commander::Event) -> String {
+    match e {
+        commander::Event::Mode { mode, why, .. } => format!("mode {}: {why}", mode.name()),
+        commander::Event::Failsafe { kind, action, .. } => {
+            format!("failsafe {}: {}", kind.name(), action.name())
+        }
+        commander::Event::Refusal { command, why, .. } => format!("{command} refused: {why}"),
     }
 }
 
@@ -402,12 +596,18 @@ pub struct Command {
     /// For the estimator side's next step.
     pub feedback: Feedback,
     pub saturated: bool,
+    /// Zero and disable the ESCs instead of sending the speeds (disarmed on the ground).
+    pub stop_escs: bool,
+    /// A manual quit key: end the run.
+    pub quit: bool,
 }
 
 /// Counters of the controller side.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct ControllerCounts {
     pub steps: u64,
+    /// Steps under the control law (from the takeoff on).
+    pub flying_steps: u64,
     pub saturated: u64,
     pub manual_commands: u64,
 }
@@ -474,6 +674,7 @@ impl ControllerSide {
         send: impl FnOnce(&Command),
         out: &mut impl Outputs,
     ) -> Command {
+        let quit = est.manual.is_some_and(|k| self.manual(k, out));
         let c = self.core.control(est, est.t_ctrl_us, est.t_cmd_us);
         let command = Command {
             step: c.step,
@@ -485,6 +686,8 @@ impl ControllerSide {
                 t_cmd_us: Some(c.t_cmd_us),
             },
             saturated: c.saturated,
+            stop_escs: est.stop_escs,
+            quit,
         };
         send(&command);
         if c.position_hold != self.position_hold {
@@ -494,6 +697,7 @@ impl ControllerSide {
             ));
         }
         self.counts.steps += 1;
+        self.counts.flying_steps += u64::from(est.guidance.fly);
         self.counts.saturated += u64::from(c.saturated);
         out.record(FlightRecord::Int {
             t_us: c.t_ctrl_us,

@@ -1,0 +1,122 @@
+//! The commander's part of a run's report: `modes`, `touchdown`, `takeoff`, `failsafes` and
+//! `refusals` (the JSON fields both `fly --report` and `sim --report` carry), and its line in
+//! the exit summary.
+
+use crate::core::commander::Event;
+pub use crate::core::commander::Summary as CommanderSummary;
+use serde::Serialize;
+
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ModeEntry {
+    pub mode: &'static str,
+    pub t_s: f64,
+    pub why: String,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FailsafeEntry {
+    pub kind: &'static str,
+    pub t_s: f64,
+    pub action: &'static str,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RefusalEntry {
+    pub command: String,
+    pub t_s: f64,
+    pub why: String,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct TouchdownEntry {
+    pub t_s: f64,
+    /// Vertical speed at touchdown, m/s.
+    pub v_m_s: f64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct TakeoffEntry {
+    /// The takeoff's height above its start, m.
+    pub target_m: f64,
+    /// How far above it the vehicle went, m (0 when it never did).
+    pub overshoot_m: f64,
+}
+
+/// The report's commander fields.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CommanderReport {
+    pub modes: Vec<ModeEntry>,
+    pub touchdown: Option<TouchdownEntry>,
+    pub takeoff: Option<TakeoffEntry>,
+    pub failsafes: Vec<FailsafeEntry>,
+    pub refusals: Vec<RefusalEntry>,
+}
+
+fn secs(t_us: i64) -> f64 {
+    t_us as f64 / 1e6
+}
+
+impl CommanderSummary {
+    pub fn report(&self) -> CommanderReport {
+        let mut r = CommanderReport {
+            modes: Vec::new(),
+            touchdown: self.figures.touchdown.map(|(t, v)| TouchdownEntry {
+                t_s: secs(t),
+                v_m_s: v,
+            }),
+            takeoff: self.figures.takeoff.map(|(target, over)| TakeoffEntry {
+                target_m: target,
+                overshoot_m: over.max(0.0),
+            }),
+            failsafes: Vec::new(),
+            refusals: Vec::new(),
+        };
+        for e in &self.events {
+            match e {
+                Event::Mode { t_us, mode, why } => r.modes.push(ModeEntry {
+                    mode: mode.name(),
+                    t_s: secs(*t_us),
+                    why: why.clone(),
+                }),
+                Event::Failsafe { t_us, kind, action } => r.failsafes.push(FailsafeEntry {
+                    kind: kind.name(),
+                    t_s: secs(*t_us),
+                    action: action.name(),
+                }),
+                Event::Refusal { t_us, command, why } => r.refusals.push(RefusalEntry {
+                    command: command.clone(),
+                    t_s: secs(*t_us),
+                    why: why.clone(),
+                }),
+            }
+        }
+        r
+    }
+
+    /// The exit summary's line: the modes in order, the failsafes and refusals.
+    pub fn text(&self) -> String {
+        let r = self.report();
+        let modes: Vec<String> = r
+            .modes
+            .iter()
+            .map(|m| format!("{} {:.1}s", m.mode, m.t_s))
+            .collect();
+        let mut s = format!("modes: {}", modes.join(" -> "));
+        if let Some(t) = r.takeoff {
+            s += &format!(
+                "; takeoff to {:.2} m, overshoot {:.3} m",
+                t.target_m, t.overshoot_m
+            );
+        }
+        if let Some(t) = r.touchdown {
+            s += &format!("; touchdown at {:.1} s, {:.2} m/s", t.t_s, t.v_m_s);
+        }
+        for f in &r.failsafes {
+            s += &format!("\n  failsafe {} at {:.1} s: {}", f.kind, f.t_s, f.action);
+        }
+        for f in &r.refusals {
+            s += &format!("\n  refused {} at {:.1} s: {}", f.command, f.t_s, f.why);
+        }
+        s
+    }
+}

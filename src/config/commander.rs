@@ -1,0 +1,131 @@
+//! The `commander`, `failsafe` and `fence` sections: how the vehicle arms, takes off, lands and
+//! answers a lost link, a lost GPS, a fence breach or a failing estimator (`core::commander`).
+
+use crate::core::commander::{Action, LinkSource, Params, Start};
+use serde::{Deserialize, Serialize};
+
+/// Arming, takeoff and landing.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct CommanderConfig {
+    /// "disarmed": wait for `arm`; "flying": arm and take off at start (the original).
+    pub start: Start,
+    /// Climb speed of the takeoff (and of a `hold` to another height), m/s.
+    pub climb_m_s: f64,
+    /// Largest acceleration of the climb's set point, m/s².
+    pub climb_acc_m_s2: f64,
+    /// The takeoff becomes `hold` once the estimate is this close to the target, m.
+    pub takeoff_tolerance_m: f64,
+    /// Descent speed of a landing, m/s, and in its last metre.
+    pub land_m_s: f64,
+    pub land_slow_m_s: f64,
+    /// Touchdown: vertical speed under this (m/s) and thrust under `touchdown_thrust` of the
+    /// weight, for `touchdown_s`.
+    pub touchdown_v_m_s: f64,
+    pub touchdown_thrust: f64,
+    pub touchdown_s: f64,
+    /// Largest horizontal error of the GPS fix for arming (gps.mode = "gpsd"), m.
+    pub gps_max_eph_m: f64,
+}
+
+impl Default for CommanderConfig {
+    fn default() -> Self {
+        CommanderConfig {
+            start: Start::Disarmed,
+            climb_m_s: 0.5,
+            climb_acc_m_s2: 0.5,
+            takeoff_tolerance_m: 0.1,
+            land_m_s: 0.5,
+            land_slow_m_s: 0.25,
+            touchdown_v_m_s: 0.15,
+            touchdown_thrust: 0.8,
+            touchdown_s: 1.0,
+            gps_max_eph_m: 5.0,
+        }
+    }
+}
+
+/// The graded failsafes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct FailsafeConfig {
+    /// Which operator links count: "terminal", "console", "gcs".
+    pub link_sources: Vec<String>,
+    /// The link silent this long after it was seen once → `link_action`, s.
+    pub link_timeout_s: f64,
+    pub link_action: Action,
+    /// No GPS fix while holding position: attitude and altitude are held, then
+    /// `gps_loss_action` after this long, s.
+    pub gps_loss_land_s: f64,
+    pub gps_loss_action: Action,
+    /// An innovation test ratio above 1 for this long → `ekf_action`, s.
+    pub ekf_bad_s: f64,
+    pub ekf_action: Action,
+}
+
+impl Default for FailsafeConfig {
+    fn default() -> Self {
+        FailsafeConfig {
+            link_sources: vec!["terminal".into(), "console".into(), "gcs".into()],
+            link_timeout_s: 2.0,
+            link_action: Action::Land,
+            gps_loss_land_s: 10.0,
+            gps_loss_action: Action::Land,
+            ekf_bad_s: 2.0,
+            ekf_action: Action::Land,
+        }
+    }
+}
+
+/// A cylinder around the takeoff point; active while the position is observed (GPS).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Fence {
+    pub radius_m: f64,
+    /// Height above the takeoff point, m.
+    pub alt_max_m: f64,
+    pub action: Action,
+}
+
+impl Default for Fence {
+    fn default() -> Self {
+        Fence {
+            radius_m: 50.0,
+            alt_max_m: 20.0,
+            action: Action::Land,
+        }
+    }
+}
+
+impl super::Config {
+    /// The commander's parameters.
+    pub fn commander_params(&self) -> Params {
+        let (c, f) = (&self.commander, &self.failsafe);
+        let counts = |l: LinkSource| f.link_sources.iter().any(|s| s == l.name());
+        Params {
+            start: c.start,
+            hover_z_m: self.control.hover_z_m,
+            climb_m_s: c.climb_m_s,
+            climb_acc_m_s2: c.climb_acc_m_s2,
+            takeoff_tolerance_m: c.takeoff_tolerance_m,
+            land_m_s: c.land_m_s,
+            land_slow_m_s: c.land_slow_m_s,
+            touchdown_v_m_s: c.touchdown_v_m_s,
+            touchdown_thrust: c.touchdown_thrust,
+            touchdown_s: c.touchdown_s,
+            link_sources: LinkSource::ALL.map(counts),
+            link_timeout_s: f.link_timeout_s,
+            link_action: f.link_action,
+            gps_timeout_s: self.control.gps_hold_timeout_s,
+            gps_loss_land_s: f.gps_loss_land_s,
+            gps_loss_action: f.gps_loss_action,
+            fence_radius_m: self.fence.radius_m,
+            fence_alt_max_m: self.fence.alt_max_m,
+            fence_action: self.fence.action,
+            ekf_bad_s: f.ekf_bad_s,
+            ekf_action: f.ekf_action,
+            z_min_m: self.control.manual.z_min_m,
+            z_max_m: self.control.manual.z_max_m,
+        }
+    }
+}

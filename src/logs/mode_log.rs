@@ -1,0 +1,160 @@
+//! The `mode` stream (mode.log): the commander's inputs (operator commands with the pre-arm
+//! verdict an `arm` got, link beats, manual keys) and outputs (mode changes, failsafes,
+//! refusals), one per line after the time in µs. `uquad replay` reads the inputs back and
+//! writes the outputs again, so a replayed run's mode.log is the same bytes.
+//!
+//! ```text
+//! 1000000 in gcs arm | ok
+//! 1000000 mode armed command arm
+//! 12000000 in console takeoff 1.5
+//! 30500000 failsafe link-loss land
+//! 31000000 refused disarm | in the air (land): land first, or kill
+//! 2000000 beat gcs
+//! 2100000 key 101
+//! ```
+
+use crate::core::commander::{Command, Event, LinkSource, OperatorInput};
+use crate::core::control::ManualCommand;
+use std::fmt::Write;
+
+/// Appends an output line.
+pub fn write_event(out: &mut String, e: &Event) {
+    let _ = match e {
+        Event::Mode { t_us, mode, why } => writeln!(out, "{t_us} mode {} {why}", mode.name()),
+        Event::Failsafe { t_us, kind, action } => {
+            writeln!(out, "{t_us} failsafe {} {}", kind.name(), action.name())
+        }
+        Event::Refusal { t_us, command, why } => writeln!(out, "{t_us} refused {command} | {why}"),
+    };
+}
+
+/// Appends an input line; an `arm` carries its verdict (`ok` or the failing check).
+pub fn write_input(
+    out: &mut String,
+    t_us: i64,
+    input: &OperatorInput,
+    verdict: Option<&Result<(), String>>,
+) {
+    let _ = match input {
+        OperatorInput::Beat(src) => writeln!(out, "{t_us} beat {}", src.name()),
+        OperatorInput::Key(k) => writeln!(out, "{t_us} key {}", k.key()),
+        OperatorInput::Command(c, src) => {
+            let _ = write!(out, "{t_us} in {} {c}", src.name());
+            match verdict {
+                Some(Ok(())) => writeln!(out, " | ok"),
+                Some(Err(why)) => writeln!(out, " | {why}"),
+                None => writeln!(out),
+            }
+        }
+    };
+}
+
+/// One recorded input: its time, the input and an `arm`'s verdict.
+pub type RecordedInput = (i64, OperatorInput, Result<(), String>);
+
+/// The inputs of a mode.log, in order; output lines are skipped. A line that is not
+/// understood is an error naming its number.
+pub fn read_inputs(text: &str) -> Result<Vec<RecordedInput>, String> {
+    let mut inputs = Vec::new();
+    for (n, line) in text.lines().enumerate() {
+        let line = line.trim_end_matches('\r');
+        if line.trim().is_empty() {
+            continue;
+        }
+        if let Some(i) = parse_input(line).map_err(|e| format!("line {}: {e}", n + 1))? {
+            inputs.push(i);
+        }
+    }
+    Ok(inputs)
+}
+
+fn parse_input(line: &str) -> Result<Option<RecordedInput>, String> {
+    let mut parts = line.splitn(3, ' ');
+    let t_us: i64 = parts
+        .next()
+        .and_then(|t| t.parse().ok())
+        .ok_or_else(|| format!("no time in µs at the start of {line:?}"))?;
+    let kind = parts.next().unwrap_or("");
+    let rest = parts.next().unwrap_or("");
+    let source = |name: &str| {
+        LinkSource::from_name(name).ok_or_else(|| format!("unknown link source {name:?}"))
+    };
+    let input = match kind {
+        "beat" => OperatorInput::Beat(source(rest)?),
+        "key" => {
+            let k = rest.parse::<u8>().ok().and_then(ManualCommand::from_key);
+            OperatorInput::Key(k.ok_or_else(|| format!("unknown key {rest:?}"))?)
+        }
+        "in" => return parse_command(t_us, rest, source).map(Some),
+        "mode" | "failsafe" | "refused" => return Ok(None),
+        _ => return Err(format!("unknown record {kind:?}")),
+    };
+    Ok(Some((t_us, input, Ok(()))))
+}
+
+fn parse_command(
+    t_us: i64,
+    rest: &str,
+    source: impl Fn(&str) -> Result<LinkSource, String>,
+) -> Result<RecordedInput, String> {
+    let (src, body) = rest.split_once(' ').unwrap_or((rest, ""));
+    let (cmd, verdict) = match body.split_once(" | ") {
+        Some((c, "ok")) => (c, Ok(())),
+        Some((c, why)) => (c, Err(why.to_string())),
+        None => (body, Ok(())),
+    };
+    let cmd = Command::parse(cmd)?;
+    Ok((t_us, OperatorInput::Command(cmd, source(src)?), verdict))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::core::commander::{Action, Failsafe, Mode};
+
+    #[test]
+    fn inputs_read_back_as_written_and_outputs_are_skipped() {
+        let mut s = String::new();
+        let arm = OperatorInput::Command(Command::Arm, LinkSource::Gcs);
+        write_input(&mut s, 5, &arm, Some(&Err("gps: no fix".into())));
+        write_input(&mut s, 6, &arm, Some(&Ok(())));
+        let takeoff = OperatorInput::Command(Command::Takeoff(Some(1.5)), LinkSource::Console);
+        write_input(&mut s, 7, &takeoff, None);
+        write_input(&mut s, 8, &OperatorInput::Beat(LinkSource::Terminal), None);
+        let key = OperatorInput::Key(ManualCommand::from_key(b'e').unwrap());
+        write_input(&mut s, 9, &key, None);
+        write_event(
+            &mut s,
+            &Event::Mode {
+                t_us: 6,
+                mode: Mode::Armed,
+                why: "command arm".into(),
+            },
+        );
+        let fs = Event::Failsafe {
+            t_us: 10,
+            kind: Failsafe::LinkLoss,
+            action: Action::Land,
+        };
+        write_event(&mut s, &fs);
+        let got = read_inputs(&s).unwrap();
+        assert_eq!(
+            got,
+            vec![
+                (5, arm, Err("gps: no fix".to_string())),
+                (6, arm, Ok(())),
+                (7, takeoff, Ok(())),
+                (8, OperatorInput::Beat(LinkSource::Terminal), Ok(())),
+                (9, key, Ok(())),
+            ]
+        );
+        assert!(s.contains("10 failsafe link-loss land\n"), "{s}");
+    }
+
+    #[test]
+    fn a_line_not_understood_is_named() {
+        let e = read_inputs("5 beat gcs\nxx beat\n").unwrap_err();
+        assert!(e.starts_with("line 2:"), "{e}");
+        assert!(read_inputs("5 in gcs fly\n").is_err());
+    }
+}

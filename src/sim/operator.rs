@@ -1,0 +1,127 @@
+//! The simulated operator: a script of commands at simulated times (`uquad sim --script`) and
+//! the link heartbeats of the ground station it stands for, which `--inject link-loss@T`
+//! silences. Both ways of simulating read it.
+
+use crate::core::commander::{Command, LinkSource, OperatorInput};
+use std::collections::VecDeque;
+
+/// The whole cycle, as `uquad sim` flies it without `--script`: arm once the IMU settled,
+/// take off once calibrated, hover, land.
+pub const DEFAULT_SCRIPT: &str = "arm@2,takeoff@10,land@45";
+
+/// Heartbeat period of the simulated ground station, µs.
+pub const BEAT_PERIOD_US: i64 = 1_000_000;
+
+/// Commands at simulated times, in time order.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Script(pub Vec<(i64, Command)>);
+
+impl Script {
+    /// Parses `COMMAND@T,...` (T in simulated seconds; a command may carry its arguments:
+    /// `takeoff 1.5@10`), or `none`.
+    pub fn parse(text: &str) -> Result<Script, String> {
+        if text.trim() == "none" {
+            return Ok(Script::default());
+        }
+        let mut items = Vec::new();
+        for item in text.split(',') {
+            let (cmd, at) = item.rsplit_once('@').ok_or_else(|| {
+                format!("{item:?}: expected COMMAND@T, e.g. arm@2,takeoff@10,land@45, or none")
+            })?;
+            let cmd = Command::parse(cmd).map_err(|e| format!("{item:?}: {e}"))?;
+            let t_s = crate::config::parse_fault_time_s(at)
+                .map_err(|e| format!("{item:?}: the time {e}"))?;
+            items.push(((t_s * 1e6).round() as i64, cmd));
+        }
+        items.sort_by_key(|(t, _)| *t);
+        Ok(Script(items))
+    }
+
+    /// When the last command is due, µs.
+    pub fn end_us(&self) -> Option<i64> {
+        self.0.last().map(|(t, _)| *t)
+    }
+}
+
+/// The operator's inputs as simulated time passes.
+#[derive(Debug, Clone)]
+pub struct SimOperator {
+    script: VecDeque<(i64, Command)>,
+    next_beat_us: i64,
+    /// `link-loss`: no heartbeats (and no commands) from this time on.
+    silent_from_us: Option<i64>,
+}
+
+impl SimOperator {
+    pub fn new(script: &Script, silent_from_us: Option<i64>) -> Self {
+        SimOperator {
+            script: script.0.iter().copied().collect(),
+            next_beat_us: BEAT_PERIOD_US,
+            silent_from_us,
+        }
+    }
+
+    /// Every command of the script was sent (or the link went silent for good).
+    pub fn done(&self, t_us: i64) -> bool {
+        self.script.is_empty() || self.silent(t_us)
+    }
+
+    fn silent(&self, t_us: i64) -> bool {
+        self.silent_from_us.is_some_and(|s| t_us >= s)
+    }
+
+    /// The inputs due by `t_us`, in order, into `out`.
+    pub fn due(&mut self, t_us: i64, out: &mut Vec<OperatorInput>) {
+        if self.silent(t_us) {
+            return;
+        }
+        if t_us >= self.next_beat_us {
+            self.next_beat_us += BEAT_PERIOD_US;
+            out.push(OperatorInput::Beat(LinkSource::Gcs));
+        }
+        while let Some(&(at, cmd)) = self.script.front()
+            && at <= t_us
+        {
+            self.script.pop_front();
+            out.push(OperatorInput::Command(cmd, LinkSource::Gcs));
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn scripts_parse_with_arguments_and_in_time_order() {
+        let s = Script::parse("land@45,arm@2,takeoff 1.5@10").unwrap();
+        assert_eq!(
+            s.0,
+            vec![
+                (2_000_000, Command::Arm),
+                (10_000_000, Command::Takeoff(Some(1.5))),
+                (45_000_000, Command::Land),
+            ]
+        );
+        assert_eq!(Script::parse("none").unwrap(), Script::default());
+        assert!(Script::parse("arm").unwrap_err().contains("COMMAND@T"));
+        assert!(Script::parse("fly@2").is_err());
+        assert!(Script::parse("arm@-1").is_err());
+    }
+
+    #[test]
+    fn beats_each_second_until_the_link_is_lost() {
+        let mut op = SimOperator::new(&Script::parse("arm@2").unwrap(), Some(3_500_000));
+        let mut got = Vec::new();
+        for t_ms in (0..=5000).step_by(10) {
+            op.due(t_ms * 1000, &mut got);
+        }
+        let beats = got
+            .iter()
+            .filter(|i| matches!(i, OperatorInput::Beat(_)))
+            .count();
+        assert_eq!(beats, 3, "{got:?}");
+        assert!(got.contains(&OperatorInput::Command(Command::Arm, LinkSource::Gcs)));
+        assert!(op.done(4_000_000));
+    }
+}
