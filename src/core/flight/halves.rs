@@ -10,7 +10,9 @@
 //! every mode makes these same calls in the same order with the same inputs.
 
 use crate::core::control::{Controller, HoverPlanner, ManualCommand, ManualOutcome};
-use crate::core::ekf::{Ekf, EkfError, EkfParams, Input, State, StepInput};
+use crate::core::ekf::{
+    Ekf, EkfError, EkfParams, GatedGroups, Input, State, StepInput, TestRatios,
+};
 use crate::core::gps::GpsSample;
 use crate::core::imu::calib::{Calibration, ImuSample};
 use crate::core::imu::frame::RawFrame;
@@ -42,6 +44,10 @@ pub struct Estimate {
     pub gps_used: bool,
     pub dt_clamped: bool,
     pub ekf_error: Option<EkfError>,
+    /// The step's innovation test ratios, for innov.log.
+    pub ratios: TestRatios,
+    /// The measurement groups the step left out of its update.
+    pub gated: GatedGroups,
 }
 
 /// The estimator half: front end (settle, calibrate, FIR, conversion) and EKF.
@@ -139,6 +145,8 @@ impl EstimatorCore {
             gps_used: gps.is_some(),
             dt_clamped: report.dt_clamped,
             ekf_error: result.err(),
+            ratios: report.ratios,
+            gated: report.gated,
         })
     }
 }

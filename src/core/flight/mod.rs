@@ -12,5 +12,5 @@ pub use halves::{
 };
 pub use sequence::{
     Abort, Command, ControllerCounts, ControllerSide, EscState, EstimatorCounts, EstimatorSide,
-    Feedback, FlightRecord, FrameAction, FrameTimes, Outputs, Phase, RecordedClock,
+    Feedback, FlightRecord, FrameAction, FrameTimes, GatedCounts, Outputs, Phase, RecordedClock,
 };
