@@ -103,7 +103,8 @@ refused with an explanation and nothing is written."
         long_about = "Rerun a recorded flight through the core and write its logs.\n\n\
 RUN_DIR is a run folder as the original program wrote it: imu_raw.log (required) and, when \
 present, kalman_in.log, whose time columns are that run's recorded clock. The replay writes \
-OUT_DIR/kalman_in.log in the original's format (OUT_DIR is created if missing; logs in it are \
+OUT_DIR/kalman_in.log, x_hat.log, w.log and int.log in the original's formats, and innov.log \
+(the EKF's innovation test ratios per step) (OUT_DIR is created if missing; logs in it are \
 overwritten). Without --config, RUN_DIR/config.toml is used."
     )]
     Replay(ReplayArgs),
@@ -564,6 +565,9 @@ impl ReplayArgs {
             gps_updates = summary.gps_updates,
             dt_clamped = summary.dt_clamped,
             ekf_errors = summary.ekf_errors,
+            gated_attitude = summary.ekf_gated.attitude,
+            gated_altitude = summary.ekf_gated.altitude,
+            gated_gps = summary.ekf_gated.gps,
             "replay finished"
         );
         for o in &summary.outputs {

@@ -222,6 +222,22 @@ fn out_of_range_mass_through_set() {
 }
 
 #[test]
+fn an_innovation_gate_without_width_is_refused() {
+    for (set, value) in [("ekf.gate_sigma=0", "0"), ("ekf.gate_sigma=inf", "inf")] {
+        refused(
+            &root().join("config/uquad.toml"),
+            &["--set", set],
+            &[
+                "uquad.toml",
+                "ekf.gate_sigma",
+                &format!("{value} is out of range (from --set)"),
+                "more than 0 standard deviations (finite)",
+            ],
+        );
+    }
+}
+
+#[test]
 fn out_of_range_observer_and_motor_lag() {
     refused(
         &profile_2012(),

@@ -69,7 +69,13 @@ fn ramp_floor_and_ceiling_as_flown() {
 fn replay_is_byte_identical_across_runs() {
     let a = replay_ok(&flight_dir(), &[]);
     let b = replay_ok(&flight_dir(), &[]);
-    for name in ["kalman_in.log", "x_hat.log", "w.log", "int.log"] {
+    for name in [
+        "kalman_in.log",
+        "x_hat.log",
+        "w.log",
+        "int.log",
+        "innov.log",
+    ] {
         let x = std::fs::read(a.path().join(name)).unwrap();
         let y = std::fs::read(b.path().join(name)).unwrap();
         assert!(!x.is_empty());

@@ -70,6 +70,48 @@ fn original_model_switch() {
 }
 
 #[test]
+fn innov_log_has_a_row_per_step_and_the_2012_profile_gates_nothing() {
+    let fused = replay_ok(&flight_dir(), &[]);
+    let rows = read_table(&fused.path().join("innov.log"));
+    assert_eq!(rows.len(), 1120);
+    let mut gps_steps = 0;
+    for (k, r) in rows.iter().enumerate() {
+        assert_eq!(r.len(), 5, "row {}", k + 1);
+        assert_eq!(
+            r[4],
+            "0",
+            "row {}: the 2012 profile fuses everything",
+            k + 1
+        );
+        let ratio = |i: usize| r[i].parse::<f64>().unwrap();
+        assert!(
+            ratio(1).is_finite() && ratio(2).is_finite(),
+            "row {}",
+            k + 1
+        );
+        gps_steps += usize::from(r[3] != "nan");
+    }
+    assert!(gps_steps > 5 && gps_steps < 100, "{gps_steps} GPS steps");
+    // A gate far too narrow with gating on leaves groups out, and the estimate changes.
+    let narrow = replay_ok(
+        &flight_dir(),
+        &[
+            "--set",
+            "ekf.gate_fusion=true",
+            "--set",
+            "ekf.gate_sigma=0.01",
+        ],
+    );
+    let gated = read_table(&narrow.path().join("innov.log"))
+        .iter()
+        .filter(|r| r[4] != "0")
+        .count();
+    assert!(gated > 10, "{gated} steps gated");
+    let x_hat = |d: &tempfile::TempDir| std::fs::read(d.path().join("x_hat.log")).unwrap();
+    assert_ne!(x_hat(&fused), x_hat(&narrow));
+}
+
+#[test]
 fn covariance_stays_symmetric_positive_definite() {
     let profile = uquad::config::load(&profile_2012(), &[]).unwrap();
     let out = tempfile::tempdir().unwrap();

@@ -140,7 +140,13 @@ async fn fly_through_a_pty_with_a_mock_bus_then_replay() {
         ],
     );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    for f in ["x_hat.log", "w.log", "int.log", "kalman_in.log"] {
+    for f in [
+        "x_hat.log",
+        "w.log",
+        "int.log",
+        "kalman_in.log",
+        "innov.log",
+    ] {
         let ours = std::fs::read(run_dir.join(f)).unwrap();
         let replayed = std::fs::read(out.path().join(f)).unwrap();
         assert!(!ours.is_empty());

@@ -284,7 +284,7 @@ async fn gpsd_fixes_reach_the_estimator_and_the_run_replays() {
         ],
     );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    for name in ["x_hat.log", "w.log"] {
+    for name in ["x_hat.log", "w.log", "innov.log"] {
         assert_eq!(
             std::fs::read(summary.run_dir.join(name)).unwrap(),
             std::fs::read(out.path().join(name)).unwrap(),

@@ -74,10 +74,22 @@ fn a_sim_run_replays_to_identical_bytes() {
         ],
     );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    for name in ["x_hat.log", "w.log", "int.log", "kalman_in.log"] {
+    for name in [
+        "x_hat.log",
+        "w.log",
+        "int.log",
+        "kalman_in.log",
+        "innov.log",
+    ] {
         let a = std::fs::read(run.join(name)).unwrap();
         assert!(a.len() > 10_000, "{name} is {} bytes", a.len());
         assert_eq!(a, std::fs::read(out.path().join(name)).unwrap(), "{name}");
+    }
+    // One innov line per Kalman step; the report counts the gated updates per group.
+    let lines = |name: &str| read_table(&run.join(name)).len();
+    assert_eq!(lines("innov.log"), lines("kalman_in.log"));
+    for group in ["attitude", "altitude", "gps"] {
+        assert!(report["ekf_gated"][group].is_u64(), "{group}: {report}");
     }
     // The same seed flies the same flight; another seed another one.
     let (again, _l2) = sim(&["--duration", "25", "--seed", "7"]);

@@ -9,7 +9,7 @@
 //! own times stand in.
 //!
 //! Outputs in OUT_DIR, in the original's formats: `kalman_in.log`, `x_hat.log`, `w.log`,
-//! `int.log`. They are built in memory and written once at the end (no sync per record).
+//! `int.log`; and uquad's `innov.log` (the innovation test ratios). They are built in memory and written once at the end (no sync per record).
 //! Replay is deterministic: the same inputs give byte-identical outputs.
 
 use crate::config::{GpsMode, Profile};
@@ -17,12 +17,12 @@ use crate::core::commander::Commander;
 use crate::core::ekf::Ekf;
 use crate::core::flight::ArmCheck;
 use crate::core::flight::{
-    ControllerSide, EscState, EstimatorSide, FlightRecord, FrameAction, FrameTimes, GpsFeed,
-    Outputs, RecordedClock,
+    ControllerSide, EscState, EstimatorSide, FlightRecord, FrameAction, FrameTimes, GatedCounts,
+    GpsFeed, Outputs, RecordedClock,
 };
 use crate::core::gps::{GpsSample, LocalFrame, RecordedGps};
 use crate::core::watchdog::Event;
-use crate::logs::{self, GpsLogRecord, ImuRawRecord, KalmanInRecord, Parsed};
+use crate::logs::{self, GpsLogRecord, ImuRawRecord, InnovRecord, KalmanInRecord, Parsed};
 use anyhow::{Context, bail};
 use std::path::{Path, PathBuf};
 
@@ -39,6 +39,8 @@ pub struct ReplaySummary {
     pub dt_clamped: usize,
     /// Steps whose measurement update was refused (prediction only).
     pub ekf_errors: usize,
+    /// Steps that left a measurement group out of their update (innovation gate).
+    pub ekf_gated: GatedCounts,
     /// Motor commands with at least one speed saturated at w_min or w_max.
     pub saturated_commands: usize,
     /// Files written.
@@ -51,6 +53,7 @@ pub struct ReplaySummary {
 struct Records {
     kalman_in: Vec<KalmanInRecord>,
     x_hat: Vec<[f64; 15]>,
+    innov: Vec<InnovRecord>,
     w: Vec<(i64, [f64; 4])>,
     /// Time and integrators; only the first `n_int` values are meaningful.
     int: Vec<(i64, [f64; 4])>,
@@ -60,7 +63,7 @@ struct Records {
 }
 
 impl Outputs for Records {
-    /// Keeps the four streams a replay writes; the others (imu_raw, gps, err) are the run's.
+    /// Keeps the five streams a replay writes; the others (imu_raw, gps, err) are the run's.
     fn record(&mut self, r: FlightRecord) {
         match r {
             FlightRecord::KalmanIn {
@@ -71,6 +74,15 @@ impl Outputs for Records {
                 .kalman_in
                 .push(KalmanInRecord::from_sample(t_us, dt_us, &sample)),
             FlightRecord::XHat(x) => self.x_hat.push(x),
+            FlightRecord::Innov {
+                t_us,
+                ratios,
+                gated,
+            } => self.innov.push(InnovRecord {
+                t_us,
+                ratios,
+                gated,
+            }),
             FlightRecord::Command { t_us, w_rad_s } => self.w.push((t_us, w_rad_s)),
             FlightRecord::Int { t_us, x_int, n_int } => {
                 self.n_int = n_int;
@@ -91,7 +103,7 @@ impl Outputs for Records {
 }
 
 impl Records {
-    /// Formats and writes the four logs into `out_dir` concurrently.
+    /// Formats and writes the five logs into `out_dir` concurrently.
     fn write(&self, out_dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
         let kalman_in = || {
             let mut s = String::with_capacity(self.kalman_in.len() * 160);
@@ -104,6 +116,13 @@ impl Records {
             let mut s = String::with_capacity(self.x_hat.len() * 300);
             for r in &self.x_hat {
                 logs::write_values_row(&mut s, None, r);
+            }
+            s
+        };
+        let innov = || {
+            let mut s = String::with_capacity(self.innov.len() * 80);
+            for r in &self.innov {
+                r.write(&mut s);
             }
             s
         };
@@ -122,9 +141,10 @@ impl Records {
             s
         };
         let mode = || self.mode.clone();
-        let jobs: [(&str, &(dyn Fn() -> String + Sync)); 5] = [
+        let jobs: [(&str, &(dyn Fn() -> String + Sync)); 6] = [
             ("kalman_in.log", &kalman_in),
             ("x_hat.log", &x_hat),
+            ("innov.log", &innov),
             ("w.log", &w),
             ("int.log", &int),
             ("mode.log", &mode),
@@ -339,6 +359,7 @@ pub fn run_observed(
     summary.gps_updates = e.gps_updates as usize;
     summary.dt_clamped = e.dt_clamped as usize;
     summary.ekf_errors = e.ekf_errors as usize;
+    summary.ekf_gated = e.gated;
     summary.saturated_commands = c.saturated as usize;
     if summary.kalman_steps == 0 {
         bail!(

@@ -2,6 +2,7 @@
 //! err.log, the exit summary for a person, and the JSON report (`--report FILE`) as types.
 
 use crate::app::commander_report::{CommanderReport, CommanderSummary};
+use crate::core::flight::GatedCounts;
 use crate::core::watchdog::Halt;
 use crate::logs::{PerStream, Record};
 use crate::sim::esc::EscEnd;
@@ -21,6 +22,8 @@ pub struct FlySummary {
     pub dropped_frames: u64,
     pub late_feedback: u64,
     pub ekf_errors: u64,
+    /// Kalman steps that left a measurement group out of their update (innovation gate).
+    pub ekf_gated: GatedCounts,
     pub gps_updates: u64,
     /// gpsd sessions opened and lost, and fixes received.
     pub gpsd_connects: u64,
@@ -116,6 +119,9 @@ pub struct FlyReport {
     pub esc: EscReport,
     pub imu: ImuReport,
     pub gps: GpsReport,
+    /// Kalman steps that left the attitude, altitude or GPS measurements out of their update:
+    /// outside the innovation gate (`ekf.gate_sigma`, with `ekf.gate_fusion` on).
+    pub ekf_gated: GatedCounts,
     pub error: Option<String>,
     #[serde(flatten)]
     pub commander: CommanderReport,
@@ -212,6 +218,7 @@ impl FlySummary {
                 gpsd_disconnects: self.gpsd_disconnects,
                 gpsd_fixes: self.gpsd_fixes,
             },
+            ekf_gated: self.ekf_gated,
             error: self.error.clone(),
             commander: self.commander.report(),
         }
@@ -286,6 +293,7 @@ impl FlySummary {
         };
         format!(
             "run {}\n  frames {} (discarded bytes {}, rejected frames {}, dropped {}), Kalman steps {}, GPS samples fused {}\n  \
+             outside the innovation gate, left out: attitude {}, altitude {}, GPS {}\n  \
              ESC: {} commands, {} writes, {} failed; stopped: {}\n  \
              latency frame -> ESC write: p50 {} us, p99 {} us, max {} us; deadline misses {}\n  \
              watchdog: {watchdog}\n  \
@@ -297,6 +305,9 @@ impl FlySummary {
             self.dropped_frames,
             self.steps,
             self.gps_updates,
+            self.ekf_gated.attitude,
+            self.ekf_gated.altitude,
+            self.ekf_gated.gps,
             self.esc_commands,
             self.esc_writes,
             self.esc_failed_writes,

@@ -439,6 +439,7 @@ impl<'a> FastSim<'a> {
         fly.steps = est.steps;
         fly.gps_updates = est.gps_updates;
         fly.ekf_errors = est.ekf_errors;
+        fly.ekf_gated = est.gated;
         fly.saturated_commands = self.controller.counts().saturated;
         fly.esc_writes = self.runner.writes;
         fly.esc_failed_writes = self.runner.failed_writes;

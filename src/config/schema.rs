@@ -218,6 +218,10 @@ pub struct Ekf {
     pub r_gps: [f64; 12],
     /// Initial covariance P₀, 15 values.
     pub p0: [f64; 15],
+    /// Width of the innovation gate, standard deviations of the innovation.
+    pub gate_sigma: f64,
+    /// Leave a measurement group outside the gate out of the step's update.
+    pub gate_fusion: bool,
 }
 
 impl Default for Ekf {
@@ -229,6 +233,9 @@ impl Default for Ekf {
             r_imu: p.r_imu_diag,
             r_gps: p.r_gps_diag,
             p0: p.p0_diag,
+            gate_sigma: p.gate_sigma,
+            // As the default profile: the 2012 flights fused everything, uquad gates.
+            gate_fusion: true,
         }
     }
 }
@@ -244,6 +251,8 @@ impl Ekf {
             p0_diag: self.p0,
             dt_min_us: i64::from(imu.period_min_us),
             dt_max_us: i64::from(imu.period_max_us),
+            gate_sigma: self.gate_sigma,
+            gate_fusion: self.gate_fusion,
         }
     }
 }

@@ -54,6 +54,8 @@ const FAULT_TIME_S: RangeInclusive<f64> = 0.0..=SIM_DURATION_MAX_S;
 /// Consecutive refused EKF updates before a halt: at least one; at most half a second of a
 /// blind estimator at 100 Hz.
 const ESTIMATOR_MAX_REFUSED: RangeInclusive<u32> = 1..=50;
+/// Innovation gate width, standard deviations: any positive finite width.
+const GATE_SIGMA: (Bound<f64>, Bound<f64>) = (Excluded(0.0), Unbounded);
 /// How long a refused stop is retried, ms: at least a few re-send periods; at most 2 s, the
 /// longest the shutdown waits for the motors.
 const HALT_RETRY_MS: RangeInclusive<u32> = 10..=2000;
@@ -668,7 +670,8 @@ fn commander_rules(c: &Config) -> Vec<Check> {
     ]
 }
 
-/// Every element of the estimator's noise diagonals is a variance.
+/// Every element of the estimator's noise diagonals is a variance; the innovation gate has a
+/// width (a gate of 0 would refuse every measurement, one of infinity none).
 fn ekf_rules(c: &Config) -> Vec<Check> {
     let lists: [(&str, &[f64]); 4] = [
         ("ekf.q", &c.ekf.q),
@@ -684,6 +687,13 @@ fn ekf_rules(c: &Config) -> Vec<Check> {
                 in_range(&format!("{key}[{i}]"), *v, variance, "").note("a variance")
             })
         })
+        .chain([in_range(
+            "ekf.gate_sigma",
+            c.ekf.gate_sigma,
+            GATE_SIGMA,
+            "standard deviations",
+        )
+        .note("finite")])
         .collect()
 }
 
@@ -1022,6 +1032,19 @@ mod tests {
             ["motor.w_max_rad_s"]
         );
         assert!(failing_keys(|c| c.motor.w_max_rad_s = 368.1).is_empty());
+    }
+
+    #[test]
+    fn the_innovation_gate_has_a_positive_finite_width() {
+        for bad in [0.0, -1.0, f64::INFINITY, f64::NAN] {
+            assert_eq!(
+                failing_keys(|c| c.ekf.gate_sigma = bad),
+                ["ekf.gate_sigma"],
+                "{bad}"
+            );
+        }
+        assert!(failing_keys(|c| c.ekf.gate_sigma = 0.1).is_empty());
+        assert!(failing_keys(|c| c.ekf.gate_sigma = 1e6).is_empty());
     }
 
     #[test]

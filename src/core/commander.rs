@@ -614,7 +614,9 @@ impl Commander {
                 None
             }
             Command::Land => {
-                self.set_mode(Mode::Land, t_us, &why, out);
+                if self.mode != Mode::Land {
+                    self.set_mode(Mode::Land, t_us, &why, out);
+                }
                 None
             }
         }

@@ -48,6 +48,37 @@ pub const GPS_ROWS: usize = 12;
 const IMU_OBS: [usize; IMU_ROWS] = [3, 4, 5, 12, 13, 14, 9, 10, 11, 2];
 const GPS_OBS: [usize; GPS_ROWS] = [3, 4, 5, 12, 13, 14, 9, 10, 11, 0, 1, 2];
 
+/// The measurement groups the innovation test judges, one per sensor that can be wrong on its
+/// own (a disturbed magnetometer, a pressure jump, a GPS multipath fix). The accelerometer and
+/// gyro rows are not tested: the filter cannot run without them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Group {
+    /// The IMU's Euler angles ψ, φ, θ.
+    Attitude,
+    /// The barometer's altitude (IMU update) or the GPS z (IMU + GPS update).
+    Altitude,
+    /// The GPS x, y.
+    Gps,
+    /// Accelerometer and gyro rows: always fused.
+    Untested,
+}
+
+/// The group of each IMU row.
+const IMU_GROUPS: [Group; IMU_ROWS] = {
+    let mut g = [Group::Untested; IMU_ROWS];
+    (g[0], g[1], g[2]) = (Group::Attitude, Group::Attitude, Group::Attitude);
+    g[9] = Group::Altitude;
+    g
+};
+/// The group of each IMU + GPS row.
+const GPS_GROUPS: [Group; GPS_ROWS] = {
+    let mut g = [Group::Untested; GPS_ROWS];
+    (g[0], g[1], g[2]) = (Group::Attitude, Group::Attitude, Group::Attitude);
+    (g[9], g[10]) = (Group::Gps, Group::Gps);
+    g[11] = Group::Altitude;
+    g
+};
+
 /// Filter parameters (from the `ekf.*` configuration keys).
 #[derive(Debug, Clone, PartialEq)]
 pub struct EkfParams {
@@ -66,7 +97,17 @@ pub struct EkfParams {
     /// Accepted step interval; outside it dt is clamped (spec 3.9), µs.
     pub dt_min_us: i64,
     pub dt_max_us: i64,
+    /// Width of the innovation gate, standard deviations of the innovation: a row's test
+    /// ratio is y²/(gate_sigma²·S_ii), above 1 outside the gate (PX4 EKF2's convention).
+    pub gate_sigma: f64,
+    /// Leave a measurement group whose test ratio is above 1 out of the step's update. `false`
+    /// fuses every row (the ratios are still computed and reported).
+    pub gate_fusion: bool,
 }
+
+/// The gate width of the default profile, standard deviations: PX4 EKF2's default for its GPS
+/// position and barometer gates.
+pub const DEFAULT_GATE_SIGMA: f64 = 5.0;
 
 impl EkfParams {
     /// The values the 2012 flights printed to err.log (spec 3.6).
@@ -84,6 +125,9 @@ impl EkfParams {
             p0_diag: [1.0; N_STATES],
             dt_min_us: 8_000,
             dt_max_us: 12_000,
+            gate_sigma: DEFAULT_GATE_SIGMA,
+            // The 2012 flights fused every measurement; their replays must stay bit-exact.
+            gate_fusion: false,
         }
     }
 }
@@ -119,6 +163,81 @@ pub struct StepReport {
     pub dt_clamped: bool,
     /// The measured θ after unwrapping against the previous estimate (what kalman_in logs).
     pub theta_unwrapped_rad: f64,
+    /// The innovation test ratios of the step's measurement groups.
+    pub ratios: TestRatios,
+    /// The groups left out of the update (only with `gate_fusion`).
+    pub gated: GatedGroups,
+}
+
+/// Normalised innovation test ratios of one step, one per measurement group: the largest over
+/// the group's rows of y_i²/(gate_sigma²·S_ii), with y the innovation and S = H·P·Hᵀ + R.
+/// Dimensionless; above 1 the innovation is outside the gate. NaN when a row's measurement is
+/// not a number (the step then fuses nothing).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TestRatios {
+    pub attitude: f64,
+    pub altitude: f64,
+    /// `None` in a step without a GPS sample.
+    pub gps: Option<f64>,
+}
+
+impl TestRatios {
+    /// The largest ratio of the step (a NaN, a measurement not a number, counts as none).
+    pub fn max(&self) -> f64 {
+        [self.attitude, self.altitude, self.gps.unwrap_or(0.0)]
+            .into_iter()
+            .filter(|r| !r.is_nan())
+            .fold(0.0, f64::max)
+    }
+
+    /// The groups outside the gate (ratio above 1; NaN is not).
+    pub fn outside_gate(&self) -> GatedGroups {
+        GatedGroups {
+            attitude: self.attitude > 1.0,
+            altitude: self.altitude > 1.0,
+            gps: self.gps.is_some_and(|r| r > 1.0),
+        }
+    }
+
+    /// The ratio slot of `group`; `None` for the untested rows.
+    fn slot(&mut self, group: Group) -> Option<&mut f64> {
+        match group {
+            Group::Attitude => Some(&mut self.attitude),
+            Group::Altitude => Some(&mut self.altitude),
+            Group::Gps => Some(self.gps.get_or_insert(0.0)),
+            Group::Untested => None,
+        }
+    }
+}
+
+/// Which measurement groups a step left out of its update.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct GatedGroups {
+    pub attitude: bool,
+    pub altitude: bool,
+    pub gps: bool,
+}
+
+impl GatedGroups {
+    pub fn any(self) -> bool {
+        self.attitude || self.altitude || self.gps
+    }
+
+    pub fn contains(self, group: Group) -> bool {
+        match group {
+            Group::Attitude => self.attitude,
+            Group::Altitude => self.altitude,
+            Group::Gps => self.gps,
+            Group::Untested => false,
+        }
+    }
+}
+
+/// What a measurement update did.
+struct UpdateOutcome {
+    ratios: TestRatios,
+    gated: GatedGroups,
+    result: Result<(), EkfError>,
 }
 
 /// The filter: estimate and covariance.
@@ -395,8 +514,9 @@ impl Ekf {
     }
 
     /// One filter step (spec 3.7): unwrap θ, predict, update with the IMU rows (and the GPS rows
-    /// when `input.gps_m` is given). On a bad measurement the prediction stands and the error
-    /// says why; the estimate never becomes non-finite from the measurement.
+    /// when `input.gps_m` is given), leaving out the groups outside the innovation gate when
+    /// `gate_fusion` is on. On a bad measurement the prediction stands and the error says why;
+    /// the estimate never becomes non-finite from the measurement.
     pub fn step(
         &mut self,
         sample: &ImuSample,
@@ -404,36 +524,50 @@ impl Ekf {
     ) -> (StepReport, Result<(), EkfError>) {
         let theta_m = unwrap_theta(sample.euler_rad[2], self.x[idx::THETA]);
         let (dt_used_us, dt_clamped) = self.clamp_dt_us(input.dt_us);
-        let t_s = dt_used_us as f64 / 1e6;
+        let u = &input.u_rad_s;
+        self.predict(u, dt_used_us as f64 / 1e6, input.mass_kg);
+        let az_pred = total_thrust_n(u) / input.mass_kg + self.x[idx::BAZ];
+        let out = self.correct(sample, theta_m, az_pred, input.gps);
         let report = StepReport {
             dt_used_us,
             dt_clamped,
             theta_unwrapped_rad: theta_m,
+            ratios: out.ratios,
+            gated: out.gated,
         };
-        let u = &input.u_rad_s;
-        let orig = self.params.original_model;
+        (report, out.result)
+    }
 
-        // Predict, with F at the previous estimate.
+    /// The prediction: x⁻ = f(x, u, T), P⁻ = F·P·Fᵀ + Q with F at the previous estimate.
+    fn predict(&mut self, u: &Input, t_s: f64, mass_kg: f64) {
+        let orig = self.params.original_model;
         let f = jacobian(&self.x, u, t_s, orig);
-        let x_pred = process(&self.x, u, t_s, input.mass_kg, orig);
+        let x_pred = process(&self.x, u, t_s, mass_kg, orig);
         let mut p_pred = propagate_covariance(&f, &self.p);
         for i in 0..N_STATES {
             p_pred[(i, i)] += self.params.q_diag[i];
         }
         self.x = x_pred;
         self.p = p_pred;
+    }
 
-        let a = sample.acc_m_s2;
-        let w = sample.gyro_rad_s;
-        let e = sample.euler_rad;
-        let az_pred = total_thrust_n(u) / input.mass_kg + x_pred[idx::BAZ];
+    /// The measurement update: the IMU rows, plus the GPS rows when a sample is given. `theta_m`
+    /// is the unwrapped θ, `az_pred` the predicted az (thrust/mass + baz), m/s².
+    fn correct(
+        &mut self,
+        sample: &ImuSample,
+        theta_m: f64,
+        az_pred: f64,
+        gps: Option<GpsSample>,
+    ) -> UpdateOutcome {
+        let (a, w, e) = (sample.acc_m_s2, sample.gyro_rad_s, sample.euler_rad);
         let imu9 = [e[0], e[1], theta_m, a[0], a[1], a[2], w[0], w[1], w[2]];
-        let result = match input.gps {
+        match gps {
             None => {
                 let z: [f64; IMU_ROWS] =
                     std::array::from_fn(|i| if i < 9 { imu9[i] } else { sample.alt_m });
                 let r = self.params.r_imu_diag;
-                self.update::<IMU_ROWS>(&z, &IMU_OBS, az_pred, &r)
+                self.update::<IMU_ROWS>(&z, &IMU_OBS, &IMU_GROUPS, az_pred, &r)
             }
             Some(g) => {
                 let z: [f64; GPS_ROWS] = std::array::from_fn(|i| {
@@ -448,36 +582,66 @@ impl Ekf {
                     // A fix without altitude: the barometer's row, with its noise, stands in.
                     r[GPS_ROWS - 1] = self.params.r_imu_diag[IMU_ROWS - 1];
                 }
-                self.update::<GPS_ROWS>(&z, &GPS_OBS, az_pred, &r)
+                self.update::<GPS_ROWS>(&z, &GPS_OBS, &GPS_GROUPS, az_pred, &r)
             }
-        };
-        (report, result)
+        }
     }
 
     /// Measurement update for a selection observation: row i reads state `obs[i]`, except the
     /// az row (index 5), whose prediction is `az_pred` (thrust/mass + baz) with the same H row.
+    /// Every row's test ratio is computed first; with `gate_fusion`, the rows of the groups
+    /// outside the gate are then left out.
     fn update<const M: usize>(
         &mut self,
         z: &[f64; M],
         obs: &[usize; M],
+        groups: &[Group; M],
         az_pred: f64,
         r_diag: &[f64; M],
-    ) -> Result<(), EkfError> {
-        if z.iter().any(|v| !v.is_finite()) {
-            return Err(EkfError::NonFiniteMeasurement);
-        }
+    ) -> UpdateOutcome {
         let x = &self.x;
         let p = &self.p;
-        let innovation = SVector::<f64, M>::from_fn(|i, _| {
+        let mut innovation = SVector::<f64, M>::from_fn(|i, _| {
             let h = if i == 5 { az_pred } else { x[obs[i]] };
             z[i] - h
         });
         // P·Hᵀ: the observed columns of P. S = H·P·Hᵀ + R: the observed rows of those.
-        let pht = SMatrix::<f64, N_STATES, M>::from_fn(|r, c| p[(r, obs[c])]);
+        let mut pht = SMatrix::<f64, N_STATES, M>::from_fn(|r, c| p[(r, obs[c])]);
         let mut s = SMatrix::<f64, M, M>::from_fn(|r, c| pht[(obs[r], c)]);
         for i in 0..M {
             s[(i, i)] += r_diag[i];
         }
+        let ratios = test_ratios(&innovation, &s, groups, self.params.gate_sigma);
+        if z.iter().any(|v| !v.is_finite()) {
+            return UpdateOutcome {
+                ratios,
+                gated: GatedGroups::default(),
+                result: Err(EkfError::NonFiniteMeasurement),
+            };
+        }
+        let gated = if self.params.gate_fusion {
+            ratios.outside_gate()
+        } else {
+            GatedGroups::default()
+        };
+        if gated.any() {
+            leave_out(gated, groups, &mut innovation, &mut pht, &mut s);
+        }
+        let result = self.fuse(&innovation, &pht, &s);
+        UpdateOutcome {
+            ratios,
+            gated,
+            result,
+        }
+    }
+
+    /// x += K·y and P −= K·H·P, with K = P·Hᵀ·S⁻¹.
+    fn fuse<const M: usize>(
+        &mut self,
+        innovation: &SVector<f64, M>,
+        pht: &SMatrix<f64, N_STATES, M>,
+        s: &SMatrix<f64, M, M>,
+    ) -> Result<(), EkfError> {
         // With S = L·Lᵀ and W = P·Hᵀ·L⁻ᵀ: K·y = W·(L⁻¹·y) and K·H·P = W·Wᵀ. Two triangular
         // solves replace the explicit inverse, and P stays symmetric by construction.
         let chol = s.cholesky().ok_or(EkfError::SingularInnovation)?;
@@ -486,7 +650,7 @@ impl Ekf {
         if !l.solve_lower_triangular_mut(&mut wt) {
             return Err(EkfError::SingularInnovation);
         }
-        let mut a = innovation;
+        let mut a = *innovation;
         if !l.solve_lower_triangular_mut(&mut a) {
             return Err(EkfError::SingularInnovation);
         }
@@ -503,6 +667,56 @@ impl Ekf {
             }
         }
         Ok(())
+    }
+}
+
+/// The test ratio of each group: the largest over its rows of y_i²/(gate_sigma²·S_ii). A NaN
+/// row makes its group's ratio NaN (a bad measurement must not read as a good one).
+fn test_ratios<const M: usize>(
+    innovation: &SVector<f64, M>,
+    s: &SMatrix<f64, M, M>,
+    groups: &[Group; M],
+    gate_sigma: f64,
+) -> TestRatios {
+    let gate_sq = gate_sigma * gate_sigma;
+    let mut out = TestRatios {
+        attitude: 0.0,
+        altitude: 0.0,
+        gps: None,
+    };
+    for (i, group) in groups.iter().enumerate() {
+        if let Some(slot) = out.slot(*group) {
+            let y = innovation[i];
+            let ratio = y * y / (gate_sq * s[(i, i)]);
+            if ratio > *slot || ratio.is_nan() {
+                *slot = ratio;
+            }
+        }
+    }
+    out
+}
+
+/// Takes the rows of the `gated` groups out of an update: zero innovation, a zero column of
+/// P·Hᵀ, and a unit row and column of S. The Cholesky factor of that S has a unit row and
+/// column there and, elsewhere, the factor of S without those rows (the zeros add exact
+/// zeros), so W = P·Hᵀ·L⁻ᵀ has a zero row there and the gain and covariance correction are
+/// those of the update without the rows: left out exactly, not drowned in a huge R. The
+/// arrays keep their fixed size, so nothing is allocated.
+fn leave_out<const M: usize>(
+    gated: GatedGroups,
+    groups: &[Group; M],
+    innovation: &mut SVector<f64, M>,
+    pht: &mut SMatrix<f64, N_STATES, M>,
+    s: &mut SMatrix<f64, M, M>,
+) {
+    for (k, group) in groups.iter().enumerate() {
+        if gated.contains(*group) {
+            innovation[k] = 0.0;
+            pht.column_mut(k).fill(0.0);
+            s.row_mut(k).fill(0.0);
+            s.column_mut(k).fill(0.0);
+            s[(k, k)] = 1.0;
+        }
     }
 }
 
@@ -641,6 +855,196 @@ mod tests {
         );
         assert_eq!(res, Err(EkfError::NonFiniteMeasurement));
         assert!(ekf.x.iter().all(|v| v.is_finite()));
+    }
+
+    /// The predicted az of the update tests, m/s².
+    const AZ_PRED: f64 = 0.5;
+
+    /// A filter at `some_state` with covariance `p` and the 2012 noise, gate 5 σ.
+    fn filter(p: StateMatrix, gate_fusion: bool) -> Ekf {
+        let params = EkfParams {
+            gate_fusion,
+            ..EkfParams::flight_2012()
+        };
+        let mut ekf = Ekf::new(params, &ImuSample::default());
+        ekf.x = some_state();
+        ekf.p = p;
+        ekf
+    }
+
+    /// A covariance with correlations between every pair of states.
+    fn correlated() -> StateMatrix {
+        let a = StateMatrix::from_fn(|i, j| ((i * 7 + j * 3) % 11) as f64 / 10.0 - 0.5);
+        a * a.transpose() + StateMatrix::identity()
+    }
+
+    /// An IMU + GPS measurement whose row i lies `sigmas[i]` standard deviations of its
+    /// innovation (√S_ii) from the prediction.
+    fn measurement(ekf: &Ekf, sigmas: [f64; GPS_ROWS]) -> [f64; GPS_ROWS] {
+        let r = ekf.params.r_gps_diag;
+        std::array::from_fn(|i| {
+            let s_ii = ekf.p[(GPS_OBS[i], GPS_OBS[i])] + r[i];
+            let h = if i == 5 { AZ_PRED } else { ekf.x[GPS_OBS[i]] };
+            h + sigmas[i] * s_ii.sqrt()
+        })
+    }
+
+    fn gps_update(ekf: &mut Ekf, z: &[f64; GPS_ROWS]) -> UpdateOutcome {
+        let r = ekf.params.r_gps_diag;
+        ekf.update::<GPS_ROWS>(z, &GPS_OBS, &GPS_GROUPS, AZ_PRED, &r)
+    }
+
+    /// The textbook update K = P·Hᵀ·S⁻¹ on the rows `keep` accepts, in dense matrices.
+    fn reference_update(ekf: &Ekf, z: &[f64; GPS_ROWS], keep: impl Fn(usize) -> bool) -> Ekf {
+        use nalgebra::{DMatrix, DVector};
+        let rows: Vec<usize> = (0..GPS_ROWS).filter(|&i| keep(i)).collect();
+        let m = rows.len();
+        let h = DMatrix::from_fn(m, N_STATES, |i, j| f64::from(GPS_OBS[rows[i]] == j));
+        let y = DVector::from_fn(m, |i, _| {
+            let k = rows[i];
+            z[k] - if k == 5 { AZ_PRED } else { ekf.x[GPS_OBS[k]] }
+        });
+        let r = DVector::from_fn(m, |i, _| ekf.params.r_gps_diag[rows[i]]);
+        let p = DMatrix::from_fn(N_STATES, N_STATES, |i, j| ekf.p[(i, j)]);
+        let s = &h * &p * h.transpose() + DMatrix::from_diagonal(&r);
+        let k = &p * h.transpose() * s.try_inverse().unwrap();
+        let mut out = ekf.clone();
+        out.x += State::from_fn(|i, _| (&k * &y)[i]);
+        let kp = &k * &h * &p;
+        out.p -= StateMatrix::from_fn(|i, j| kp[(i, j)]);
+        out
+    }
+
+    fn assert_close(a: &Ekf, b: &Ekf) {
+        let dx = (a.x - b.x).abs().max();
+        let dp = (a.p - b.p).abs().max();
+        assert!(dx < 1e-12 && dp < 1e-12, "x differs by {dx}, P by {dp}");
+    }
+
+    #[test]
+    fn a_consistent_measurement_is_inside_the_gate() {
+        let mut ekf = filter(correlated(), true);
+        let z = measurement(&ekf, [1.0; GPS_ROWS]);
+        let out = gps_update(&mut ekf, &z);
+        out.result.unwrap();
+        // 1 σ in a 5 σ gate: 1/25 for every group.
+        for ratio in [
+            out.ratios.attitude,
+            out.ratios.altitude,
+            out.ratios.gps.unwrap(),
+        ] {
+            assert!((ratio - 0.04).abs() < 1e-12, "{ratio}");
+        }
+        assert_eq!(out.gated, GatedGroups::default());
+    }
+
+    #[test]
+    fn a_measurement_ten_sigma_off_is_gated_and_leaves_its_states_alone() {
+        // P = I: each row moves only the state it observes.
+        let mut ekf = filter(StateMatrix::identity(), true);
+        let before = ekf.clone();
+        let mut sigmas = [1.0; GPS_ROWS];
+        sigmas[1] = 10.0; // φ
+        let z = measurement(&ekf, sigmas);
+        let out = gps_update(&mut ekf, &z);
+        out.result.unwrap();
+        assert!(
+            (out.ratios.attitude - 4.0).abs() < 1e-12,
+            "{:?}",
+            out.ratios
+        );
+        assert!(out.ratios.altitude < 1.0 && out.ratios.gps.unwrap() < 1.0);
+        let attitude_only = GatedGroups {
+            attitude: true,
+            ..GatedGroups::default()
+        };
+        assert_eq!(out.gated, attitude_only);
+        for i in [idx::PSI, idx::PHI, idx::THETA] {
+            assert_eq!(ekf.x[i], before.x[i], "state {i}");
+            assert_eq!(ekf.p[(i, i)], before.p[(i, i)], "variance {i}");
+        }
+        // The other groups still update.
+        for i in [idx::X, idx::Y, idx::Z, idx::WQX, idx::BAX] {
+            assert_ne!(ekf.x[i], before.x[i], "state {i}");
+            assert!(ekf.p[(i, i)] < before.p[(i, i)], "variance {i}");
+        }
+    }
+
+    #[test]
+    fn a_gated_group_is_left_out_exactly() {
+        // With correlations, the gated rows must be left out as if they were not there: the
+        // value of the rejected measurement changes nothing, and the result is the update on
+        // the other rows.
+        let start = filter(correlated(), true);
+        let fused = |off_sigma: f64| {
+            let mut sigmas = [0.5; GPS_ROWS];
+            sigmas[9] = off_sigma; // GPS x
+            let z = measurement(&start, sigmas);
+            let mut ekf = start.clone();
+            let out = gps_update(&mut ekf, &z);
+            out.result.unwrap();
+            assert!(out.gated.gps && !out.gated.attitude && !out.gated.altitude);
+            (ekf, z)
+        };
+        let (ten, z) = fused(10.0);
+        let (thirty, _) = fused(-30.0);
+        assert_eq!((ten.x, ten.p), (thirty.x, thirty.p));
+        assert_close(
+            &ten,
+            &reference_update(&start, &z, |i| !(9..=10).contains(&i)),
+        );
+        assert_ne!(ten.x[idx::Z], start.x[idx::Z]);
+    }
+
+    #[test]
+    fn with_gating_off_every_row_is_fused_as_the_ungated_update() {
+        let mut sigmas = [1.0; GPS_ROWS];
+        sigmas[11] = 10.0; // GPS z
+        let start = filter(correlated(), false);
+        let z = measurement(&start, sigmas);
+        let mut off = start.clone();
+        let out = gps_update(&mut off, &z);
+        out.result.unwrap();
+        assert!(out.ratios.altitude > 1.0, "{:?}", out.ratios);
+        assert_eq!(out.gated, GatedGroups::default());
+        // Bit for bit the update of a gate nothing leaves, and the textbook update.
+        let mut wide = start.clone();
+        wide.params.gate_fusion = true;
+        wide.params.gate_sigma = 1e6;
+        let wide_out = gps_update(&mut wide, &z);
+        assert_eq!(wide_out.gated, GatedGroups::default());
+        assert_eq!((off.x, off.p), (wide.x, wide.p));
+        assert_close(&off, &reference_update(&start, &z, |_| true));
+    }
+
+    #[test]
+    fn a_step_reports_its_ratios() {
+        let null = ImuSample {
+            acc_m_s2: [0.0, 0.0, GRAVITY_M_S2],
+            ..ImuSample::default()
+        };
+        let mut ekf = Ekf::new(EkfParams::flight_2012(), &null);
+        let mut input = StepInput {
+            u_rad_s: [w_hover_rad_s(1.55); 4],
+            mass_kg: 1.55,
+            dt_us: 10_000,
+            gps: None,
+        };
+        let (rep, res) = ekf.step(&null, &input);
+        res.unwrap();
+        assert!(rep.ratios.attitude < 1e-3 && rep.ratios.altitude < 1e-3);
+        assert_eq!(rep.ratios.gps, None);
+        input.gps = Some(GpsSample::at([0.0, 0.0, 0.0]));
+        let (rep, _) = ekf.step(&null, &input);
+        assert!(rep.ratios.gps.is_some_and(|r| r < 1e-3));
+        // A measurement that is not a number: its group's ratio says so, nothing is gated.
+        let mut bad = null;
+        bad.alt_m = f64::NAN;
+        input.gps = None;
+        let (rep, res) = ekf.step(&bad, &input);
+        assert_eq!(res, Err(EkfError::NonFiniteMeasurement));
+        assert!(rep.ratios.altitude.is_nan() && rep.ratios.attitude < 1e-3);
+        assert_eq!(rep.gated, GatedGroups::default());
     }
 
     #[test]

@@ -88,6 +88,9 @@ pub enum Event {
     Frame(i64),
     /// The commander asks for a halt (`kill`).
     Kill(i64),
+    /// The commander disarmed on the ground (zero, then disable): nothing spins, so neither
+    /// the deadline nor the IMU timeout applies any more.
+    MotorsStopped(i64),
     /// The ESCs were enabled (the first write of their start-up ramp): the motors may spin
     /// from now on, so a silent IMU halts them.
     MotorsEnabled(i64),
@@ -286,6 +289,12 @@ impl Watchdog {
                 None
             }
             Event::Kill(at) => self.decide(TripReason::Kill, at, now_us),
+            Event::MotorsStopped(_) => {
+                self.flying = false;
+                self.motors_on_us = None;
+                self.uncommanded_us.clear();
+                None
+            }
             Event::Command {
                 frame_us,
                 written_us,

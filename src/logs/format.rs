@@ -1,5 +1,6 @@
 //! Record types, parsers and printers of the original's log files.
 
+use crate::core::ekf::{GatedGroups, TestRatios};
 use crate::core::imu::calib::ImuSample;
 use crate::core::imu::frame::RawFrame;
 use std::fmt::Write as _;
@@ -343,6 +344,78 @@ impl KalmanInRecord {
     }
 }
 
+/// One `innov.log` line (uquad's own stream; the original had none): a Kalman step's time,
+/// its attitude, altitude and gps innovation test ratios, and the groups it left out of its
+/// update as one number, so that the file loads as a matrix as the original's logs do:
+/// 1 attitude + 2 altitude + 4 gps, 0 when every group was fused. A ratio prints in the
+/// shortest form that reads back to the same f64 (ratios span many decades: fixed decimals
+/// would print most of them as 0); `nan` for a step without GPS or a measurement that was not
+/// a number.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct InnovRecord {
+    /// Time of the Kalman step, µs since start.
+    pub t_us: i64,
+    pub ratios: TestRatios,
+    pub gated: GatedGroups,
+}
+
+impl InnovRecord {
+    /// The gated column's bits.
+    const ATTITUDE: u8 = 1;
+    const ALTITUDE: u8 = 2;
+    const GPS: u8 = 4;
+
+    pub fn gated_mask(g: GatedGroups) -> u8 {
+        u8::from(g.attitude) * Self::ATTITUDE
+            + u8::from(g.altitude) * Self::ALTITUDE
+            + u8::from(g.gps) * Self::GPS
+    }
+
+    pub fn write(&self, out: &mut String) {
+        push_time_us(out, self.t_us);
+        let r = &self.ratios;
+        for v in [r.attitude, r.altitude, r.gps.unwrap_or(f64::NAN)] {
+            out.push('\t');
+            push_ratio(out, v);
+        }
+        let _ = writeln!(out, "\t{}", Self::gated_mask(self.gated));
+    }
+
+    pub fn parse_fields(f: &[&str]) -> Result<Self, String> {
+        if f.len() != 5 {
+            return Err(format!("expected 5 columns, found {}", f.len()));
+        }
+        let gps: f64 = field(f, 3, "gps ratio")?;
+        let mask: u8 = field(f, 4, "gated")?;
+        if mask > Self::ATTITUDE + Self::ALTITUDE + Self::GPS {
+            return Err(format!("column 5 (gated) is not a group mask: {mask}"));
+        }
+        Ok(InnovRecord {
+            t_us: time_field(f, 0, "time")?,
+            ratios: TestRatios {
+                attitude: field(f, 1, "attitude ratio")?,
+                altitude: field(f, 2, "altitude ratio")?,
+                gps: (!gps.is_nan()).then_some(gps),
+            },
+            gated: GatedGroups {
+                attitude: mask & Self::ATTITUDE != 0,
+                altitude: mask & Self::ALTITUDE != 0,
+                gps: mask & Self::GPS != 0,
+            },
+        })
+    }
+}
+
+/// A test ratio, shortest round-trip form; `nan` (not Rust's `NaN`) for a missing one, as C
+/// and the plotting tools write it.
+fn push_ratio(out: &mut String, v: f64) {
+    if v.is_nan() {
+        out.push_str("nan");
+    } else {
+        let _ = write!(out, "{v:e}");
+    }
+}
+
 /// The first column of a time-stamped log (`int.log`, `w.log`, `gps.log`, ...), µs.
 pub fn parse_time_column(f: &[&str]) -> Result<i64, String> {
     time_field(f, 0, "time")
@@ -602,6 +675,45 @@ mod tests {
         );
         let p = parse_log(&out, parse_time_and_4).unwrap();
         assert_eq!(p.rows[0], (12_134_736, [248.5, -0.25, 0.0, 1.0]));
+    }
+
+    #[test]
+    fn innov_round_trip() {
+        let rows = [
+            InnovRecord {
+                t_us: 12_136_963,
+                ratios: TestRatios {
+                    attitude: 4.0e-8,
+                    altitude: 1.0 / 3.0,
+                    gps: None,
+                },
+                gated: GatedGroups::default(),
+            },
+            InnovRecord {
+                t_us: 12_146_963,
+                ratios: TestRatios {
+                    attitude: 4.25,
+                    altitude: 0.0,
+                    gps: Some(1e300),
+                },
+                gated: GatedGroups {
+                    attitude: true,
+                    altitude: false,
+                    gps: true,
+                },
+            },
+        ];
+        let mut text = String::new();
+        for r in &rows {
+            r.write(&mut text);
+        }
+        assert_eq!(
+            text,
+            "12.136963\t4e-8\t3.333333333333333e-1\tnan\t0\n12.146963\t4.25e0\t0e0\t1e300\t5\n"
+        );
+        let p = parse_log(&text, InnovRecord::parse_fields).unwrap();
+        assert_eq!(p.rows, rows);
+        assert!(parse_log("1.0\t1\t1\tnan\t8\n", InnovRecord::parse_fields).is_err());
     }
 
     #[test]

@@ -9,4 +9,4 @@ pub mod mode_log;
 pub mod record;
 
 pub use format::*;
-pub use record::{N_STREAMS, PerStream, Record, Stream, halt_line};
+pub use record::{PerStream, Record, Stream, halt_line};

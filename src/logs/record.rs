@@ -1,7 +1,7 @@
 //! The log streams of a run and how each record is written: the flight's records (spec 1.6 and
 //! 8.6 layouts) plus the run's own lines, one enum of streams instead of positions.
 
-use super::format::{self, ImuRawRecord, KalmanInRecord};
+use super::format::{self, ImuRawRecord, InnovRecord, KalmanInRecord};
 use crate::core::flight::FlightRecord;
 use crate::core::watchdog::Halt;
 use serde::Serialize;
@@ -13,6 +13,7 @@ pub enum Stream {
     ImuRaw,
     KalmanIn,
     XHat,
+    Innov,
     W,
     Int,
     Gps,
@@ -20,14 +21,15 @@ pub enum Stream {
     Mode,
 }
 
-/// How many streams a run writes.
-pub const N_STREAMS: usize = 8;
-
 impl Stream {
-    pub const ALL: [Stream; N_STREAMS] = [
+    /// How many streams there are.
+    pub const COUNT: usize = 9;
+
+    pub const ALL: [Stream; Stream::COUNT] = [
         Stream::ImuRaw,
         Stream::KalmanIn,
         Stream::XHat,
+        Stream::Innov,
         Stream::W,
         Stream::Int,
         Stream::Gps,
@@ -41,6 +43,7 @@ impl Stream {
             Stream::ImuRaw => "imu_raw",
             Stream::KalmanIn => "kalman_in",
             Stream::XHat => "x_hat",
+            Stream::Innov => "innov",
             Stream::W => "w",
             Stream::Int => "int",
             Stream::Gps => "gps",
@@ -56,7 +59,7 @@ impl Stream {
 
 /// One value per stream.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct PerStream<T>(pub [T; N_STREAMS]);
+pub struct PerStream<T>(pub [T; Stream::COUNT]);
 
 impl<T> Index<Stream> for PerStream<T> {
     type Output = T;
@@ -113,6 +116,7 @@ impl Record {
                 FlightRecord::Frame { .. } => Stream::ImuRaw,
                 FlightRecord::KalmanIn { .. } => Stream::KalmanIn,
                 FlightRecord::XHat(_) => Stream::XHat,
+                FlightRecord::Innov { .. } => Stream::Innov,
                 FlightRecord::Command { .. } => Stream::W,
                 FlightRecord::Int { .. } => Stream::Int,
                 FlightRecord::FakeGps(_) | FlightRecord::GpsFix { .. } => Stream::Gps,
@@ -145,6 +149,16 @@ impl Record {
                 sample,
             } => KalmanInRecord::from_sample(*t_us, *dt_us, sample).write(out),
             FlightRecord::XHat(x) => format::write_values_row(out, None, x),
+            FlightRecord::Innov {
+                t_us,
+                ratios,
+                gated,
+            } => InnovRecord {
+                t_us: *t_us,
+                ratios: *ratios,
+                gated: *gated,
+            }
+            .write(out),
             FlightRecord::Command { t_us, w_rad_s } => {
                 format::write_values_row(out, Some(*t_us), w_rad_s)
             }
@@ -211,15 +225,16 @@ mod tests {
         let mut n = PerStream::<u64>::default();
         n[Stream::XHat] = 3;
         n[Stream::Err] = 1;
-        assert_eq!(n.0, [0, 0, 3, 0, 0, 0, 1]);
-        assert_eq!(n.total(), 4);
+        n[Stream::Innov] = 2;
+        assert_eq!(n.0, [0, 0, 3, 2, 0, 0, 0, 1]);
+        assert_eq!(n.total(), 6);
         for s in Stream::ALL {
             assert_eq!(Stream::from_name(s.name()), Some(s));
         }
         let json = serde_json::to_string(&n).unwrap();
         assert_eq!(
             json,
-            r#"{"imu_raw":0,"kalman_in":0,"x_hat":3,"w":0,"int":0,"gps":0,"err":1}"#
+            r#"{"imu_raw":0,"kalman_in":0,"x_hat":3,"innov":2,"w":0,"int":0,"gps":0,"err":1}"#
         );
     }
 }

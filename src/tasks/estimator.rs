@@ -4,14 +4,16 @@
 //!
 //! In: stamped frames from the IMU reader; the controller's [`Feedback`]; the ESC writer's
 //! phase; the newest live GPS fix (gps.mode = gpsd).
-//! Out: estimates to the controller; the ESC start request; `imu_raw`, `kalman_in`, `x_hat`
-//! and `gps` records; sanity events for the watchdog.
+//! Out: estimates to the controller; the ESC start request; `imu_raw`, `kalman_in`, `x_hat`,
+//! `innov` and `gps` records; sanity events for the watchdog.
 //! Rate: one Kalman step per frame once calibrated. Ends: when frames stop, on a start-up
 //! abort (an error), or on cancel.
 
 use crate::core::commander::Summary as CommanderSummary;
 use crate::core::esc::EscPhase;
-use crate::core::flight::{EscState, Estimate, EstimatorSide, Feedback, FrameAction, FrameTimes};
+use crate::core::flight::{
+    EscState, Estimate, EstimatorSide, Feedback, FrameAction, FrameTimes, GatedCounts,
+};
 use crate::core::gps::LiveFix;
 use crate::tasks::TaskOutputs;
 use crate::tasks::esc_writer::{EscMailbox, EscStatus};
@@ -43,6 +45,8 @@ pub struct EstimatorReport {
     pub ekf_errors: u64,
     pub gps_updates: u64,
     pub commander: CommanderSummary,
+    /// Steps that left a measurement group out of their update.
+    pub ekf_gated: GatedCounts,
 }
 
 pub struct EstimatorTask {
@@ -118,6 +122,7 @@ impl EstimatorTask {
                 events: self.side.history().to_vec(),
                 figures: self.side.commander().figures(),
             },
+            ekf_gated: c.gated,
         })
     }
 

@@ -10,13 +10,16 @@
 //! stream, and the logger goes on with the next.
 //! Ends: when every sender is gone and the queue is drained.
 
-use crate::logs::{N_STREAMS, PerStream, Record, Stream};
+use crate::logs::{PerStream, Record, Stream};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 use tokio::io::AsyncWriteExt;
 use tokio::sync::mpsc;
+
+/// One counter per stream, shared by the producers and the loggers.
+type Counters = Arc<[AtomicU64; Stream::COUNT]>;
 
 /// A logger that stops writing for a while once it has written some records (fault injection
 /// for tests and the simulator: a stalled disk).
@@ -31,8 +34,8 @@ pub struct LogStall {
 #[derive(Debug, Clone)]
 pub struct LogHub {
     senders: Vec<mpsc::Sender<Record>>,
-    dropped: Arc<[AtomicU64; N_STREAMS]>,
-    io_errors: Arc<[AtomicU64; N_STREAMS]>,
+    dropped: Counters,
+    io_errors: Counters,
 }
 
 impl LogHub {
@@ -85,9 +88,8 @@ pub async fn spawn_all(
 )> {
     let mut senders = Vec::new();
     let mut handles = Vec::new();
-    let dropped: Arc<[AtomicU64; N_STREAMS]> = Arc::new(std::array::from_fn(|_| AtomicU64::new(0)));
-    let io_errors: Arc<[AtomicU64; N_STREAMS]> =
-        Arc::new(std::array::from_fn(|_| AtomicU64::new(0)));
+    let dropped: Counters = Arc::new(std::array::from_fn(|_| AtomicU64::new(0)));
+    let io_errors: Counters = Arc::new(std::array::from_fn(|_| AtomicU64::new(0)));
     for stream in Stream::ALL {
         let path = dir.join(format!("{}.log", stream.name()));
         let file = tokio::fs::File::create(&path).await?;
@@ -126,8 +128,8 @@ struct StreamWriter {
     stream: Stream,
     file: tokio::fs::File,
     stall: Option<LogStall>,
-    dropped: Arc<[AtomicU64; N_STREAMS]>,
-    io_errors: Arc<[AtomicU64; N_STREAMS]>,
+    dropped: Counters,
+    io_errors: Counters,
     /// When the stream last reached the kernel, and the disk.
     flushed: Instant,
     synced: Instant,
@@ -261,7 +263,7 @@ mod tests {
         else {
             return;
         };
-        let (dropped, io_errors): (Arc<[AtomicU64; N_STREAMS]>, Arc<[AtomicU64; N_STREAMS]>) = (
+        let (dropped, io_errors): (Counters, Counters) = (
             Arc::new(std::array::from_fn(|_| AtomicU64::new(0))),
             Arc::new(std::array::from_fn(|_| AtomicU64::new(0))),
         );

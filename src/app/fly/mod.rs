@@ -353,6 +353,7 @@ fn summarise(h: &RunHandles, r: control::Reports, error: Option<String>) -> FlyS
         late_feedback: r.estimator.late_feedback,
         ekf_errors: r.estimator.ekf_errors,
         gps_updates: r.estimator.gps_updates,
+        ekf_gated: r.estimator.ekf_gated,
         gpsd_connects: load(&h.gps_stats.connects),
         gpsd_disconnects: load(&h.gps_stats.disconnects),
         gpsd_fixes: load(&h.gps_stats.fixes),

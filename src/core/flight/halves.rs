@@ -11,7 +11,9 @@
 
 use crate::core::commander::{Guidance, Mode};
 use crate::core::control::{Controller, HoverPlanner, ManualCommand, ManualOutcome};
-use crate::core::ekf::{Ekf, EkfError, EkfParams, Input, State, StepInput};
+use crate::core::ekf::{
+    Ekf, EkfError, EkfParams, GatedGroups, Input, State, StepInput, TestRatios,
+};
 use crate::core::gps::GpsSample;
 use crate::core::imu::calib::{Calibration, ImuSample};
 use crate::core::imu::frame::RawFrame;
@@ -49,6 +51,10 @@ pub struct Estimate {
     pub manual: Option<ManualCommand>,
     /// Zero and disable the ESCs instead of commanding them (disarmed on the ground).
     pub stop_escs: bool,
+    /// The step's innovation test ratios, for innov.log.
+    pub ratios: TestRatios,
+    /// The measurement groups the step left out of its update.
+    pub gated: GatedGroups,
 }
 
 /// The estimator half: front end (settle, calibrate, FIR, conversion) and EKF.
@@ -149,6 +155,8 @@ impl EstimatorCore {
             guidance: Guidance::OFF,
             manual: None,
             stop_escs: false,
+            ratios: report.ratios,
+            gated: report.gated,
         })
     }
 }

@@ -26,7 +26,7 @@ use crate::core::commander::{
     self, ArmFacts, Commander, EscRequest, Mode, Observation, OperatorInput,
 };
 use crate::core::control::{ManualCommand, ManualOutcome};
-use crate::core::ekf::{Ekf, Input, idx};
+use crate::core::ekf::{Ekf, GatedGroups, Input, TestRatios, idx};
 use crate::core::esc::EscPhase;
 use crate::core::gps::LiveFix;
 use crate::core::imu::calib::ImuSample;
@@ -50,6 +50,12 @@ pub enum FlightRecord {
     },
     /// The state after a Kalman step (x_hat).
     XHat([f64; 15]),
+    /// The innovation test ratios of a Kalman step and the groups it left out (innov).
+    Innov {
+        t_us: i64,
+        ratios: TestRatios,
+        gated: GatedGroups,
+    },
     /// The integrators after a control step (int); the first `n_int` are meaningful.
     Int {
         t_us: i64,
@@ -214,6 +220,24 @@ pub struct EstimatorCounts {
     pub ekf_errors: u64,
     pub gps_updates: u64,
     pub dt_clamped: u64,
+    /// Steps that left a measurement group out of their update (outside the innovation gate).
+    pub gated: GatedCounts,
+}
+
+/// Kalman steps that left a measurement group out of their update, per group.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct GatedCounts {
+    pub attitude: u64,
+    pub altitude: u64,
+    pub gps: u64,
+}
+
+impl GatedCounts {
+    fn add(&mut self, g: GatedGroups) {
+        self.attitude += u64::from(g.attitude);
+        self.altitude += u64::from(g.altitude);
+        self.gps += u64::from(g.gps);
+    }
 }
 
 /// The estimator side: start-up sequence, GPS feed, EKF step.
@@ -359,7 +383,10 @@ impl EstimatorSide {
         out: &mut impl Outputs,
     ) -> bool {
         match request {
-            Some(EscRequest::Stop) => true,
+            Some(EscRequest::Stop) => {
+                out.watchdog(Event::MotorsStopped(t_us));
+                true
+            }
             Some(EscRequest::Kill) => {
                 out.watchdog(Event::Kill(t_us));
                 false
@@ -515,6 +542,11 @@ impl EstimatorSide {
             sample: est.sample,
         });
         out.record(FlightRecord::XHat(est.x.into()));
+        out.record(FlightRecord::Innov {
+            t_us: est.t_us,
+            ratios: est.ratios,
+            gated: est.gated,
+        });
         Some(est)
     }
 
@@ -533,7 +565,7 @@ impl EstimatorSide {
             thrust_ratio: thrust_n / (fb.mass_kg * crate::core::model::GRAVITY_M_S2),
             acc_z_m_s2: est.sample.acc_m_s2[2],
             gps_fused: est.gps_used,
-            test_ratio_max: 0.0,
+            test_ratio_max: est.ratios.max(),
         };
         self.observed = Some(o);
         let (guidance, request) = self.commander.on_estimate(&o, &mut self.events);
@@ -548,6 +580,7 @@ impl EstimatorSide {
         self.counts.gps_updates += u64::from(est.gps_used);
         self.counts.ekf_errors += u64::from(est.ekf_error.is_some());
         self.counts.dt_clamped += u64::from(est.dt_clamped);
+        self.counts.gated.add(est.gated);
         self.phase = if est.step < FLIGHT_RAMP_STEPS {
             Phase::FlightRamp
         } else {
