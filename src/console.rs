@@ -5,7 +5,7 @@
 //! A console never slows the control path: events go through a bounded broadcast queue, each
 //! client reads it at its own pace, and what a slow client misses is counted and told to it.
 
-use crate::core::control::ManualCommand;
+use crate::core::commander::{LinkSource, OperatorInput};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -124,7 +124,7 @@ pub const MAX_COMMANDS_PER_S: u32 = 20;
 pub async fn serve(
     path: PathBuf,
     stats: StatsFn,
-    manual: mpsc::Sender<ManualCommand>,
+    manual: mpsc::Sender<OperatorInput>,
     dropped: Arc<AtomicU64>,
     cancel: CancellationToken,
 ) -> std::io::Result<()> {
@@ -201,7 +201,7 @@ async fn bind(path: &Path) -> std::io::Result<UnixListener> {
 async fn client(
     stream: UnixStream,
     stats: StatsFn,
-    manual: mpsc::Sender<ManualCommand>,
+    manual: mpsc::Sender<OperatorInput>,
     dropped: Arc<AtomicU64>,
     cancel: CancellationToken,
 ) {
@@ -215,7 +215,7 @@ async fn client(
     let mut filter = Filter::parse("info");
     let mut tick = tokio::time::interval(Duration::from_secs(1));
     let _ = write
-        .write_all(b"uquad console: keys j/g roll, y/h pitch, q/w yaw, e/d altitude, i/k mass, 0 reset mass, quit; 'filter LEVEL[,TEXT]'\n")
+        .write_all(b"uquad console: arm, takeoff [ALT_M], hold [X Y Z], land, disarm, kill; keys j/g roll, y/h pitch, q/w yaw, e/d altitude, i/k mass, 0 reset mass, quit; 'filter LEVEL[,TEXT]'\n")
         .await;
     loop {
         let out: Option<String> = tokio::select! {
@@ -241,7 +241,11 @@ async fn client(
                 }
                 Err(broadcast::error::RecvError::Closed) => None,
             },
-            _ = tick.tick() => Some(format!("{}\n", stats())),
+            _ = tick.tick() => {
+                // An attached console keeps the operator link alive (failsafe.link_sources).
+                let _ = manual.try_send(OperatorInput::Beat(LinkSource::Console));
+                Some(format!("{}\n", stats()))
+            }
         };
         let Some(out) = out else { break };
         if !out.is_empty() && write.write_all(out.as_bytes()).await.is_err() {
@@ -272,27 +276,28 @@ impl RateLimit {
     }
 }
 
-/// One line from a client: a filter change or a manual-mode command; returns the reply.
-/// Public for the fuzz tests (`tests/fuzz.rs`), which feed it generated lines.
-pub fn command(line: &str, filter: &mut Filter, manual: &mpsc::Sender<ManualCommand>) -> String {
+/// One line from a client: a filter change, a commander command (arm, takeoff [ALT_M],
+/// hold [X Y Z], land, disarm, kill) or manual-mode keys; returns the reply. The command's
+/// outcome (done or refused, and why) arrives as a log event. Public for the fuzz tests
+/// (`tests/fuzz.rs`), which feed it generated lines.
+pub fn command(line: &str, filter: &mut Filter, operator: &mpsc::Sender<OperatorInput>) -> String {
     let line = line.trim();
     if let Some(f) = line.strip_prefix("filter") {
         *filter = Filter::parse(f);
         return format!("console: filter {filter:?}\n");
     }
-    let key = match line {
-        "quit" | "esc" => Some(27u8),
-        l if l.len() == 1 => l.bytes().next(),
-        _ => None,
+    let inputs = match OperatorInput::parse_line(line, LinkSource::Console) {
+        Ok(i) => i,
+        Err(e) => return format!("console: {e}\n"),
     };
-    match key.and_then(ManualCommand::from_key) {
-        Some(cmd) => match manual.try_send(cmd) {
-            Ok(()) => format!("console: sent {cmd:?}\n"),
-            Err(_) => "console: the controller is not taking commands now\n".to_string(),
-        },
-        None if line.is_empty() => String::new(),
-        None => format!("console: unknown command {line:?}\n"),
+    let mut reply = String::new();
+    for input in inputs {
+        reply += &match operator.try_send(input) {
+            Ok(()) => format!("console: sent {input:?}\n"),
+            Err(_) => "console: the flight is not taking commands now\n".to_string(),
+        };
     }
+    reply
 }
 
 /// `uquad console`: attaches to `path`, prints what arrives, sends stdin's lines.

@@ -134,6 +134,11 @@ struct FlyArgs {
     /// the 10 ms frame period and the 12 ms IMU timeout can be lost to any other process.
     #[arg(long)]
     allow_no_rt: bool,
+    /// Arm once the IMU has settled, as if `arm` were typed (the pre-arm checks still apply;
+    /// a refusal is logged and the vehicle stays disarmed). Then `takeoff` from stdin or a
+    /// console. Profiles with commander.start = "flying" arm and take off by themselves.
+    #[arg(long)]
+    arm: bool,
 }
 
 #[derive(clap::Args, Debug)]
@@ -405,10 +410,13 @@ impl FlyArgs {
             realtime: true,
             stdin_keys: true,
             handle_signals: true,
+            arm_at_start: self.arm,
+            realtime_waived: self.allow_no_rt,
             ..FlyOptions::default()
         };
         let summary = on_runtime(Duration::from_millis(200), async {
             let edges = Edges {
+                operator: None,
                 imu: Box::new(uquad::hw::serial::open_imu(&cfg.imu.device, cfg.imu.baud)?),
                 bus: Box::new(uquad::hw::esc_bus::LinuxEscBus::open(
                     &cfg.esc.bus,
@@ -439,11 +447,6 @@ impl SimArgs {
 
     fn run(self) -> anyhow::Result<ExitCode> {
         let mode = self.mode();
-        if let Some((f, _)) = self.inject.iter().find(|(f, _)| !mode.supports(*f)) {
-            let name = f.name();
-            let why = "with --realtime only imu-stall and esc-nack can be injected";
-            return Err(Refused(format!("--inject {name}: {why}")).into());
-        }
         let profile = self.profile.load()?;
         let opts = SimOptions {
             inject: self.inject,

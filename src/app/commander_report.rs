@@ -32,6 +32,8 @@ pub struct TouchdownEntry {
     pub t_s: f64,
     /// Vertical speed at touchdown, m/s.
     pub v_m_s: f64,
+    /// Horizontal distance from the takeoff point, m.
+    pub from_takeoff_m: f64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -60,9 +62,10 @@ impl CommanderSummary {
     pub fn report(&self) -> CommanderReport {
         let mut r = CommanderReport {
             modes: Vec::new(),
-            touchdown: self.figures.touchdown.map(|(t, v)| TouchdownEntry {
+            touchdown: self.figures.touchdown.map(|(t, v, d)| TouchdownEntry {
                 t_s: secs(t),
                 v_m_s: v,
+                from_takeoff_m: d,
             }),
             takeoff: self.figures.takeoff.map(|(target, over)| TakeoffEntry {
                 target_m: target,
@@ -109,7 +112,10 @@ impl CommanderSummary {
             );
         }
         if let Some(t) = r.touchdown {
-            s += &format!("; touchdown at {:.1} s, {:.2} m/s", t.t_s, t.v_m_s);
+            s += &format!(
+                "; touchdown at {:.1} s, {:.2} m/s, {:.1} m from the takeoff",
+                t.t_s, t.v_m_s, t.from_takeoff_m
+            );
         }
         for f in &r.failsafes {
             s += &format!("\n  failsafe {} at {:.1} s: {}", f.kind, f.t_s, f.action);

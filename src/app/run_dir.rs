@@ -105,14 +105,3 @@ mod tests {
         assert_eq!(names.len(), 5);
     }
 }
-
-/// The pre-arm check of the log folder: a file can be created, written and removed in it.
-/// `Some(why)` when it cannot (a full or read-only disk, a folder removed under the run).
-pub fn log_dir_problem(run_dir: &Path) -> Option<String> {
-    let probe = run_dir.join(".arm-check");
-    let result = std::fs::write(&probe, b"uquad pre-arm check\n")
-        .and_then(|()| std::fs::remove_file(&probe));
-    result
-        .err()
-        .map(|e| format!("cannot write in {}: {e}", run_dir.display()))
-}

@@ -42,20 +42,3 @@ pub enum SimMode {
     /// `fly`'s own tasks and threads against the simulated edges, on the wall clock.
     Realtime,
 }
-
-impl SimMode {
-    /// The faults a mode can inject (`--realtime` has no logger or GPS or thrust faults).
-    pub fn supports(self, fault: Fault) -> bool {
-        match self {
-            SimMode::Fast => true,
-            SimMode::Realtime => matches!(
-                fault,
-                Fault::ImuStall
-                    | Fault::EscNack
-                    | Fault::BaroFail
-                    | Fault::GyroStuck
-                    | Fault::ImuGarbage
-            ),
-        }
-    }
-}

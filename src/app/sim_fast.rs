@@ -28,16 +28,14 @@ use crate::core::motor::FLIGHT_RAMP_STEPS;
 use crate::core::watchdog::{Event, Trip, Watchdog};
 use crate::logs::{PerStream, Record, Stream};
 use crate::sim::esc::EscModel;
-use crate::sim::faults::{Fault, FaultSchedule, WireFaults};
+use crate::sim::faults::{Fault, FaultSchedule, LOG_STALL_US, WireFaults};
 use crate::sim::hover::{CycleTrace, FlightView, HoverWindow, TrueState, progress_line};
 use crate::sim::operator::SimOperator;
 use crate::sim::{FRAME_US, frame_start_byte, gps_fix, imu::SimImu, physics::Plant};
+use crate::tasks::prearm::PreArm;
 use anyhow::Context;
 use bytes::BytesMut;
 use std::path::PathBuf;
-
-/// Simulated time a stalled logger blocks, µs.
-const LOG_STALL_US: i64 = 500_000;
 
 /// The streams, kept in memory and written at the end as the loggers would write them. The
 /// x_hat logger can be stalled (`log-stall`): its queue fills, then records drop and count.
@@ -117,6 +115,8 @@ struct FastSim<'a> {
     inputs: Vec<OperatorInput>,
     /// The newest fix simulated gpsd gave (the pre-arm GPS check).
     newest_fix: Option<LiveFix>,
+    /// The pre-arm inputs, and where the log folder's probe is published.
+    prearm: (PreArm, tokio::sync::watch::Sender<Option<String>>),
     /// The ESCs were started once: a disarmed vehicle has flown.
     armed_once: bool,
     trace: CycleTrace,
@@ -138,6 +138,20 @@ pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumma
         }
     }
     sim.finish()
+}
+
+/// The pre-arm inputs of a simulation: real time waived.
+fn prearm(cfg: &crate::config::Config) -> (PreArm, tokio::sync::watch::Sender<Option<String>>) {
+    let (tx, rx) = tokio::sync::watch::channel(None);
+    let prearm = PreArm {
+        log_problem: rx,
+        realtime_waived: true,
+        gps_required: cfg.gps.mode == GpsMode::Gpsd,
+        gps_max_eph_m: cfg.commander.gps_max_eph_m,
+        gps_timeout_us: (cfg.control.gps_hold_timeout_s * 1e6).round() as i64,
+        addresses: cfg.esc.addresses,
+    };
+    (prearm, tx)
 }
 
 impl<'a> FastSim<'a> {
@@ -201,6 +215,7 @@ impl<'a> FastSim<'a> {
             ),
             inputs: Vec::with_capacity(4),
             newest_fix: None,
+            prearm: prearm(cfg),
             armed_once: false,
             trace: CycleTrace::default(),
             faults,
@@ -269,18 +284,13 @@ impl<'a> FastSim<'a> {
 
     /// The pre-arm facts as the simulator observes them (real time is waived: a simulation).
     fn arm_facts(&self) -> ArmFacts {
-        let cfg = &self.cfg;
-        let fresh =
-            |f: &LiveFix| (self.t_us - f.stamp_us) as f64 / 1e6 <= cfg.control.gps_hold_timeout_s;
-        ArmFacts {
-            imu_stable: false,
-            gps_required: self.gps_live,
-            gps_eph_m: self.newest_fix.filter(fresh).and_then(|f| f.fix.eph_m),
-            gps_max_eph_m: cfg.commander.gps_max_eph_m,
-            log_error: crate::app::run_dir::log_dir_problem(&self.fly.run_dir),
-            realtime: true,
-            esc_silent: self.driver.silent_addresses(),
-        }
+        let (prearm, tx) = &self.prearm;
+        tx.send_replace(crate::tasks::prearm::log_dir_problem(&self.fly.run_dir));
+        prearm.facts(
+            self.driver.silent_addresses(),
+            self.newest_fix.as_ref(),
+            self.t_us,
+        )
     }
 
     /// The IMU's next frame, through the byte decoder, into the flight sequence.

@@ -8,20 +8,25 @@ use crate::app::fly::{self, Edges, FlyOptions};
 use crate::app::report::SimSummary;
 use crate::app::sim::SimOptions;
 use crate::config::{GpsMode, Profile};
+use crate::core::commander::{Mode, OperatorInput};
 use crate::core::gps::LiveFix;
 use crate::core::motor::FLIGHT_RAMP_STEPS;
 use crate::sim::esc::{EscModel, SimBus};
-use crate::sim::faults::{Fault, FaultSchedule, WireFaults};
-use crate::sim::hover::{FlightView, HoverStats, HoverWindow, TrueState, progress_line};
+use crate::sim::faults::{Fault, FaultSchedule, LOG_STALL_US, WireFaults};
+use crate::sim::hover::{
+    CycleTrace, FlightView, HoverStats, HoverWindow, TrueState, progress_line,
+};
+use crate::sim::operator::SimOperator;
 use crate::sim::{FRAME_US, frame_start_byte, gps_fix};
 use crate::tasks::SIM_PRIORITY;
 use crate::tasks::controller::Live;
 use crate::tasks::imu_reader::BINARY_MODE_COMMAND;
+use crate::tasks::logger::LogStall;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::io::{AsyncWriteExt, DuplexStream};
-use tokio::sync::watch;
+use tokio::sync::{mpsc, watch};
 use tokio_util::sync::CancellationToken;
 
 /// What the simulator thread needs; it owns the plant and the IMU.
@@ -37,6 +42,20 @@ struct SimThread {
     live: watch::Receiver<Option<Live>>,
     stop: Arc<AtomicBool>,
     rt: tokio::runtime::Handle,
+    /// The scripted operator, and where its inputs go.
+    operator: SimOperator,
+    operator_tx: mpsc::Sender<OperatorInput>,
+    /// Ends the run once the vehicle has landed and disarmed after the script.
+    cancel: CancellationToken,
+    trace: CycleTrace,
+}
+
+/// What the simulator thread measured.
+#[derive(Debug, Default)]
+struct SimResult {
+    simulated_us: i64,
+    hover: HoverStats,
+    figures: crate::core::commander::Figures,
 }
 
 pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSummary> {
@@ -51,10 +70,20 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
     let (gps_tx, gps_rx) = watch::channel(None);
     let gps_live = cfg.gps.mode == GpsMode::Gpsd;
     let (live_tx, live_rx) = watch::channel(None);
+    let (operator_tx, operator_rx) = mpsc::channel(64);
+    let faults = FaultSchedule::new(&opts.inject);
+    let cancel = CancellationToken::new();
     let thread = SimThread {
         profile: profile.clone(),
         seed,
-        faults: FaultSchedule::new(&opts.inject),
+        operator: SimOperator::new(
+            &crate::app::sim::script(opts, profile),
+            faults.at_us(Fault::LinkLoss),
+        ),
+        operator_tx,
+        cancel: cancel.clone(),
+        trace: CycleTrace::default(),
+        faults: faults.clone(),
         progress: opts.progress,
         start,
         model: model.clone(),
@@ -65,7 +94,6 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
         rt: tokio::runtime::Handle::current(),
     };
     let sim_thread = crate::tasks::spawn_thread("sim", true, SIM_PRIORITY, move || thread.run())?;
-    let cancel = CancellationToken::new();
     let timer = {
         let cancel = cancel.clone();
         tokio::spawn(async move {
@@ -85,34 +113,45 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
         }),
         gps_fixes: Some(gps_rx),
         live: Some(live_tx),
+        operator: Some(operator_rx),
     };
+    let log_stall = faults.at_us(Fault::LogStall).map(|at| LogStall {
+        stream: crate::logs::Stream::XHat,
+        after_records: 0,
+        not_before: Some(start + Duration::from_micros(at as u64)),
+        duration: Duration::from_micros(LOG_STALL_US as u64),
+    });
     let opts = FlyOptions {
         log_dir: opts.log_dir.clone(),
         realtime: true,
         handle_signals: true,
+        realtime_waived: true,
+        log_stall,
         ..Default::default()
     };
     let summary = fly::run(&run_profile, edges, opts, cancel).await;
     timer.abort();
     stop.store(true, Ordering::SeqCst);
-    let (simulated_us, hover) = tokio::task::spawn_blocking(move || sim_thread.join())
+    let result = tokio::task::spawn_blocking(move || sim_thread.join())
         .await
         .ok()
         .and_then(Result::ok)
         .unwrap_or_default();
     let esc_end = model.lock().map(|m| m.end_state()).unwrap_or_default();
+    let mut fly = summary?;
+    fly.commander.figures = result.figures;
     Ok(SimSummary {
         esc_end,
-        fly: summary?,
-        hover,
-        simulated_s: simulated_us as f64 / 1e6,
+        fly,
+        hover: result.hover,
+        simulated_s: result.simulated_us as f64 / 1e6,
     })
 }
 
 impl SimThread {
     /// Steps the physics on the wall clock until told to stop; returns the simulated time and
     /// the hover figures.
-    fn run(mut self) -> (i64, HoverStats) {
+    fn run(mut self) -> SimResult {
         let sc = self.profile.config.sim.clone();
         let (mut plant, mut imu) = crate::sim::vehicle(&self.profile, self.seed);
         let step_us = 1_000_000 / i64::from(sc.physics_hz);
@@ -122,8 +161,10 @@ impl SimThread {
         // The IMU streams once the host asks (spec 1.1), as the real one: frames sent before
         // the reader runs would arrive in one burst, and the settling check would see it.
         let Some(streaming) = self.wait_for_binary_mode() else {
-            return (0, hover.stats());
+            return SimResult::default();
         };
+        let mut inputs = Vec::with_capacity(4);
+        let mut armed_once = false;
         while !self.stop.load(Ordering::SeqCst) {
             t_us += step_us;
             let due = streaming + Duration::from_micros(t_us as u64);
@@ -132,16 +173,27 @@ impl SimThread {
             }
             let now_us = self.start.elapsed().as_micros() as i64;
             plant.w_cmd_rad_s = self.motor_commands(t_us, now_us);
+            if self.faults.active(Fault::ThrustLoss, t_us) {
+                plant.thrust_scale[0] = 0.7;
+            }
+            plant.push_n = crate::sim::gust_n(&self.faults, &sc, t_us);
             plant.step(step_us);
             if t_us % FRAME_US == FRAME_US / 2 {
                 imu.first_half(&plant);
             }
             if let Some(tx) = &self.gps_tx
                 && t_us % 1_000_000 == 0
+                && !self.faults.active(Fault::GpsLoss, t_us)
             {
                 tx.send_replace(Some(gps_fix(&mut gps_seq, plant.position_m(), now_us)));
             }
-            if t_us % FRAME_US != 0 || self.faults.active(Fault::ImuStall, t_us) {
+            if t_us % FRAME_US != 0 {
+                continue;
+            }
+            if self.operate(t_us, &mut inputs, &mut armed_once) {
+                break;
+            }
+            if self.faults.active(Fault::ImuStall, t_us) {
                 continue;
             }
             let frame = imu.frame(&plant, FRAME_US as u32);
@@ -152,6 +204,9 @@ impl SimThread {
             }
             let view = self.flight_view();
             hover.sample(t_us, view, TrueState::of(&plant));
+            if let Some(l) = *self.live.borrow() {
+                self.trace.sample(t_us, l.mode, l.target_z_m, &plant);
+            }
             if self.progress && t_us % 5_000_000 == 0 {
                 let phase = if view.ramp_done { "Flight" } else { "start-up" };
                 let steps = self.live.borrow().map_or(0, |l| u64::from(l.step));
@@ -159,7 +214,34 @@ impl SimThread {
                 tracing::info!("{}", progress_line(t_us, &plant, phase, steps));
             }
         }
-        (t_us, hover.stats())
+        SimResult {
+            simulated_us: t_us,
+            hover: hover.stats(),
+            figures: self.trace.figures(),
+        }
+    }
+
+    /// The scripted operator's inputs due at `t_us`, handed to the flight without waiting;
+    /// `true` once the vehicle has landed and disarmed after the script (the run ends).
+    fn operate(
+        &mut self,
+        t_us: i64,
+        inputs: &mut Vec<OperatorInput>,
+        armed_once: &mut bool,
+    ) -> bool {
+        self.operator.due(t_us, inputs);
+        for input in inputs.drain(..) {
+            if self.operator_tx.try_send(input).is_err() {
+                tracing::warn!("the flight took no operator input at {t_us} us: {input:?}");
+            }
+        }
+        let mode = self.live.borrow().map(|l| l.mode);
+        *armed_once |= mode.is_some_and(|m| m != Mode::Disarmed);
+        let landed = *armed_once && mode == Some(Mode::Disarmed) && self.operator.done(t_us);
+        if landed {
+            self.cancel.cancel();
+        }
+        landed
     }
 
     /// Waits for the host's binary-mode command ('!'); `None` when the run ends first.
@@ -194,10 +276,10 @@ impl SimThread {
     fn flight_view(&self) -> FlightView {
         let live = *self.live.borrow();
         FlightView {
-            ramp_done: live.is_some_and(|l| l.step >= FLIGHT_RAMP_STEPS),
+            ramp_done: live.is_some_and(|l| l.flying_steps >= u64::from(FLIGHT_RAMP_STEPS)),
             setpoint_m: live.map_or([0.0; 3], |l| l.setpoint_m),
             // A halt ends the run, and with it the window.
-            flying: true,
+            flying: live.is_some_and(|l| matches!(l.mode, Mode::Takeoff | Mode::Hold)),
         }
     }
 }

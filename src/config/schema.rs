@@ -101,7 +101,7 @@ impl Default for Sim {
             temp_c: 30.0,
             initial_yaw_rad: 0.3,
             seed: 1,
-            gust_n: 4.0,
+            gust_n: 3.0,
             gust_s: 3.0,
         }
     }

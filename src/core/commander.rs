@@ -83,6 +83,12 @@ impl Command {
         }
     }
 
+    /// `line` starts with a command word (not manual keys, though `hold` is made of keys).
+    pub fn is_word(line: &str) -> bool {
+        let verb = line.split_whitespace().next().unwrap_or("");
+        ["arm", "takeoff", "hold", "land", "disarm", "kill"].contains(&verb)
+    }
+
     pub fn word(self) -> &'static str {
         match self {
             Command::Arm => "arm",
@@ -333,6 +339,8 @@ pub struct Guidance {
     pub vz_m_s: f64,
     /// Hold the horizontal position (false: attitude only, as without GPS).
     pub hold_xy: bool,
+    /// Where the vertical profile is going, m.
+    pub target_z_m: f64,
 }
 
 impl Guidance {
@@ -343,6 +351,7 @@ impl Guidance {
         pos_m: [0.0; 3],
         vz_m_s: 0.0,
         hold_xy: false,
+        target_z_m: 0.0,
     };
 }
 
@@ -353,9 +362,9 @@ pub struct Figures {
     /// The takeoff's target height and the highest estimate above it, m: the climb's first
     /// peak (from the takeoff until the vehicle first stops rising in the hold that follows).
     pub takeoff: Option<(f64, f64)>,
-    /// Touchdown: when, and the largest estimated descent speed in the second before the
-    /// vehicle came to rest, m/s.
-    pub touchdown: Option<(i64, f64)>,
+    /// Touchdown: when, the largest estimated descent speed in the second before the vehicle
+    /// came to rest (m/s), and its horizontal distance from the takeoff point (m).
+    pub touchdown: Option<(i64, f64, f64)>,
 }
 
 /// What the commander did in a run, for its report.
@@ -614,12 +623,29 @@ impl Commander {
                 None
             }
             Command::Land => {
-                if self.mode != Mode::Land {
-                    self.set_mode(Mode::Land, t_us, &why, out);
-                }
+                self.begin_land(est, t_us, &why, out);
                 None
             }
         }
+    }
+
+    /// Lands where the vehicle is: flying back to the hold point while descending tilts it
+    /// hard (and a fence breach is better not crossed again).
+    fn begin_land(
+        &mut self,
+        est: Option<&Observation>,
+        t_us: i64,
+        why: &str,
+        out: &mut Vec<Event>,
+    ) {
+        if self.mode == Mode::Land {
+            return;
+        }
+        if let Some(o) = est {
+            self.target_m[0] = o.pos_m[0];
+            self.target_m[1] = o.pos_m[1];
+        }
+        self.set_mode(Mode::Land, t_us, why, out);
     }
 
     fn disarm(&mut self, t_us: i64, why: &str, out: &mut Vec<Event>) {
@@ -719,6 +745,7 @@ impl Commander {
             pos_m: [self.target_m[0], self.target_m[1], p.z_m],
             vz_m_s: p.vz_m_s,
             hold_xy: self.hold_xy,
+            target_z_m: self.target_m[2],
         }
     }
 
@@ -784,7 +811,9 @@ impl Commander {
             (true, None) => self.touchdown_since_us = Some(o.t_us),
             (true, Some(t0)) if (o.t_us - t0) as f64 / 1e6 >= p.touchdown_s => {
                 let v = self.land_vz.iter().map(|(_, v)| *v).fold(0.0, f64::max);
-                self.figures.touchdown = Some((o.t_us, v));
+                let home = self.home_m.unwrap_or(o.pos_m);
+                let dist = (o.pos_m[0] - home[0]).hypot(o.pos_m[1] - home[1]);
+                self.figures.touchdown = Some((o.t_us, v, dist));
                 self.disarm(o.t_us, "touchdown", out);
                 return Some(EscRequest::Stop);
             }
@@ -802,7 +831,7 @@ impl Commander {
             .link_seen_us
             .is_some_and(|s| secs(s) > p.link_timeout_s);
         if link_lost {
-            return self.fire(Failsafe::LinkLoss, p.link_action, t, out);
+            return self.fire(Failsafe::LinkLoss, p.link_action, o, out);
         }
         let gps_stale = self.last_fix_us.is_some_and(|s| secs(s) > p.gps_timeout_s);
         self.hold_xy = !gps_stale;
@@ -812,13 +841,13 @@ impl Commander {
             self.record(Failsafe::GpsLoss, p.gps_loss_action, t, out);
             if secs(since) >= p.gps_loss_land_s && !self.acted.contains(&Failsafe::GpsLoss) {
                 self.acted.push(Failsafe::GpsLoss);
-                return self.act(p.gps_loss_action, Failsafe::GpsLoss, t, out);
+                return self.act(p.gps_loss_action, Failsafe::GpsLoss, o, out);
             }
         } else {
             self.gps_lost_us = None;
         }
         if !gps_stale && self.last_fix_us.is_some() && self.outside_fence(o) {
-            return self.fire(Failsafe::Geofence, p.fence_action, t, out);
+            return self.fire(Failsafe::Geofence, p.fence_action, o, out);
         }
         let bad = o.test_ratio_max > 1.0;
         let since = if bad {
@@ -830,7 +859,7 @@ impl Commander {
             self.ekf_bad_since_us = None;
         }
         if bad && secs(since) >= p.ekf_bad_s {
-            return self.fire(Failsafe::Estimator, p.ekf_action, t, out);
+            return self.fire(Failsafe::Estimator, p.ekf_action, o, out);
         }
         None
     }
@@ -857,28 +886,28 @@ impl Commander {
         &mut self,
         kind: Failsafe,
         action: Action,
-        t_us: i64,
+        o: &Observation,
         out: &mut Vec<Event>,
     ) -> Option<EscRequest> {
         if self.acted.contains(&kind) {
             return None;
         }
         self.acted.push(kind);
-        self.record(kind, action, t_us, out);
-        self.act(action, kind, t_us, out)
+        self.record(kind, action, o.t_us, out);
+        self.act(action, kind, o, out)
     }
 
     fn act(
         &mut self,
         action: Action,
         kind: Failsafe,
-        t_us: i64,
+        o: &Observation,
         out: &mut Vec<Event>,
     ) -> Option<EscRequest> {
-        let why = format!("failsafe {}", kind.name());
+        let (t_us, why) = (o.t_us, format!("failsafe {}", kind.name()));
         match action {
             Action::Kill => return Some(EscRequest::Kill),
-            Action::Land if self.mode != Mode::Land => self.set_mode(Mode::Land, t_us, &why, out),
+            Action::Land => self.begin_land(Some(o), t_us, &why, out),
             Action::Hold if self.mode != Mode::Hold => self.set_mode(Mode::Hold, t_us, &why, out),
             _ => {}
         }
@@ -892,4 +921,27 @@ pub enum OperatorInput {
     Command(Command, LinkSource),
     Beat(LinkSource),
     Key(ManualCommand),
+}
+
+impl OperatorInput {
+    /// One line an operator typed (stdin, a console): a command word with its arguments,
+    /// `quit` (or `esc`), or manual keys (spec 5.2: `e` raises the set point; `eee` three
+    /// times). Empty lines give nothing.
+    pub fn parse_line(line: &str, source: LinkSource) -> Result<Vec<OperatorInput>, String> {
+        let line = line.trim();
+        if line.is_empty() {
+            return Ok(Vec::new());
+        }
+        if line == "quit" || line == "esc" {
+            return Ok(vec![OperatorInput::Key(ManualCommand::Quit)]);
+        }
+        let keys: Option<Vec<OperatorInput>> = line
+            .bytes()
+            .map(|b| ManualCommand::from_key(b).map(OperatorInput::Key))
+            .collect();
+        match keys {
+            Some(k) if !Command::is_word(line) => Ok(k),
+            _ => Command::parse(line).map(|c| vec![OperatorInput::Command(c, source)]),
+        }
+    }
 }

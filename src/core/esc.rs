@@ -44,6 +44,14 @@ pub enum CycleKind {
     Probe,
 }
 
+/// The addresses of the motors whose bits are set in `mask`.
+pub fn silent_addresses(mask: u8, addresses: &[u8; 4]) -> Vec<u8> {
+    (0..4)
+        .filter(|m| mask & (1 << m) != 0)
+        .map(|m| addresses[m])
+        .collect()
+}
+
 /// Disabled ESCs are probed this often, µs.
 pub const PROBE_PERIOD_US: i64 = 500_000;
 
@@ -144,11 +152,15 @@ impl EscDriver {
 
     /// The addresses that did not acknowledge the last probe (all of them before the first).
     pub fn silent_addresses(&self) -> Vec<u8> {
+        silent_addresses(self.silent_mask(), &self.map.addresses)
+    }
+
+    /// [`EscDriver::silent_addresses`] as bits in motor order (bit m: motor m silent).
+    pub fn silent_mask(&self) -> u8 {
         let acked = self.probe_acked.unwrap_or([false; 4]);
         (0..4)
             .filter(|&m| !acked[m])
-            .map(|m| self.map.addresses[m])
-            .collect()
+            .fold(0, |mask, m| mask | 1 << m)
     }
 
     pub fn phase(&self) -> EscPhase {
@@ -401,7 +413,7 @@ impl CycleRunner {
                 if let Err(e) = write(addr, reg, value) {
                     self.failed_writes += 1;
                     acked[m] = false;
-                    if ok && self.failed_cycles == 0 {
+                    if ok && self.failed_cycles == 0 && kind != CycleKind::Probe {
                         first_error = Some(e);
                     }
                     ok = false;

@@ -5,6 +5,9 @@
 use crate::core::gps::SplitMix64;
 use crate::core::imu::frame::{FRAME_LEN, RawFrame};
 
+/// How long a stalled logger blocks (`log-stall`), µs.
+pub const LOG_STALL_US: i64 = 500_000;
+
 /// A fault injected at a simulated time.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Fault {

@@ -70,12 +70,14 @@ impl TrueState {
 #[derive(Debug, Clone, Copy, Default)]
 pub struct CycleTrace {
     ground_m: Option<f64>,
+    /// Where the takeoff started (x, y), m.
+    home_xy_m: Option<[f64; 2]>,
     takeoff: Option<(f64, f64)>,
     /// The climb's first peak has passed.
     peaked: bool,
     prev_vz_m_s: f64,
     was_on_ground: bool,
-    touchdown: Option<(i64, f64)>,
+    touchdown: Option<(i64, f64, f64)>,
 }
 
 impl CycleTrace {
@@ -86,6 +88,8 @@ impl CycleTrace {
         match mode {
             Mode::Armed => self.ground_m = Some(z),
             Mode::Takeoff => {
+                let p = plant.position_m();
+                self.home_xy_m.get_or_insert([p[0], p[1]]);
                 let ground = *self.ground_m.get_or_insert(z);
                 let (_, peak) = self.takeoff.get_or_insert((target_z_m - ground, f64::MIN));
                 *peak = peak.max(z - target_z_m);
@@ -97,7 +101,9 @@ impl CycleTrace {
                 }
             }
             Mode::Land if plant.on_ground && !self.was_on_ground && self.touchdown.is_none() => {
-                self.touchdown = Some((t_us, self.prev_vz_m_s.abs()));
+                let (p, home) = (plant.position_m(), self.home_xy_m.unwrap_or_default());
+                let dist = (p[0] - home[0]).hypot(p[1] - home[1]);
+                self.touchdown = Some((t_us, self.prev_vz_m_s.abs(), dist));
             }
             _ => {}
         }

@@ -7,7 +7,6 @@
 //! Rate: one control step per estimate (100 Hz). Ends: when the estimator ends (on cancel or
 //! a quit command, which cancels), after the estimates it already sent.
 
-use crate::core::control::ManualCommand;
 use crate::core::flight::{Command, ControllerSide, Feedback};
 use crate::tasks::TaskOutputs;
 use crate::tasks::esc_writer::{EscMailbox, HaltOnPanic, MotorCommand};
@@ -27,7 +26,6 @@ pub struct ControllerReport {
 pub struct ControllerTask {
     pub side: ControllerSide,
     pub estimates: mpsc::Receiver<EstimateMsg>,
-    pub manual: mpsc::Receiver<ManualCommand>,
     pub feedback: watch::Sender<Feedback>,
     pub esc: Arc<EscMailbox>,
     pub out: TaskOutputs,
@@ -48,6 +46,11 @@ pub struct Live {
     pub w_rad_s: [f64; 4],
     /// The set point (x, y, z), m.
     pub setpoint_m: [f64; 3],
+    /// The commander's mode and the height it sends the vehicle to, m.
+    pub mode: crate::core::commander::Mode,
+    pub target_z_m: f64,
+    /// Steps under the control law so far (the flight ramp is done after 100).
+    pub flying_steps: u64,
 }
 
 impl ControllerTask {
@@ -60,11 +63,6 @@ impl ControllerTask {
         // Ends when the estimator does (it drops its sender on cancel), after the estimates
         // already sent: every step the estimator logged is also controlled and logged here.
         while let Some(msg) = self.estimates.recv().await {
-            while let Ok(cmd) = self.manual.try_recv() {
-                if self.side.manual(cmd, &mut self.out) {
-                    self.cancel.cancel();
-                }
-            }
             let est = &msg.est;
             if let Some((from, d)) = self.delay
                 && est.step >= from
@@ -76,18 +74,28 @@ impl ControllerTask {
             }
             let esc = &self.esc;
             let send = |c: &Command| {
-                esc.command(MotorCommand {
-                    w_rad_s: c.w_rad_s,
-                    frame_at: msg.frame_at,
-                })
+                if c.stop_escs {
+                    esc.halt("disarmed");
+                } else {
+                    esc.command(MotorCommand {
+                        w_rad_s: c.w_rad_s,
+                        frame_at: msg.frame_at,
+                    })
+                }
             };
             let c = self.side.control(est, send, &mut self.out);
+            if c.quit {
+                self.cancel.cancel();
+            }
             self.feedback.send_replace(c.feedback);
             self.live.send_replace(Some(Live {
                 step: c.step,
                 x: est.x.into(),
                 w_rad_s: c.w_rad_s,
                 setpoint_m: self.side.setpoint_m().unwrap_or_default(),
+                mode: est.guidance.mode,
+                target_z_m: est.guidance.target_z_m,
+                flying_steps: self.side.counts().flying_steps,
             }));
         }
         let c = self.side.counts();

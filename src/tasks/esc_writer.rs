@@ -151,6 +151,9 @@ pub struct EscStatus {
     pub latencies_us: Mutex<Vec<u32>>,
     /// How the stop ended (confirmed or not, and when), once it has.
     stop_outcome: Mutex<Option<StopOutcome>>,
+    /// The ESCs that did not acknowledge the last probe while disabled, bit m = motor m
+    /// (the writer probes as it starts).
+    silent: AtomicU8,
 }
 
 impl EscStatus {
@@ -169,6 +172,11 @@ impl EscStatus {
 
     pub fn stop_reason(&self) -> Option<String> {
         self.stop_reason.lock().ok().and_then(|g| g.clone())
+    }
+
+    /// The addresses that did not acknowledge the last probe (the pre-arm check).
+    pub fn silent_addresses(&self, addresses: &[u8; 4]) -> Vec<u8> {
+        crate::core::esc::silent_addresses(self.silent.load(Ordering::Relaxed), addresses)
     }
 
     /// How the stop ended, once it has: every ESC acknowledged it, or the retries ran out.
@@ -227,6 +235,9 @@ impl Writer {
         {
             g.get_or_insert(o);
         }
+        self.status
+            .silent
+            .store(driver.silent_mask(), Ordering::Relaxed);
         self.status
             .writes
             .store(self.runner.writes, Ordering::Relaxed);

@@ -10,14 +10,17 @@
 //! abort (an error), or on cancel.
 
 use crate::core::commander::Summary as CommanderSummary;
+use crate::core::commander::{ArmFacts, Command, LinkSource, OperatorInput};
 use crate::core::esc::EscPhase;
 use crate::core::flight::{
-    EscState, Estimate, EstimatorSide, Feedback, FrameAction, FrameTimes, GatedCounts,
+    ArmCheck, EscState, Estimate, EstimatorSide, Feedback, FrameAction, FrameTimes, GatedCounts,
+    Phase,
 };
 use crate::core::gps::LiveFix;
 use crate::tasks::TaskOutputs;
 use crate::tasks::esc_writer::{EscMailbox, EscStatus};
 use crate::tasks::imu_reader::StampedFrame;
+use crate::tasks::prearm::PreArm;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, watch};
@@ -60,6 +63,11 @@ pub struct EstimatorTask {
     pub esc_status: Arc<EscStatus>,
     pub out: TaskOutputs,
     pub cancel: CancellationToken,
+    /// The operator's commands, link beats and keys (stdin, consoles, a ground station).
+    pub operator: mpsc::Receiver<OperatorInput>,
+    pub prearm: PreArm,
+    /// `fly --arm`: arm once the IMU has settled.
+    pub auto_arm: bool,
 }
 
 impl EstimatorTask {
@@ -74,6 +82,7 @@ impl EstimatorTask {
                 },
             };
             let times = FrameTimes::at(f.stamp_us);
+            self.operate(f.stamp_us);
             let phase = self.esc_status.phase();
             let stop_reason = (phase == EscPhase::Stopped)
                 .then(|| self.esc_status.stop_reason())
@@ -124,6 +133,37 @@ impl EstimatorTask {
             },
             ekf_gated: c.gated,
         })
+    }
+
+    /// The operator's inputs that arrived since the previous frame, never waited for; `fly
+    /// --arm` arms once the IMU has settled.
+    fn operate(&mut self, t_us: i64) {
+        if self.auto_arm && self.side.phase() == Phase::EscStart {
+            self.auto_arm = false;
+            self.apply(
+                OperatorInput::Command(Command::Arm, LinkSource::Terminal),
+                t_us,
+            );
+        }
+        while let Ok(input) = self.operator.try_recv() {
+            self.apply(input, t_us);
+        }
+    }
+
+    fn apply(&mut self, input: OperatorInput, t_us: i64) {
+        let facts = if matches!(input, OperatorInput::Command(Command::Arm, _)) {
+            let silent = self.esc_status.silent_addresses(&self.prearm.addresses);
+            let fix = self.gps_live.as_ref().and_then(|rx| *rx.borrow());
+            self.prearm.facts(silent, fix.as_ref(), t_us)
+        } else {
+            ArmFacts::default()
+        };
+        if self
+            .side
+            .operator(input, t_us, ArmCheck::Facts(&facts), &mut self.out)
+        {
+            self.esc.halt("disarmed");
+        }
     }
 
     /// The live fix published since the previous step, if any (never waited for).

@@ -27,6 +27,8 @@ type Counters = Arc<[AtomicU64; Stream::COUNT]>;
 pub struct LogStall {
     pub stream: Stream,
     pub after_records: u64,
+    /// And not before this instant (the simulator's `log-stall@T`).
+    pub not_before: Option<Instant>,
     pub duration: Duration,
 }
 
@@ -191,6 +193,7 @@ impl StreamWriter {
     async fn maybe_stall(&mut self, records: u64) {
         if let Some(s) = self.stall
             && records >= s.after_records
+            && s.not_before.is_none_or(|t| Instant::now() >= t)
         {
             tracing::warn!(
                 stream = self.stream.name(),

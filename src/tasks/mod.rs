@@ -7,6 +7,7 @@ pub mod gps_client;
 pub mod heartbeats;
 pub mod imu_reader;
 pub mod logger;
+pub mod prearm;
 pub mod watchdog;
 
 use crate::core::flight::{FlightRecord, Outputs};

@@ -5,12 +5,13 @@
 use super::{FlyOptions, RunHandles};
 use crate::app::flight::live_sides;
 use crate::config::{GpsMode, Profile};
-use crate::core::control::ManualCommand;
+use crate::core::commander::OperatorInput;
 use crate::core::gps::LiveFix;
 use crate::logs::Record;
 use crate::tasks::controller::{ControllerReport, ControllerTask, Live};
 use crate::tasks::esc_writer::HaltOnPanic;
 use crate::tasks::estimator::{EstimatorReport, EstimatorTask};
+use crate::tasks::prearm::PreArm;
 use crate::tasks::{CONTROL_PRIORITY, TaskOutputs};
 use crate::tasks::{gps_client, imu_reader};
 use anyhow::Context;
@@ -22,8 +23,10 @@ use tracing::Instrument;
 pub(super) struct Inputs {
     pub imu: Box<dyn super::ImuIo>,
     pub gps_fixes: Option<watch::Receiver<Option<LiveFix>>>,
-    pub manual: mpsc::Receiver<ManualCommand>,
+    pub operator: mpsc::Receiver<OperatorInput>,
     pub live: watch::Sender<Option<Live>>,
+    /// Why the run folder cannot be written, as last probed (a pre-arm check).
+    pub log_problem: watch::Receiver<Option<String>>,
 }
 
 #[derive(Debug, Clone, Default)]
@@ -41,9 +44,21 @@ pub(super) fn spawn(
 ) -> anyhow::Result<JoinHandle<anyhow::Result<Reports>>> {
     let gps_live = live_fixes(profile, inputs.gps_fixes, h);
     let (estimator, controller) = live_sides(profile);
+    let prearm = PreArm {
+        log_problem: inputs.log_problem.clone(),
+        realtime_waived: opts.realtime_waived,
+        gps_required: profile.config.gps.mode == GpsMode::Gpsd,
+        gps_max_eph_m: profile.config.commander.gps_max_eph_m,
+        gps_timeout_us: (profile.config.control.gps_hold_timeout_s * 1e6).round() as i64,
+        addresses: profile.motor_map().addresses,
+    };
     let h = h.clone();
-    let (realtime, delay, panic_at_step) =
-        (opts.realtime, opts.control_delay, opts.control_panic_at);
+    let (realtime, delay, panic_at_step, auto_arm) = (
+        opts.realtime,
+        opts.control_delay,
+        opts.control_panic_at,
+        opts.arm_at_start,
+    );
     crate::tasks::spawn_thread("control", realtime, CONTROL_PRIORITY, move || {
         let _end_run = h.cancel.clone().drop_guard();
         let _halt = HaltOnPanic {
@@ -63,7 +78,6 @@ pub(super) fn spawn(
         let controller = ControllerTask {
             side: controller,
             estimates: est_rx,
-            manual: inputs.manual,
             feedback: fb_tx,
             esc: h.mailbox.clone(),
             out: out.clone(),
@@ -97,6 +111,9 @@ pub(super) fn spawn(
                 esc_status: h.esc_status.clone(),
                 out,
                 cancel: h.cancel.clone(),
+                operator: inputs.operator,
+                prearm,
+                auto_arm,
             }
             .run()
             .instrument(tracing::info_span!("estimator"))

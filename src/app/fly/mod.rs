@@ -20,7 +20,7 @@ mod operators;
 use crate::app::report::FlySummary;
 use crate::app::run_dir::{create_run_dir, write_run_config};
 use crate::config::Profile;
-use crate::core::control::ManualCommand;
+use crate::core::commander::OperatorInput;
 use crate::core::flight::FlightRecord;
 use crate::core::gps::LiveFix;
 use crate::hw::esc_bus::EscBus;
@@ -56,6 +56,8 @@ pub struct Edges {
     /// Where the controller publishes its newest step (the console reads it); a caller that
     /// passes its own sender watches the flight too (the simulator's hover window).
     pub live: Option<watch::Sender<Option<Live>>>,
+    /// More operator inputs beside stdin and the consoles (the simulator's scripted operator).
+    pub operator: Option<mpsc::Receiver<OperatorInput>>,
 }
 
 /// How a run behaves beyond its configuration.
@@ -75,6 +77,10 @@ pub struct FlyOptions {
     pub control_delay: Option<(u32, Duration)>,
     /// Fault injection (tests): the control step of this number panics.
     pub control_panic_at: Option<u32>,
+    /// `fly --arm`: arm once the IMU has settled.
+    pub arm_at_start: bool,
+    /// Arming does not require SCHED_FIFO (`--allow-no-rt`, the simulator).
+    pub realtime_waived: bool,
 }
 
 /// The handles every phase of a run shares; cheap to clone.
@@ -133,27 +139,50 @@ pub async fn run(
     // Any early return from here on (a thread that cannot start) still stops the ESCs.
     let _esc_guard = operators::StopEscOnDrop(h.mailbox.clone());
     let watchdog = start_watchdog(profile, &h, opts.realtime)?;
-    let (manual_tx, manual_rx) = mpsc::channel::<ManualCommand>(16);
+    let (operator_tx, operator_rx) = mpsc::channel::<OperatorInput>(OPERATOR_QUEUE);
     let control = control::spawn(
         profile,
         control::Inputs {
             imu: edges.imu,
             gps_fixes: edges.gps_fixes,
-            manual: manual_rx,
+            operator: operator_rx,
             live: live_tx,
+            log_problem: watch_log_folder(&h),
         },
         &opts,
         &h,
     )?;
-    serve_operator(profile, &opts, &h, &manual_tx);
+    serve_operator(profile, &opts, &h, &operator_tx);
+    if let Some(extra) = edges.operator {
+        tokio::spawn(operators::forward(
+            extra,
+            operator_tx.clone(),
+            h.cancel.clone(),
+        ));
+    }
     h.cancel.cancelled().await;
-    drop(manual_tx);
+    drop(operator_tx);
     let threads = Threads {
         esc,
         watchdog,
         control,
     };
     Ok(shut_down(h, threads, loggers).await)
+}
+
+/// Operator inputs queued for the control path (it takes them at each frame; beyond this,
+/// the senders are told the control path is not taking commands).
+const OPERATOR_QUEUE: usize = 64;
+
+/// The run folder's pre-arm probe, once a second on the main runtime.
+fn watch_log_folder(h: &RunHandles) -> watch::Receiver<Option<String>> {
+    let (tx, rx) = watch::channel(None);
+    tokio::spawn(crate::tasks::prearm::watch_log_dir(
+        h.run_dir.clone(),
+        tx,
+        h.cancel.clone(),
+    ));
+    rx
 }
 
 type Loggers = Vec<tokio::task::JoinHandle<std::io::Result<LoggerReport>>>;
@@ -244,11 +273,14 @@ fn serve_operator(
     profile: &Profile,
     opts: &FlyOptions,
     h: &RunHandles,
-    manual_tx: &mpsc::Sender<ManualCommand>,
+    operator_tx: &mpsc::Sender<OperatorInput>,
 ) {
     let cfg = &profile.config;
     if opts.stdin_keys {
-        tokio::spawn(operators::read_keys(manual_tx.clone(), h.cancel.clone()));
+        tokio::spawn(operators::read_terminal(
+            operator_tx.clone(),
+            h.cancel.clone(),
+        ));
     }
     // The first signal stops the motors and ends the run in order; a third exits once the
     // motors' stop has settled.
@@ -269,7 +301,7 @@ fn serve_operator(
         };
         let path = cfg.console.socket.clone();
         let drops = h.console_drops.clone();
-        let (tx, cancel, logs) = (manual_tx.clone(), h.cancel.clone(), h.logs.clone());
+        let (tx, cancel, logs) = (operator_tx.clone(), h.cancel.clone(), h.logs.clone());
         tokio::spawn(async move {
             if let Err(e) = crate::console::serve(path.clone(), stats, tx, drops, cancel).await {
                 tracing::error!("console socket {}: {e}", path.display());

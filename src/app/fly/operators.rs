@@ -3,7 +3,7 @@
 //! pings.
 
 use super::RunHandles;
-use crate::core::control::ManualCommand;
+use crate::core::commander::{LinkSource, OperatorInput};
 use crate::tasks::esc_writer::EscMailbox;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
@@ -86,15 +86,26 @@ pub(super) async fn notify_systemd(n: Arc<crate::hw::notify::Notifier>, h: RunHa
     }
 }
 
-/// Reads the original's manual-mode keys (spec 5.2) from stdin, one byte at a time.
-pub(super) async fn read_keys(tx: mpsc::Sender<ManualCommand>, cancel: CancellationToken) {
+/// The terminal `fly` runs in: lines typed on stdin (commands, `quit`, manual keys; see
+/// [`OperatorInput::parse_line`]); the Esc key quits at once. While stdin is open, a link beat
+/// each second: the terminal is an operator link (`failsafe.link_sources`), lost when its ssh
+/// session drops.
+pub(super) async fn read_terminal(tx: mpsc::Sender<OperatorInput>, cancel: CancellationToken) {
     use tokio::io::AsyncReadExt;
     let mut stdin = tokio::io::stdin();
     let mut byte = [0u8; 1];
+    let mut line = Vec::with_capacity(64);
     let mut rate = crate::console::RateLimit::default();
+    let mut beat = tokio::time::interval(Duration::from_secs(1));
+    // Only a terminal is a link: stdin from /dev/null (a service) or a file is not.
+    let is_terminal = std::io::IsTerminal::is_terminal(&std::io::stdin());
     loop {
         let n = tokio::select! {
             _ = cancel.cancelled() => return,
+            _ = beat.tick(), if is_terminal => {
+                let _ = tx.try_send(OperatorInput::Beat(LinkSource::Terminal));
+                continue;
+            }
             r = stdin.read(&mut byte) => match r {
                 Ok(n) => n,
                 Err(_) => return,
@@ -103,17 +114,65 @@ pub(super) async fn read_keys(tx: mpsc::Sender<ManualCommand>, cancel: Cancellat
         if n == 0 {
             return;
         }
-        let Some(cmd) = ManualCommand::from_key(byte[0]) else {
-            continue;
+        let text = match byte[0] {
+            27 => "quit".to_string(),
+            b'\n' => String::from_utf8_lossy(&std::mem::take(&mut line)).into_owned(),
+            // A line longer than the console's cap is dropped.
+            b if line.len() < crate::console::MAX_LINE_BYTES => {
+                line.push(b);
+                continue;
+            }
+            _ => continue,
         };
+        if !send_line(&text, &tx, &mut rate).await {
+            return;
+        }
+    }
+}
+
+/// One typed line to the flight; `false` once the flight is gone.
+async fn send_line(
+    text: &str,
+    tx: &mpsc::Sender<OperatorInput>,
+    rate: &mut crate::console::RateLimit,
+) -> bool {
+    let inputs = match OperatorInput::parse_line(text, LinkSource::Terminal) {
+        Ok(i) => i,
+        Err(e) => {
+            tracing::warn!("stdin: {e}");
+            return true;
+        }
+    };
+    for input in inputs {
         if !rate.allows(Instant::now()) {
             tracing::warn!(
-                "stdin: more than {} commands a second; {cmd:?} refused",
+                "stdin: more than {} commands a second; {input:?} refused",
                 crate::console::MAX_COMMANDS_PER_S
             );
             continue;
         }
-        if tx.send(cmd).await.is_err() {
+        if tx.send(input).await.is_err() {
+            return false;
+        }
+    }
+    true
+}
+
+/// Forwards another source's inputs (the simulator's scripted operator) until it ends.
+pub(super) async fn forward(
+    mut from: mpsc::Receiver<OperatorInput>,
+    to: mpsc::Sender<OperatorInput>,
+    cancel: CancellationToken,
+) {
+    loop {
+        let input = tokio::select! {
+            _ = cancel.cancelled() => return,
+            i = from.recv() => match i {
+                Some(i) => i,
+                None => return,
+            },
+        };
+        if to.send(input).await.is_err() {
             return;
         }
     }

@@ -11,6 +11,7 @@ pub use halves::{
     ControlOut, ControllerCore, Estimate, EstimatorCore, NOMINAL_PERIOD_US, PlannerSpec,
 };
 pub use sequence::{
-    Abort, ArmCheck, Command, ControllerCounts, ControllerSide, EscState, EstimatorCounts, GatedCounts,
-    EstimatorSide, Feedback, FlightRecord, FrameAction, FrameTimes, Outputs, Phase, RecordedClock,
+    Abort, ArmCheck, Command, ControllerCounts, ControllerSide, EscState, EstimatorCounts,
+    EstimatorSide, Feedback, FlightRecord, FrameAction, FrameTimes, GatedCounts, Outputs, Phase,
+    RecordedClock,
 };

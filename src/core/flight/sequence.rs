@@ -723,7 +723,7 @@ impl ControllerSide {
             quit,
         };
         send(&command);
-        if c.position_hold != self.position_hold {
+        if est.guidance.fly && c.position_hold != self.position_hold {
             self.position_hold = c.position_hold;
             out.record(FlightRecord::Note(
                 self.core.position_hold_message(c.position_hold),
