@@ -162,6 +162,7 @@ async fn a_stalled_logger_loses_no_control_step() {
     let stall = uquad::tasks::logger::LogStall {
         stream: uquad::logs::Stream::XHat,
         after_records: 20,
+        not_before: None,
         duration: Duration::from_millis(500),
     };
     let (summary, _sent, _bus, _logs) = fly_for(

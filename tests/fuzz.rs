@@ -749,7 +749,7 @@ fn gpsd_reports() {
 // ---------------------------------------------------------------------------------------------
 
 use uquad::console::{Filter, MAX_COMMANDS_PER_S, MAX_LINE_BYTES, RateLimit, command};
-use uquad::core::control::ManualCommand;
+use uquad::core::commander::OperatorInput;
 
 const CONSOLE_TOKENS: &[&str] = &[
     "filter",
@@ -827,8 +827,8 @@ fn console_line(
     tally: &Tally,
     line: &str,
     filter: &mut Filter,
-    tx: &tokio::sync::mpsc::Sender<ManualCommand>,
-    rx: &mut tokio::sync::mpsc::Receiver<ManualCommand>,
+    tx: &tokio::sync::mpsc::Sender<OperatorInput>,
+    rx: &mut tokio::sync::mpsc::Receiver<OperatorInput>,
 ) -> Result<(), TestCaseError> {
     let reply = command(line, filter, tx);
     tally.add(match reply.split_whitespace().nth(1) {
@@ -846,6 +846,7 @@ fn console_line(
     }
     if reply.starts_with("console: sent") {
         prop_assert!(rx.try_recv().is_ok(), "a sent command is queued");
+        while rx.try_recv().is_ok() {}
     }
     // Every event passes a trace filter; an error passes any level.
     prop_assert!(Filter::parse("trace").accepts(line));

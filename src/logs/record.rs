@@ -226,7 +226,7 @@ mod tests {
         n[Stream::XHat] = 3;
         n[Stream::Err] = 1;
         n[Stream::Innov] = 2;
-        assert_eq!(n.0, [0, 0, 3, 2, 0, 0, 0, 1]);
+        assert_eq!(n.0, [0, 0, 3, 2, 0, 0, 0, 1, 0]);
         assert_eq!(n.total(), 6);
         for s in Stream::ALL {
             assert_eq!(Stream::from_name(s.name()), Some(s));

@@ -50,10 +50,13 @@ pub const REALTIME_TOLERANT: [&str; 12] = [
 ];
 
 /// `uquad sim --realtime --config config/uquad.toml ARGS` with [`REALTIME_TOLERANT`], its run
-/// folder under `dir` and its report at `dir/report.json`, from the repository's root.
+/// folder under `dir` and its report at `dir/report.json`, from the repository's root. The
+/// vehicle starts flying (`commander.start = "flying"`, no operator script) unless ARGS say
+/// otherwise: these tests are about the flight, not the commander.
 pub fn realtime_sim(args: &[&str], dir: &Path) -> Command {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_uquad"));
     cmd.args(["sim", "--realtime", "--config", "config/uquad.toml"])
+        .args(["--set", "commander.start=flying"])
         .args(args)
         .args(REALTIME_TOLERANT)
         .arg("--log-dir")
@@ -437,6 +440,7 @@ pub async fn fly_with<F: std::future::Future<Output = ()>>(
                     bus: Box::new(bus),
                     gps_fixes: None,
                     live: None,
+                    operator: None,
                 },
                 uquad::app::fly::FlyOptions {
                     log_dir: Some(log_dir),
