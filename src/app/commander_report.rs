@@ -40,7 +40,7 @@ pub struct TouchdownEntry {
 pub struct TakeoffEntry {
     /// The takeoff's height above its start, m.
     pub target_m: f64,
-    /// How far above it the vehicle went, m (0 when it never did).
+    /// How far the climb's first peak went past the height then held, m (0 when it did not).
     pub overshoot_m: f64,
 }
 
@@ -62,14 +62,14 @@ impl CommanderSummary {
     pub fn report(&self) -> CommanderReport {
         let mut r = CommanderReport {
             modes: Vec::new(),
-            touchdown: self.figures.touchdown.map(|(t, v, d)| TouchdownEntry {
-                t_s: secs(t),
-                v_m_s: v,
-                from_takeoff_m: d,
+            touchdown: self.figures.touchdown.map(|t| TouchdownEntry {
+                t_s: secs(t.t_us),
+                v_m_s: t.v_m_s,
+                from_takeoff_m: t.from_takeoff_m,
             }),
-            takeoff: self.figures.takeoff.map(|(target, over)| TakeoffEntry {
-                target_m: target,
-                overshoot_m: over.max(0.0),
+            takeoff: self.figures.takeoff.map(|t| TakeoffEntry {
+                target_m: t.target_m,
+                overshoot_m: t.overshoot_m,
             }),
             failsafes: Vec::new(),
             refusals: Vec::new(),

@@ -426,8 +426,8 @@ impl<'a> FastSim<'a> {
         };
         let truth = TrueState::of(&self.plant);
         self.hover.sample(self.t_us, flight, truth);
-        let target_z_m = self.estimator.commander().target_m()[2];
-        self.trace.sample(self.t_us, mode, target_z_m, &self.plant);
+        let height_m = self.estimator.commander().guidance().height_m;
+        self.trace.sample(self.t_us, mode, height_m, &self.plant);
     }
 
     /// The end of the run: zero and disable, as fly's shutdown does; the closing lines; the

@@ -205,7 +205,7 @@ impl SimThread {
             let view = self.flight_view();
             hover.sample(t_us, view, TrueState::of(&plant));
             if let Some(l) = *self.live.borrow() {
-                self.trace.sample(t_us, l.mode, l.target_z_m, &plant);
+                self.trace.sample(t_us, l.mode, l.height_m, &plant);
             }
             if self.progress && t_us % 5_000_000 == 0 {
                 let phase = if view.ramp_done { "Flight" } else { "start-up" };

@@ -464,11 +464,50 @@ mod tests {
     }
 
     #[test]
+    fn the_probe_names_the_silent_escs_and_is_not_a_watchdog_failure() {
+        let mut d = driver();
+        let mut runner = CycleRunner::default();
+        let mut cycles = Vec::new();
+        d.poll(0, &mut cycles);
+        assert_eq!(
+            d.silent_addresses(),
+            MotorMap::UQUAD.addresses,
+            "silent until probed"
+        );
+        let mut events = Vec::new();
+        runner.execute(
+            &mut d,
+            &mut cycles,
+            |addr, _, _| {
+                if addr == MotorMap::UQUAD.addresses[2] {
+                    Err(())
+                } else {
+                    Ok(())
+                }
+            },
+            || 0,
+            |done, _| events.extend(done.watchdog_events()),
+        );
+        assert_eq!(d.silent_addresses(), [MotorMap::UQUAD.addresses[2]]);
+        assert_eq!(d.silent_mask(), 0b0100);
+        assert!(events.is_empty(), "{events:?}");
+    }
+
+    #[test]
     fn boots_disabled_then_ramps_idles_and_follows_commands() {
         let mut d = driver();
         let mut out = Vec::new();
         d.poll(1_000_000, &mut out);
-        assert!(out.is_empty(), "nothing written before the start request");
+        // Before the start request only the pre-arm probe: a disable to every ESC.
+        let probe = MotorMap::UQUAD.addresses.map(|a| (a, REG_DISABLE, 0));
+        assert_eq!(
+            out,
+            [(CycleKind::Probe, probe)],
+            "only the probe before the start"
+        );
+        d.poll(1_000_000 + PROBE_PERIOD_US - 1, &mut out);
+        assert_eq!(out.len(), 1, "one probe per period");
+        out.clear();
         d.command(&[300.0; 4], 0, 0, &mut out);
         assert!(out.is_empty(), "no command before the ramp");
         d.start(0);

@@ -234,7 +234,7 @@ mod tests {
         let json = serde_json::to_string(&n).unwrap();
         assert_eq!(
             json,
-            r#"{"imu_raw":0,"kalman_in":0,"x_hat":3,"innov":2,"w":0,"int":0,"gps":0,"err":1}"#
+            r#"{"imu_raw":0,"kalman_in":0,"x_hat":3,"innov":2,"w":0,"int":0,"gps":0,"err":1,"mode":0}"#
         );
     }
 }

@@ -4,7 +4,7 @@
 //! both ways print.
 
 use super::physics::Plant;
-use crate::core::commander::{Figures, Mode};
+use crate::core::commander::{ClimbTrace, DescentTrace, Figures, Mode, Touchdown};
 use serde::Serialize;
 
 /// The hover quality of a simulated flight: the true state against the set point.
@@ -64,57 +64,46 @@ impl TrueState {
     }
 }
 
-/// The takeoff and landing of the true vehicle: the overshoot above the takeoff's target
-/// (the climb's first peak: from the takeoff until the vehicle first stops rising in the hold
-/// that follows) and the vertical speed at which it met the ground while landing.
-#[derive(Debug, Clone, Copy, Default)]
+/// The takeoff and landing of the true vehicle: the climb's overshoot, and the speed at which
+/// it met the ground while landing (the fastest descent of the second before the contact).
+#[derive(Debug, Clone, Default)]
 pub struct CycleTrace {
-    ground_m: Option<f64>,
     /// Where the takeoff started (x, y), m.
     home_xy_m: Option<[f64; 2]>,
-    takeoff: Option<(f64, f64)>,
-    /// The climb's first peak has passed.
-    peaked: bool,
-    prev_vz_m_s: f64,
+    climb: ClimbTrace,
+    descent: DescentTrace,
     was_on_ground: bool,
-    touchdown: Option<(i64, f64, f64)>,
+    touchdown: Option<Touchdown>,
 }
 
 impl CycleTrace {
-    /// One IMU period: the mode, the commander's target height (absolute) and the truth.
-    pub fn sample(&mut self, t_us: i64, mode: Mode, target_z_m: f64, plant: &Plant) {
-        let z = plant.position_m()[2];
+    /// One IMU period: the mode, the height the commander sends the vehicle to above the
+    /// takeoff point, and the truth.
+    pub fn sample(&mut self, t_us: i64, mode: Mode, height_m: f64, plant: &Plant) {
+        let p = plant.position_m();
         let vz = plant.velocity_m_s()[2];
-        match mode {
-            Mode::Armed => self.ground_m = Some(z),
-            Mode::Takeoff => {
-                let p = plant.position_m();
-                self.home_xy_m.get_or_insert([p[0], p[1]]);
-                let ground = *self.ground_m.get_or_insert(z);
-                let (_, peak) = self.takeoff.get_or_insert((target_z_m - ground, f64::MIN));
-                *peak = peak.max(z - target_z_m);
-            }
-            Mode::Hold if !self.peaked => {
-                self.peaked = vz <= 0.0;
-                if let Some((_, peak)) = &mut self.takeoff {
-                    *peak = peak.max(z - target_z_m);
-                }
-            }
-            Mode::Land if plant.on_ground && !self.was_on_ground && self.touchdown.is_none() => {
-                let (p, home) = (plant.position_m(), self.home_xy_m.unwrap_or_default());
-                let dist = (p[0] - home[0]).hypot(p[1] - home[1]);
-                self.touchdown = Some((t_us, self.prev_vz_m_s.abs(), dist));
-            }
-            _ => {}
+        if mode == Mode::Takeoff && self.home_xy_m.is_none() {
+            self.home_xy_m = Some([p[0], p[1]]);
+            self.climb.begin(p[2], height_m);
         }
-        self.prev_vz_m_s = vz;
+        self.climb.sample(mode, p[2], vz);
+        let contact = plant.on_ground && !self.was_on_ground;
+        if mode == Mode::Land && contact && self.touchdown.is_none() {
+            let home = self.home_xy_m.unwrap_or_default();
+            self.touchdown = Some(Touchdown {
+                t_us,
+                v_m_s: self.descent.peak_m_s(),
+                from_takeoff_m: (p[0] - home[0]).hypot(p[1] - home[1]),
+            });
+        }
+        self.descent.sample(t_us, vz);
         self.was_on_ground = plant.on_ground;
     }
 
     /// The figures for the report; the touchdown's time is the contact's.
     pub fn figures(&self) -> Figures {
         Figures {
-            takeoff: self.takeoff,
+            takeoff: self.climb.takeoff(),
             touchdown: self.touchdown,
         }
     }

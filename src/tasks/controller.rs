@@ -46,9 +46,9 @@ pub struct Live {
     pub w_rad_s: [f64; 4],
     /// The set point (x, y, z), m.
     pub setpoint_m: [f64; 3],
-    /// The commander's mode and the height it sends the vehicle to, m.
+    /// The commander's mode and the height above the takeoff point it sends the vehicle to, m.
     pub mode: crate::core::commander::Mode,
-    pub target_z_m: f64,
+    pub height_m: f64,
     /// Steps under the control law so far (the flight ramp is done after 100).
     pub flying_steps: u64,
 }
@@ -94,7 +94,7 @@ impl ControllerTask {
                 w_rad_s: c.w_rad_s,
                 setpoint_m: self.side.setpoint_m().unwrap_or_default(),
                 mode: est.guidance.mode,
-                target_z_m: est.guidance.target_z_m,
+                height_m: est.guidance.height_m,
                 flying_steps: self.side.counts().flying_steps,
             }));
         }

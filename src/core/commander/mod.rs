@@ -8,6 +8,10 @@
 //! `takeoff` → `hold` → `land` → touchdown → `disarmed`; `kill` (the watchdog's halt) from any
 //! mode. Heights are above the point where the takeoff started (the ground).
 
+mod figures;
+
+pub use figures::{ClimbTrace, DescentTrace, Figures, Takeoff, Touchdown};
+
 use crate::core::control::{Dir, ManualCommand};
 use crate::core::model::GRAVITY_M_S2;
 use std::fmt;
@@ -339,8 +343,8 @@ pub struct Guidance {
     pub vz_m_s: f64,
     /// Hold the horizontal position (false: attitude only, as without GPS).
     pub hold_xy: bool,
-    /// Where the vertical profile is going, m.
-    pub target_z_m: f64,
+    /// The height above the takeoff point the vehicle is sent to, m.
+    pub height_m: f64,
 }
 
 impl Guidance {
@@ -351,20 +355,8 @@ impl Guidance {
         pos_m: [0.0; 3],
         vz_m_s: 0.0,
         hold_xy: false,
-        target_z_m: 0.0,
+        height_m: 0.0,
     };
-}
-
-/// What the commander measured of a flight on its own estimate (`fly`'s report; the simulator
-/// measures the true vehicle instead).
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct Figures {
-    /// The takeoff's target height and the highest estimate above it, m: the climb's first
-    /// peak (from the takeoff until the vehicle first stops rising in the hold that follows).
-    pub takeoff: Option<(f64, f64)>,
-    /// Touchdown: when, the largest estimated descent speed in the second before the vehicle
-    /// came to rest (m/s), and its horizontal distance from the takeoff point (m).
-    pub touchdown: Option<(i64, f64, f64)>,
 }
 
 /// What the commander did in a run, for its report.
@@ -384,6 +376,12 @@ const GROUND_PUSH: f64 = 0.1;
 /// up while it catches up (an overshoot).
 const SPOOL_UP_STEPS: u32 = crate::core::motor::FLIGHT_RAMP_STEPS;
 
+/// A landing is slow over this last height, m.
+const LAST_METRE_M: f64 = 1.0;
+
+/// The share of the acceleration limit the profile brakes with.
+const BRAKE_SHARE: f64 = 0.9;
+
 /// The vertical set point's profile: speed and acceleration limited, ends at rest.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Profile {
@@ -396,15 +394,18 @@ impl Profile {
     /// in time to stop at the target.
     fn advance(&mut self, target_m: f64, v_max: f64, a_max: f64, dt_s: f64) {
         let dist = target_m - self.z_m;
-        let v_brake = (2.0 * a_max * dist.abs()).sqrt();
+        // Braking on a curve a little gentler than the limit, so that the limited
+        // deceleration can follow it.
+        let v_brake = (2.0 * BRAKE_SHARE * a_max * dist.abs()).sqrt();
         let v_want = dist.signum() * v_max.min(v_brake);
-        let dv = (v_want - self.vz_m_s).clamp(-a_max * dt_s, a_max * dt_s);
-        self.vz_m_s += dv;
-        self.z_m += self.vz_m_s * dt_s;
-        let passed = (target_m - self.z_m) * dist <= 0.0;
-        if passed || dist.abs() < 1e-9 {
+        let dv_max = a_max * dt_s;
+        self.vz_m_s += (v_want - self.vz_m_s).clamp(-dv_max, dv_max);
+        let step = self.vz_m_s * dt_s;
+        // Never past the target: there, the last of the speed decays within the limit.
+        if (dist - step) * dist <= 0.0 {
             self.z_m = target_m;
-            self.vz_m_s = 0.0;
+        } else {
+            self.z_m += step;
         }
     }
 }
@@ -431,13 +432,12 @@ pub struct Commander {
     acted: Vec<Failsafe>,
     /// Disarmed after a flight: the ESCs cannot be started again in this run.
     spent: bool,
-    figures: Figures,
-    /// The climb's first peak has passed.
-    peaked: bool,
+    /// The takeoff's overshoot and the touchdown, on the estimate.
+    climb: ClimbTrace,
+    descent: DescentTrace,
+    touchdown: Option<Touchdown>,
     /// Steps since the takeoff began (its spool-up).
     takeoff_steps: u32,
-    /// Descent speeds of the last second of a landing, (t, |vz|).
-    land_vz: std::collections::VecDeque<(i64, f64)>,
 }
 
 impl Commander {
@@ -461,10 +461,10 @@ impl Commander {
             fired: Vec::new(),
             acted: Vec::new(),
             spent: false,
-            figures: Figures::default(),
-            peaked: false,
+            climb: ClimbTrace::default(),
+            descent: DescentTrace::default(),
+            touchdown: None,
             takeoff_steps: 0,
-            land_vz: std::collections::VecDeque::with_capacity(128),
         }
     }
 
@@ -477,30 +477,15 @@ impl Commander {
     }
 
     pub fn figures(&self) -> Figures {
-        self.figures
+        Figures {
+            takeoff: self.climb.takeoff(),
+            touchdown: self.touchdown,
+        }
     }
 
     /// Where the vehicle is sent (x, y, z), m.
     pub fn target_m(&self) -> [f64; 3] {
         self.target_m
-    }
-
-    /// The takeoff's overshoot on the estimate.
-    fn measure_takeoff(&mut self, o: &Observation) {
-        let Some(ground) = self.home_m.map(|h| h[2]) else {
-            return;
-        };
-        let in_window = match self.mode {
-            Mode::Takeoff => true,
-            Mode::Hold if !self.peaked => {
-                self.peaked = o.vz_m_s <= 0.0;
-                true
-            }
-            _ => false,
-        };
-        if let (true, Some((target, peak))) = (in_window, &mut self.figures.takeoff) {
-            *peak = peak.max(o.pos_m[2] - ground - *target);
-        }
     }
 
     /// The start: `flying` arms at once (its refusals are the driver's, at start-up).
@@ -670,8 +655,7 @@ impl Commander {
             z_m: if home { self.target_m[2] } else { ground[2] },
             vz_m_s: 0.0,
         };
-        self.figures.takeoff = Some((alt_m, 0.0));
-        self.peaked = false;
+        self.climb.begin(ground[2], alt_m);
         self.takeoff_steps = 0;
         self.set_mode(Mode::Takeoff, t_us, why, out);
     }
@@ -733,11 +717,11 @@ impl Commander {
             None
         };
         let request = request.or_else(|| self.fly(o, dt_s, out));
-        self.measure_takeoff(o);
+        self.climb.sample(self.mode, o.pos_m[2], o.vz_m_s);
         (self.guidance(), request)
     }
 
-    fn guidance(&self) -> Guidance {
+    pub fn guidance(&self) -> Guidance {
         let p = &self.profile;
         Guidance {
             mode: self.mode,
@@ -745,7 +729,7 @@ impl Commander {
             pos_m: [self.target_m[0], self.target_m[1], p.z_m],
             vz_m_s: p.vz_m_s,
             hold_xy: self.hold_xy,
-            target_z_m: self.target_m[2],
+            height_m: self.target_m[2] - self.home_m.map_or(0.0, |h| h[2]),
         }
     }
 
@@ -781,7 +765,10 @@ impl Commander {
         let p = self.p;
         let ground = self.home_m.map_or(0.0, |h| h[2]);
         let height = o.pos_m[2] - ground;
-        let v = if height > 1.0 {
+        // Slow from high enough to be at the slow speed by the last metre.
+        let brake_m = (p.land_m_s.powi(2) - p.land_slow_m_s.powi(2)).max(0.0)
+            / (2.0 * BRAKE_SHARE * p.climb_acc_m_s2);
+        let v = if height > LAST_METRE_M + brake_m {
             p.land_m_s
         } else {
             p.land_slow_m_s
@@ -799,21 +786,16 @@ impl Commander {
         match (resting, self.touchdown_since_us) {
             (false, _) => {
                 self.touchdown_since_us = None;
-                while self
-                    .land_vz
-                    .front()
-                    .is_some_and(|(t, _)| o.t_us - t > 1_000_000)
-                {
-                    self.land_vz.pop_front();
-                }
-                self.land_vz.push_back((o.t_us, o.vz_m_s.abs()));
+                self.descent.sample(o.t_us, o.vz_m_s);
             }
             (true, None) => self.touchdown_since_us = Some(o.t_us),
             (true, Some(t0)) if (o.t_us - t0) as f64 / 1e6 >= p.touchdown_s => {
-                let v = self.land_vz.iter().map(|(_, v)| *v).fold(0.0, f64::max);
                 let home = self.home_m.unwrap_or(o.pos_m);
-                let dist = (o.pos_m[0] - home[0]).hypot(o.pos_m[1] - home[1]);
-                self.figures.touchdown = Some((o.t_us, v, dist));
+                self.touchdown = Some(Touchdown {
+                    t_us: o.t_us,
+                    v_m_s: self.descent.peak_m_s(),
+                    from_takeoff_m: (o.pos_m[0] - home[0]).hypot(o.pos_m[1] - home[1]),
+                });
                 self.disarm(o.t_us, "touchdown", out);
                 return Some(EscRequest::Stop);
             }
@@ -945,3 +927,6 @@ impl OperatorInput {
         }
     }
 }
+
+#[cfg(test)]
+mod tests;

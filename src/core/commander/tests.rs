@@ -1,0 +1,593 @@
+//! The commander's rules, driven by explicit times and observations (no clock passes).
+
+use super::*;
+
+fn params() -> Params {
+    Params {
+        start: Start::Disarmed,
+        hover_z_m: 1.0,
+        climb_m_s: 0.5,
+        climb_acc_m_s2: 0.5,
+        takeoff_tolerance_m: 0.1,
+        land_m_s: 0.5,
+        land_slow_m_s: 0.25,
+        touchdown_v_m_s: 0.15,
+        touchdown_thrust: 0.8,
+        touchdown_s: 1.0,
+        link_sources: [true; 3],
+        link_timeout_s: 2.0,
+        link_action: Action::Land,
+        gps_timeout_s: 3.0,
+        gps_loss_land_s: 10.0,
+        gps_loss_action: Action::Land,
+        fence_radius_m: 5.0,
+        fence_alt_max_m: 10.0,
+        fence_action: Action::Land,
+        ekf_bad_s: 2.0,
+        ekf_action: Action::Land,
+        z_min_m: 0.2,
+        z_max_m: 3.0,
+    }
+}
+
+fn good_facts() -> ArmFacts {
+    ArmFacts {
+        imu_stable: true,
+        gps_required: true,
+        gps_eph_m: Some(1.5),
+        gps_max_eph_m: 5.0,
+        log_error: None,
+        realtime: true,
+        esc_silent: vec![],
+    }
+}
+
+/// Resting on the ground at `t_us` (hover thrust: the takeoff's spool-up).
+fn at(t_us: i64, z_m: f64) -> Observation {
+    Observation {
+        t_us,
+        pos_m: [0.0, 0.0, z_m],
+        vz_m_s: 0.0,
+        thrust_ratio: 1.0,
+        acc_z_m_s2: GRAVITY_M_S2,
+        gps_fused: t_us % 1_000_000 == 0,
+        test_ratio_max: 0.0,
+    }
+}
+
+const STEP_US: i64 = 10_000;
+
+/// A commander armed on the ground with one estimate at 0.
+fn armed() -> (Commander, Vec<Event>) {
+    let mut c = Commander::new(params());
+    let mut ev = Vec::new();
+    c.start(0, &mut ev);
+    let r = c.command(Command::Arm, 0, good_facts().verdict(), None, &mut ev);
+    assert_eq!(r, Some(EscRequest::Start));
+    c.on_estimate(&at(0, 0.0), &mut ev);
+    (c, ev)
+}
+
+/// Flies steps from `t0_us` to `t1_us` with the vehicle exactly on its set point, the
+/// operator's link beating each second.
+fn follow(c: &mut Commander, t0_us: i64, t1_us: i64, ev: &mut Vec<Event>) -> Guidance {
+    follow_with(c, t0_us, t1_us, ev, true)
+}
+
+fn follow_with(
+    c: &mut Commander,
+    t0_us: i64,
+    t1_us: i64,
+    ev: &mut Vec<Event>,
+    beats: bool,
+) -> Guidance {
+    let mut g = c.guidance();
+    let mut t = t0_us;
+    while t <= t1_us {
+        if beats && t % 1_000_000 == 0 {
+            c.link_beat(LinkSource::Gcs, t);
+        }
+        let mut o = at(t, g.pos_m[2]);
+        o.pos_m[0] = g.pos_m[0];
+        o.pos_m[1] = g.pos_m[1];
+        o.vz_m_s = g.vz_m_s;
+        g = c.on_estimate(&o, ev).0;
+        t += STEP_US;
+    }
+    g
+}
+
+fn refusals(ev: &[Event]) -> Vec<String> {
+    ev.iter()
+        .filter_map(|e| match e {
+            Event::Refusal { why, .. } => Some(why.clone()),
+            _ => None,
+        })
+        .collect()
+}
+
+fn modes(ev: &[Event]) -> Vec<Mode> {
+    ev.iter()
+        .filter_map(|e| match e {
+            Event::Mode { mode, .. } => Some(*mode),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn arming_is_refused_with_the_failing_check_named() {
+    let cases: [(fn(&mut ArmFacts), &str); 6] = [
+        (|f| f.imu_stable = false, "imu:"),
+        (|f| f.gps_eph_m = None, "gps: no fix"),
+        (|f| f.gps_eph_m = Some(9.0), "gps: horizontal error 9.0 m"),
+        (
+            |f| f.log_error = Some("cannot write in /x".into()),
+            "log: cannot write",
+        ),
+        (|f| f.realtime = false, "realtime:"),
+        (
+            |f| f.esc_silent = vec![0x69],
+            "esc: no acknowledgement from 0x69",
+        ),
+    ];
+    for (spoil, named) in cases {
+        let mut f = good_facts();
+        spoil(&mut f);
+        let mut c = Commander::new(params());
+        let mut ev = Vec::new();
+        assert_eq!(c.command(Command::Arm, 5, f.verdict(), None, &mut ev), None);
+        assert_eq!(c.mode(), Mode::Disarmed);
+        let why = refusals(&ev);
+        assert!(
+            why.len() == 1 && why[0].starts_with(named),
+            "{named}: {why:?}"
+        );
+    }
+    let mut f = good_facts();
+    f.gps_required = false;
+    f.gps_eph_m = None;
+    assert_eq!(f.verdict(), Ok(()), "without gpsd no fix is needed");
+}
+
+#[test]
+fn takeoff_spools_up_then_climbs_limited_and_holds_at_the_target() {
+    let (mut c, mut ev) = armed();
+    let r = c.command(
+        Command::Takeoff(Some(2.0)),
+        10_000,
+        Ok(()),
+        Some(&at(10_000, 0.0)),
+        &mut ev,
+    );
+    assert_eq!((r, c.mode()), (None, Mode::Takeoff));
+    // The flight ramp's second: the set point stays on the ground.
+    let g = follow(&mut c, 20_000, 1_000_000, &mut ev);
+    assert_eq!((g.pos_m[2], g.vz_m_s), (0.0, 0.0));
+    let mut prev = g;
+    let mut t = 1_010_000;
+    while c.mode() == Mode::Takeoff {
+        let g = follow(&mut c, t, t, &mut ev);
+        assert!(g.vz_m_s <= 0.5 + 1e-9, "climb speed {}", g.vz_m_s);
+        let acc = (g.vz_m_s - prev.vz_m_s).abs() / 0.01;
+        assert!(acc <= 0.5 + 1e-6, "acceleration {acc} at {t}");
+        assert!(g.pos_m[2] <= 2.0, "the set point never passes the target");
+        prev = g;
+        t += STEP_US;
+        assert!(t < 20_000_000, "never reached hold");
+    }
+    assert_eq!(c.mode(), Mode::Hold);
+    // 2 m at 0.5 m/s with 1 s to reach the speed and 1 s to stop: 5 s after the spool-up.
+    assert!((5_900_000..6_200_000).contains(&t), "hold at {t}");
+    assert_eq!(
+        modes(&ev),
+        [Mode::Disarmed, Mode::Armed, Mode::Takeoff, Mode::Hold]
+    );
+}
+
+#[test]
+fn takeoff_needs_an_armed_vehicle_and_a_running_estimator() {
+    let mut c = Commander::new(params());
+    let mut ev = Vec::new();
+    c.command(
+        Command::Takeoff(None),
+        0,
+        Ok(()),
+        Some(&at(0, 0.0)),
+        &mut ev,
+    );
+    c.command(Command::Arm, 0, good_facts().verdict(), None, &mut ev);
+    c.command(Command::Takeoff(None), 1, Ok(()), None, &mut ev);
+    let mut bad = at(2, 0.0);
+    bad.test_ratio_max = 3.0;
+    c.command(Command::Takeoff(None), 2, Ok(()), Some(&bad), &mut ev);
+    let why = refusals(&ev);
+    assert!(why[0].contains("takeoff needs armed"), "{why:?}");
+    assert!(why[1].starts_with("estimator: not running"), "{why:?}");
+    assert!(
+        why[2].starts_with("estimator: innovation test ratio 3.00"),
+        "{why:?}"
+    );
+    assert_eq!(c.mode(), Mode::Armed);
+}
+
+/// Armed, took off to 1 m and holding there, at 10 s.
+fn holding() -> (Commander, Vec<Event>) {
+    let (mut c, mut ev) = armed();
+    c.link_beat(LinkSource::Gcs, 10_000);
+    c.command(
+        Command::Takeoff(None),
+        10_000,
+        Ok(()),
+        Some(&at(10_000, 0.0)),
+        &mut ev,
+    );
+    follow(&mut c, 20_000, 10_000_000, &mut ev);
+    assert_eq!(c.mode(), Mode::Hold);
+    (c, ev)
+}
+
+#[test]
+fn disarm_is_refused_in_the_air_and_kill_is_always_taken() {
+    let (mut c, mut ev) = holding();
+    assert_eq!(
+        c.command(Command::Disarm, 10_000_000, Ok(()), None, &mut ev),
+        None
+    );
+    assert!(
+        refusals(&ev)[0].starts_with("in the air (hold)"),
+        "{:?}",
+        refusals(&ev)
+    );
+    assert_eq!(c.mode(), Mode::Hold);
+    let r = c.command(Command::Kill, 10_000_000, Ok(()), None, &mut ev);
+    assert_eq!(r, Some(EscRequest::Kill));
+    c.on_halt(10_001_000, "kill", &mut ev);
+    assert_eq!(c.mode(), Mode::Kill);
+    c.command(Command::Arm, 10_002_000, Ok(()), None, &mut ev);
+    assert!(
+        refusals(&ev)[1].starts_with("killed"),
+        "{:?}",
+        refusals(&ev)
+    );
+    // On the ground, disarm is taken.
+    let (mut c, mut ev) = armed();
+    assert_eq!(
+        c.command(Command::Disarm, 5, Ok(()), None, &mut ev),
+        Some(EscRequest::Stop)
+    );
+    assert_eq!(c.mode(), Mode::Disarmed);
+}
+
+/// Lands from `t0_us` with the vehicle following the set point down to the ground, where it
+/// stops and the thrust falls; returns when the commander asked for the stop.
+fn land_to_touchdown(c: &mut Commander, t0_us: i64, ev: &mut Vec<Event>) -> (i64, Vec<f64>) {
+    let mut g = c.on_estimate(&at(t0_us, 1.0), ev).0;
+    let mut speeds = Vec::new();
+    let mut t = t0_us + STEP_US;
+    loop {
+        let z = g.pos_m[2].max(0.0);
+        let mut o = at(t, z);
+        o.vz_m_s = if z > 0.0 { g.vz_m_s } else { 0.0 };
+        o.thrust_ratio = if z > 0.0 { 1.0 } else { 0.5 };
+        speeds.push(-o.vz_m_s);
+        let (next, r) = c.on_estimate(&o, ev);
+        if r == Some(EscRequest::Stop) {
+            return (t, speeds);
+        }
+        g = next;
+        t += STEP_US;
+        assert!(t < t0_us + 60_000_000, "no touchdown");
+    }
+}
+
+#[test]
+fn a_landing_descends_slower_in_the_last_metre_and_disarms_at_touchdown() {
+    let (mut c, mut ev) = holding();
+    c.link_beat(LinkSource::Gcs, 10_000_000);
+    c.command(
+        Command::Hold(Some([0.0, 0.0, 3.0])),
+        10_000_000,
+        Ok(()),
+        None,
+        &mut ev,
+    );
+    follow(&mut c, 10_010_000, 20_000_000, &mut ev);
+    c.link_beat(LinkSource::Gcs, 20_000_000);
+    let o = at(20_000_000, 3.0);
+    c.command(Command::Land, 20_000_000, Ok(()), Some(&o), &mut ev);
+    assert_eq!(c.mode(), Mode::Land);
+    let mut g = c.on_estimate(&o, &mut ev).0;
+    let mut t = 20_010_000;
+    let mut fastest_high: f64 = 0.0;
+    let mut fastest_low: f64 = 0.0;
+    while g.pos_m[2] > 0.0 {
+        let o = Observation {
+            vz_m_s: g.vz_m_s,
+            ..at(t, g.pos_m[2])
+        };
+        g = c.on_estimate(&o, &mut ev).0;
+        if o.pos_m[2] > 1.5 {
+            fastest_high = fastest_high.max(-g.vz_m_s);
+        } else if o.pos_m[2] < 1.0 {
+            fastest_low = fastest_low.max(-g.vz_m_s);
+        }
+        t += STEP_US;
+        if t % 1_000_000 == 0 {
+            c.link_beat(LinkSource::Gcs, t);
+        }
+    }
+    assert!((fastest_high - 0.5).abs() < 1e-9, "descent {fastest_high}");
+    assert!(fastest_low <= 0.25 + 1e-9, "last metre {fastest_low}");
+    let (t_down, _) = land_to_touchdown(&mut c, t, &mut ev);
+    assert!(
+        t_down - t >= 1_000_000,
+        "touchdown needs touchdown_s at rest"
+    );
+    assert_eq!(c.mode(), Mode::Disarmed);
+    assert!(c.figures().touchdown.is_some());
+    let why = match ev.last() {
+        Some(Event::Mode { why, .. }) => why.clone(),
+        e => panic!("{e:?}"),
+    };
+    assert_eq!(why, "touchdown");
+    c.command(Command::Arm, t_down, good_facts().verdict(), None, &mut ev);
+    assert!(refusals(&ev).last().unwrap().starts_with("landed"));
+}
+
+#[test]
+fn the_ground_push_is_a_touchdown_even_when_the_estimate_keeps_falling() {
+    let (mut c, mut ev) = holding();
+    c.command(
+        Command::Land,
+        10_000_000,
+        Ok(()),
+        Some(&at(10_000_000, 1.0)),
+        &mut ev,
+    );
+    let mut t = 10_010_000;
+    let stop = loop {
+        // The filter's model has no ground: with a low thrust its estimate falls on.
+        let o = Observation {
+            vz_m_s: -0.8,
+            thrust_ratio: 0.5,
+            acc_z_m_s2: GRAVITY_M_S2,
+            ..at(t, -0.3)
+        };
+        if let (_, Some(r)) = c.on_estimate(&o, &mut ev) {
+            break (t, r);
+        }
+        t += STEP_US;
+        assert!(t < 20_000_000);
+    };
+    assert_eq!(stop.1, EscRequest::Stop);
+    assert!(stop.0 - 10_010_000 >= 1_000_000);
+}
+
+fn failsafes(ev: &[Event]) -> Vec<(Failsafe, Action)> {
+    ev.iter()
+        .filter_map(|e| match e {
+            Event::Failsafe { kind, action, .. } => Some((*kind, *action)),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn a_silent_link_lands_once_and_the_operator_may_then_choose() {
+    let (mut c, mut ev) = holding();
+    // Beats each second until 12 s; then silence.
+    follow(&mut c, 10_000_000, 12_990_000, &mut ev);
+    assert!(failsafes(&ev).is_empty());
+    follow_with(&mut c, 13_000_000, 14_500_000, &mut ev, false);
+    assert_eq!(failsafes(&ev), [(Failsafe::LinkLoss, Action::Land)]);
+    assert_eq!(c.mode(), Mode::Land);
+    // An operator back on the link holds: the failsafe does not take it back.
+    c.command(
+        Command::Hold(None),
+        14_000_000,
+        Ok(()),
+        Some(&at(14_000_000, 0.9)),
+        &mut ev,
+    );
+    follow(&mut c, 14_010_000, 15_000_000, &mut ev);
+    assert_eq!(c.mode(), Mode::Hold);
+    assert_eq!(failsafes(&ev).len(), 1);
+}
+
+#[test]
+fn a_link_never_seen_is_not_lost_and_sources_not_counted_are_ignored() {
+    let mut p = params();
+    p.link_sources = [true, false, false];
+    let mut c = Commander::new(p);
+    let mut ev = Vec::new();
+    c.command(Command::Arm, 0, good_facts().verdict(), None, &mut ev);
+    c.command(
+        Command::Takeoff(None),
+        0,
+        Ok(()),
+        Some(&at(0, 0.0)),
+        &mut ev,
+    );
+    c.link_beat(LinkSource::Console, 0);
+    follow(&mut c, 10_000, 30_000_000, &mut ev);
+    assert!(failsafes(&ev).is_empty(), "{ev:?}");
+}
+
+#[test]
+fn a_lost_gps_holds_attitude_then_lands_after_its_grace_time() {
+    let (mut c, mut ev) = holding();
+    let mut t = 10_000_000;
+    let mut g = Guidance::OFF;
+    while t < 30_000_000 {
+        let mut o = at(t, 1.0);
+        o.gps_fused = t <= 12_000_000 && t % 1_000_000 == 0;
+        if t % 1_000_000 == 0 {
+            c.link_beat(LinkSource::Gcs, t);
+        }
+        g = c.on_estimate(&o, &mut ev).0;
+        if (15_100_000..25_000_000).contains(&t) {
+            assert!(!g.hold_xy && c.mode() == Mode::Hold, "at {t}");
+        }
+        t += STEP_US;
+    }
+    assert!(!g.hold_xy);
+    assert_eq!(failsafes(&ev), [(Failsafe::GpsLoss, Action::Land)]);
+    let land_at = ev.iter().find_map(|e| match e {
+        Event::Mode {
+            mode: Mode::Land,
+            t_us,
+            ..
+        } => Some(*t_us),
+        _ => None,
+    });
+    // Last fix at 12 s, lost after 3 s, land 10 s later.
+    assert_eq!(land_at, Some(25_010_000));
+}
+
+#[test]
+fn the_fence_lands_only_while_the_position_is_observed() {
+    let (mut c, mut ev) = holding();
+    let mut t = 10_000_000;
+    while t < 12_000_000 {
+        let mut o = at(t, 1.0);
+        o.pos_m[0] = 6.0;
+        o.gps_fused = false;
+        c.link_beat(LinkSource::Gcs, t);
+        c.on_estimate(&o, &mut ev);
+        t += STEP_US;
+    }
+    // The fixes of the takeoff (each second until 10 s) are fresh for 3 s: breached at once.
+    assert_eq!(failsafes(&ev), [(Failsafe::Geofence, Action::Land)]);
+    // A vehicle that never had a fix has no fence.
+    let mut c = Commander::new(params());
+    let mut ev = Vec::new();
+    c.command(Command::Arm, 0, good_facts().verdict(), None, &mut ev);
+    let mut o = at(1, 0.0);
+    o.gps_fused = false;
+    c.command(Command::Takeoff(None), 1, Ok(()), Some(&o), &mut ev);
+    o.pos_m = [60.0, 0.0, 1.0];
+    for k in 0..100 {
+        o.t_us = 2 + k * STEP_US;
+        c.on_estimate(&o, &mut ev);
+    }
+    assert!(failsafes(&ev).is_empty());
+}
+
+#[test]
+fn an_estimator_outside_its_gate_for_long_lands() {
+    let (mut c, mut ev) = holding();
+    let mut t = 10_000_000;
+    while t < 14_000_000 {
+        let mut o = at(t, 1.0);
+        // A spike of 0.5 s, then from 11 s on for good.
+        o.test_ratio_max = if (10_200_000..10_700_000).contains(&t) || t >= 11_000_000 {
+            2.0
+        } else {
+            0.1
+        };
+        c.link_beat(LinkSource::Gcs, t);
+        c.on_estimate(&o, &mut ev);
+        t += STEP_US;
+    }
+    assert_eq!(failsafes(&ev), [(Failsafe::Estimator, Action::Land)]);
+    let at_us = ev.iter().find_map(|e| match e {
+        Event::Failsafe { t_us, .. } => Some(*t_us),
+        _ => None,
+    });
+    assert_eq!(at_us, Some(13_000_000));
+}
+
+#[test]
+fn a_kill_action_asks_for_the_halt() {
+    let mut p = params();
+    p.link_action = Action::Kill;
+    let mut c = Commander::new(p);
+    let mut ev = Vec::new();
+    c.command(Command::Arm, 0, good_facts().verdict(), None, &mut ev);
+    c.command(
+        Command::Takeoff(None),
+        0,
+        Ok(()),
+        Some(&at(0, 0.0)),
+        &mut ev,
+    );
+    c.link_beat(LinkSource::Gcs, 0);
+    let mut kill = None;
+    let mut t = STEP_US;
+    while kill.is_none() && t < 5_000_000 {
+        kill = c.on_estimate(&at(t, 0.0), &mut ev).1;
+        t += STEP_US;
+    }
+    assert_eq!(kill, Some(EscRequest::Kill));
+    assert_eq!(failsafes(&ev), [(Failsafe::LinkLoss, Action::Kill)]);
+}
+
+#[test]
+fn a_flying_start_arms_at_once_and_steps_to_the_hover_point() {
+    let mut p = params();
+    p.start = Start::Flying;
+    let mut c = Commander::new(p);
+    let mut ev = Vec::new();
+    assert_eq!(c.start(0, &mut ev), Some(EscRequest::Start));
+    let (g, _) = c.on_estimate(&at(8_000_000, -0.1), &mut ev);
+    assert_eq!(c.mode(), Mode::Takeoff);
+    assert!(g.fly);
+    assert_eq!(
+        g.pos_m,
+        [0.0, 0.0, 1.0],
+        "the original's set point, over (0, 0)"
+    );
+    assert_eq!(modes(&ev), [Mode::Disarmed, Mode::Armed, Mode::Takeoff]);
+}
+
+#[test]
+fn the_altitude_keys_move_the_hold_target_within_bounds() {
+    let (mut c, _) = holding();
+    for _ in 0..20 {
+        assert!(!c.manual(ManualCommand::Altitude(Dir::Up)));
+    }
+    assert!((c.target_m()[2] - 3.0).abs() < 1e-9, "{}", c.target_m()[2]);
+    assert!(c.manual(ManualCommand::Roll(Dir::Up)), "the planner's");
+}
+
+#[test]
+fn operator_lines_are_commands_keys_or_errors() {
+    let c = |l| OperatorInput::parse_line(l, LinkSource::Console);
+    assert_eq!(
+        c("arm").unwrap(),
+        [OperatorInput::Command(Command::Arm, LinkSource::Console)]
+    );
+    assert_eq!(
+        c(" takeoff 1.5 ").unwrap(),
+        [OperatorInput::Command(
+            Command::Takeoff(Some(1.5)),
+            LinkSource::Console
+        )]
+    );
+    assert_eq!(
+        c("hold").unwrap(),
+        [OperatorInput::Command(
+            Command::Hold(None),
+            LinkSource::Console
+        )],
+        "hold is a command though h, o, l, d are keys or not"
+    );
+    assert_eq!(c("ee").unwrap().len(), 2);
+    assert_eq!(
+        c("quit").unwrap(),
+        [OperatorInput::Key(ManualCommand::Quit)]
+    );
+    assert!(c("").unwrap().is_empty());
+    assert!(c("fly").unwrap_err().contains("unknown command"));
+    assert!(c("takeoff -1").is_err());
+    assert!(c("takeoff NaN").is_err());
+    assert!(c("hold 1 2").is_err());
+    assert!(c("arm now").is_err());
+    let cmd = Command::parse("hold 1 -2 3").unwrap();
+    assert_eq!(
+        Command::parse(&cmd.to_string()),
+        Ok(cmd),
+        "Display reads back"
+    );
+}
