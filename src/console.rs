@@ -292,8 +292,13 @@ pub fn command(line: &str, filter: &mut Filter, operator: &mpsc::Sender<Operator
     };
     let mut reply = String::new();
     for input in inputs {
+        let what = match input {
+            OperatorInput::Key(k) => format!("{k:?}"),
+            OperatorInput::Command(c, _) => c.to_string(),
+            OperatorInput::Beat(_) => "a beat".to_string(),
+        };
         reply += &match operator.try_send(input) {
-            Ok(()) => format!("console: sent {input:?}\n"),
+            Ok(()) => format!("console: sent {what}\n"),
             Err(_) => "console: the flight is not taking commands now\n".to_string(),
         };
     }

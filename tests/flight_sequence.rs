@@ -59,7 +59,9 @@ struct Bench {
 
 impl Bench {
     fn new(ramp_frames: u32) -> Self {
-        let profile = uquad::config::load(&root().join("config/uquad.toml"), &[]).unwrap();
+        // Armed at start: these tests are about the sequence's order, not the commander's.
+        let flying = [uquad::config::parse_set("commander.start=flying").unwrap()];
+        let profile = uquad::config::load(&root().join("config/uquad.toml"), &flying).unwrap();
         let (plant, imu) = uquad::sim::vehicle(&profile, 7);
         let (estimator, controller) = uquad::app::flight::live_sides(&profile);
         Bench {

@@ -38,7 +38,11 @@ async fn fly_through_a_pty_with_a_mock_bus_then_replay() {
     assert!(tx.iter().all(|t| t.acked));
     let map = MotorMap::UQUAD;
     let addrs = map.addresses;
-    // 1. Booted disabled: the first writes enable every ESC.
+    // 1. Booted disabled: only the pre-arm probes (a disable to every ESC, each 0.5 s), then
+    //    the writes enable every ESC.
+    let probes = tx.iter().take_while(|t| t.reg == REG_DISABLE).count();
+    assert!(probes >= 4 && probes % 4 == 0, "{probes} probe writes");
+    let tx = &tx[probes..];
     let first: Vec<(u8, u8, u8)> = tx[..4].iter().map(|t| (t.addr, t.reg, t.value)).collect();
     assert_eq!(first, addrs.map(|a| (a, REG_ENABLE, 0)).to_vec());
     // 2. The start-up saw-tooth, every value to every ESC, untrimmed.

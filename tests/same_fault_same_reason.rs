@@ -31,6 +31,9 @@ fn sim_reason(mode: &str, inject: &str) -> (String, String, String) {
         "6",
         "--inject",
         inject,
+        // Arming at start, so the ramp's timing is the same in every mode.
+        "--set",
+        "commander.start=flying",
     ];
     if mode == "--realtime" {
         args.extend_from_slice(&REALTIME_TOLERANT);

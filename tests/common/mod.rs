@@ -49,6 +49,10 @@ pub const REALTIME_TOLERANT: [&str; 12] = [
     "esc.command_timeout_ms=150",
 ];
 
+/// The operator's script of the tests about hovering (not the commander's): arm once settled,
+/// take off once calibrated, never land, so the hover window runs from 30 s to the end.
+pub const HOVER_SCRIPT: &str = "arm@1,takeoff@9";
+
 /// `uquad sim --realtime --config config/uquad.toml ARGS` with [`REALTIME_TOLERANT`], its run
 /// folder under `dir` and its report at `dir/report.json`, from the repository's root. The
 /// vehicle starts flying (`commander.start = "flying"`, no operator script) unless ARGS say

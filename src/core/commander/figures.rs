@@ -1,6 +1,6 @@
 //! What a flight's takeoff and landing measured — the climb's overshoot, the touchdown's speed
 //! and place — on whatever the caller samples: the estimate (`fly`) or the true vehicle (the
-//! simulator).
+//! simulator). Not in the original's spec.
 
 use super::Mode;
 use std::collections::VecDeque;

@@ -1,4 +1,5 @@
-//! The commander's rules, driven by explicit times and observations (no clock passes).
+//! The commander's rules, driven by explicit times and observations (no clock passes). Not in
+//! the original's spec, except the link rule (spec 8.2).
 
 use super::*;
 

@@ -433,6 +433,11 @@ impl EstimatorSide {
         match self.core.on_frame(frame, times.t_frame_us) {
             FrontEndEvent::Settling { .. } => FrameAction::Wait,
             FrontEndEvent::Holding => {
+                if self.phase == Phase::Settle && self.commander.mode() == Mode::Disarmed {
+                    out.record(FlightRecord::Note(
+                        "IMU sampling period stable; disarmed, waiting for arm".into(),
+                    ));
+                }
                 self.phase = Phase::EscStart;
                 if self.commander.mode() != Mode::Armed {
                     return FrameAction::Wait;

@@ -1,0 +1,292 @@
+//! The commander end to end: `uquad sim` as the README runs it flies the whole cycle and lands
+//! softly; each failsafe ends on the ground without a cut in the air; arming is refused with the
+//! failing check named; disarm in the air is refused and kill halts; a console arms, takes off
+//! and lands a `sim --realtime` after a refusal for an unwritable log folder.
+
+mod common;
+use common::*;
+use serde_json::Value;
+use std::io::{BufRead, BufReader, Write};
+use std::os::unix::net::UnixStream;
+use std::path::Path;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+/// `uquad sim --fast --config config/uquad.toml ARGS`: its exit status and report.
+fn fast(args: &[&str]) -> (bool, Value, tempfile::TempDir) {
+    let mut all = vec!["--fast", "--config", "config/uquad.toml"];
+    all.extend_from_slice(args);
+    let (status, r, logs) = sim_report(&all);
+    (status.success(), r, logs)
+}
+
+fn modes(r: &Value) -> Vec<String> {
+    let list = r["modes"]
+        .as_array()
+        .unwrap_or_else(|| panic!("no modes: {r}"));
+    list.iter()
+        .map(|m| m["mode"].as_str().unwrap().to_string())
+        .collect()
+}
+
+/// When mode `name` was entered first, s.
+fn mode_at(r: &Value, name: &str) -> f64 {
+    let list = r["modes"].as_array().unwrap();
+    let m = list.iter().find(|m| m["mode"] == name);
+    m.unwrap_or_else(|| panic!("no {name}: {r}"))["t_s"]
+        .as_f64()
+        .unwrap()
+}
+
+fn failsafes(r: &Value) -> Vec<(String, String)> {
+    let list = r["failsafes"].as_array().unwrap();
+    list.iter()
+        .map(|f| {
+            let s = |k: &str| f[k].as_str().unwrap().to_string();
+            (s("kind"), s("action"))
+        })
+        .collect()
+}
+
+fn refusal(r: &Value, command: &str) -> String {
+    let list = r["refusals"].as_array().unwrap();
+    let f = list.iter().find(|f| f["command"] == command);
+    f.unwrap_or_else(|| panic!("no refusal of {command}: {r}"))["why"]
+        .as_str()
+        .unwrap()
+        .to_string()
+}
+
+/// Every simulated ESC ends disabled after a zero speed and a disable.
+fn assert_escs_stopped(r: &Value) {
+    for e in r["esc_end"].as_array().unwrap() {
+        assert_eq!(e["enabled"], false, "{r}");
+        assert_eq!(
+            e["last_writes"],
+            serde_json::json!(["speed 0", "disable"]),
+            "{r}"
+        );
+    }
+}
+
+/// Landed and disarmed with no halt: no cut in the air, the touchdown soft enough.
+fn assert_landed(ok: bool, r: &Value, v_max_m_s: f64) {
+    assert!(ok, "{r}");
+    assert!(r["halt"].is_null(), "{r}");
+    assert_eq!(modes(r).last().map(String::as_str), Some("disarmed"), "{r}");
+    assert_eq!(r["esc"]["stop_reason"], "disarmed", "{r}");
+    let v = r["touchdown"]["v_m_s"].as_f64().unwrap_or(f64::NAN);
+    assert!(v <= v_max_m_s, "touchdown at {v} m/s: {r}");
+    assert_escs_stopped(r);
+}
+
+#[test]
+fn the_main_job_flies_the_whole_cycle_and_lands_softly() {
+    let (ok, r, _logs) = fast(&[]);
+    let want = ["disarmed", "armed", "takeoff", "hold", "land", "disarmed"];
+    assert_eq!(modes(&r), want, "{r}");
+    assert_landed(ok, &r, 0.5);
+    let climb = r["takeoff"]["target_m"].as_f64().unwrap();
+    let over = r["takeoff"]["overshoot_m"].as_f64().unwrap();
+    assert_eq!(climb, 1.0);
+    assert!(
+        over <= 0.05 * climb,
+        "overshoot {over} m of a {climb} m climb"
+    );
+    assert!(r["failsafes"].as_array().unwrap().is_empty(), "{r}");
+    // The run ended once disarmed, not at sim.duration_s.
+    assert!(r["simulated_s"].as_f64().unwrap() < 55.0, "{r}");
+}
+
+#[test]
+fn a_lost_link_lands_without_a_cut() {
+    let (ok, r, _logs) = fast(&["--inject", "link-loss@30"]);
+    assert_eq!(failsafes(&r), [("link-loss".into(), "land".into())], "{r}");
+    // The last heartbeat at 29 s, lost 2 s later (failsafe.link_timeout_s).
+    let land = mode_at(&r, "land");
+    assert!((31.0..31.1).contains(&land), "land at {land}: {r}");
+    assert_landed(ok, &r, 0.5);
+}
+
+#[test]
+fn a_lost_gps_holds_altitude_then_lands() {
+    let (ok, r, _logs) = fast(&["--inject", "gps-loss@30"]);
+    assert_eq!(failsafes(&r), [("gps-loss".into(), "land".into())], "{r}");
+    // The last fix at 29 s, lost after control.gps_hold_timeout_s (3 s), then
+    // failsafe.gps_loss_land_s (10 s) of holding before the landing.
+    let land = mode_at(&r, "land");
+    assert!((42.0..42.1).contains(&land), "land at {land}: {r}");
+    // The hover window (31 s to the landing) holds the altitude.
+    let alt = r["alt_max_err_m"].as_f64().unwrap();
+    assert!(alt <= 0.2, "altitude error {alt} m: {r}");
+    assert!(r["hover_samples"].as_u64().unwrap() >= 1000, "{r}");
+    assert_landed(ok, &r, 0.5);
+}
+
+#[test]
+fn a_fence_breach_lands_near_the_fence() {
+    let (ok, r, _logs) = fast(&["--set", "fence.radius_m=2", "--inject", "gust@30"]);
+    assert_eq!(failsafes(&r), [("geofence".into(), "land".into())], "{r}");
+    let from = r["touchdown"]["from_takeoff_m"].as_f64().unwrap();
+    assert!(
+        from <= 2.0 + 2.0,
+        "touchdown {from} m from the takeoff: {r}"
+    );
+    // A gust of a fifth of the weight while landing: down, but not as softly.
+    assert_landed(ok, &r, 1.0);
+}
+
+#[test]
+fn arming_is_refused_with_the_failing_check_named() {
+    let (ok, r, _logs) = fast(&["--duration", "12", "--inject", "gps-loss@0"]);
+    assert!(ok, "{r}");
+    assert!(refusal(&r, "arm").starts_with("gps: no fix"), "{r}");
+    assert_eq!(modes(&r), ["disarmed"], "{r}");
+    assert_eq!(r["esc"]["commands"], 0, "{r}");
+
+    let (ok, r, _logs) = fast(&["--duration", "12", "--inject", "esc-nack@0"]);
+    assert!(ok, "{r}");
+    assert_eq!(
+        refusal(&r, "arm"),
+        "esc: no acknowledgement from 0x69, 0x6b, 0x6a, 0x68",
+        "{r}"
+    );
+    assert_eq!(modes(&r), ["disarmed"], "{r}");
+    assert!(
+        r["halt"].is_null(),
+        "the probes are no watchdog matter: {r}"
+    );
+}
+
+#[test]
+fn disarm_in_the_air_is_refused_and_kill_halts() {
+    let script = "arm@2,takeoff@10,disarm@20,kill@25";
+    let (ok, r, _logs) = fast(&["--script", script]);
+    assert!(!ok, "a halt fails the run: {r}");
+    assert!(
+        refusal(&r, "disarm").starts_with("in the air (hold)"),
+        "{r}"
+    );
+    assert_eq!(r["halt"]["reason"], "kill", "{r}");
+    assert_eq!(r["halt"]["confirmed"], true, "{r}");
+    assert_eq!(modes(&r).last().map(String::as_str), Some("kill"), "{r}");
+    assert_escs_stopped(&r);
+}
+
+/// A console's lines, collected in the background.
+fn reader(stream: UnixStream) -> Arc<Mutex<Vec<String>>> {
+    let lines = Arc::new(Mutex::new(Vec::new()));
+    let out = lines.clone();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stream).lines() {
+            match line {
+                Ok(l) => out.lock().unwrap().push(l),
+                Err(_) => break,
+            }
+        }
+    });
+    lines
+}
+
+/// Waits until a console line contains `text`.
+fn wait_for(lines: &Mutex<Vec<String>>, text: &str, limit: Duration) {
+    let t0 = Instant::now();
+    while !lines.lock().unwrap().iter().any(|l| l.contains(text)) {
+        assert!(t0.elapsed() < limit, "no {text:?} within {limit:?}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// The run folder under `dir` (named by its start time).
+fn run_dir(dir: &Path) -> std::path::PathBuf {
+    let t0 = Instant::now();
+    loop {
+        let found = std::fs::read_dir(dir)
+            .unwrap()
+            .filter_map(Result::ok)
+            .map(|e| e.path())
+            .find(|p| {
+                p.is_dir()
+                    && p.file_name()
+                        .is_some_and(|n| n.to_string_lossy().starts_with("20"))
+            });
+        if let Some(p) = found {
+            return p;
+        }
+        assert!(t0.elapsed() < Duration::from_secs(10), "no run folder");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+#[test]
+fn a_console_arms_takes_off_and_lands_after_a_refusal() {
+    let dir = tempfile::tempdir().unwrap();
+    let sock = dir.path().join("console.sock");
+    let socket = format!("console.socket=\"{}\"", sock.display());
+    let mut cmd = realtime_sim(
+        &[
+            "--set",
+            "commander.start=disarmed",
+            "--script",
+            "none",
+            "--duration",
+            "60",
+            "--set",
+            &socket,
+        ],
+        dir.path(),
+    );
+    cmd.env("RUST_LOG", "info");
+    let mut child = Uquad::spawn(&mut cmd);
+    let run = run_dir(dir.path());
+    let t0 = Instant::now();
+    while !sock.exists() {
+        assert!(t0.elapsed() < Duration::from_secs(10), "no console socket");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let console = UnixStream::connect(&sock).unwrap();
+    let mut send = console.try_clone().unwrap();
+    let lines = reader(console);
+    let long = Duration::from_secs(20);
+    wait_for(&lines, "disarmed, waiting for arm", long);
+    // The log folder taken away (a card pulled): a file where the folder was.
+    let moved = dir.path().join("moved");
+    std::fs::rename(&run, &moved).unwrap();
+    std::fs::write(&run, b"not a folder").unwrap();
+    std::thread::sleep(Duration::from_millis(1500));
+    send.write_all(b"arm\n").unwrap();
+    wait_for(&lines, "arm refused: log: cannot write in", long);
+    // Given back, the same command arms; then takeoff, land.
+    std::fs::remove_file(&run).unwrap();
+    std::fs::rename(&moved, &run).unwrap();
+    std::thread::sleep(Duration::from_millis(1500));
+    send.write_all(b"arm\n").unwrap();
+    wait_for(&lines, "mode armed: command arm", long);
+    wait_for(&lines, "IMU calibration completed", long);
+    send.write_all(b"takeoff 1.5\n").unwrap();
+    wait_for(&lines, "mode hold: takeoff height reached", long);
+    send.write_all(b"disarm\n").unwrap();
+    wait_for(&lines, "disarm refused: in the air", long);
+    send.write_all(b"land\n").unwrap();
+    let status = child.child.wait().unwrap();
+    assert!(status.success(), "{status}\n{}", child.stderr());
+    let r: Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("report.json")).unwrap())
+            .unwrap();
+    let want = ["disarmed", "armed", "takeoff", "hold", "land", "disarmed"];
+    assert_eq!(modes(&r), want, "{r}");
+    assert!(
+        refusal(&r, "arm").starts_with("log: cannot write in"),
+        "{r}"
+    );
+    assert_eq!(r["takeoff"]["target_m"], 1.5, "{r}");
+    assert_landed(true, &r, 0.5);
+    assert_eq!(r["deadline_misses"], 0, "{r}");
+    // The console's commands are in the run's mode.log, as a replay reads them.
+    let mode_log = std::fs::read_to_string(run.join("mode.log")).unwrap();
+    assert!(mode_log.contains(" in console takeoff 1.5\n"), "{mode_log}");
+    assert!(
+        mode_log.contains(" in console arm | log: cannot write in"),
+        "{mode_log}"
+    );
+}
