@@ -105,7 +105,7 @@ fn two_consoles_watch_and_steer_a_running_flight() {
     let run = std::path::Path::new(r["run_dir"].as_str().unwrap()).to_path_buf();
     let err = std::fs::read_to_string(run.join("err.log")).unwrap();
     assert!(
-        err.contains("manual Altitude(Up): Applied; set point Some([0.0, 0.0, 1.2"),
+        err.contains("manual Altitude(Up): hold height 1.20 m"),
         "{err}"
     );
     assert!(

@@ -28,11 +28,12 @@ impl Outputs for Kept {
 }
 
 impl Kept {
+    /// The sequence's notes (the commander's mode lines left out).
     fn notes(&self) -> Vec<&str> {
         self.records
             .iter()
             .filter_map(|r| match r {
-                FlightRecord::Note(n) => Some(n.as_str()),
+                FlightRecord::Note(n) if !n.starts_with("mode ") => Some(n.as_str()),
                 _ => None,
             })
             .collect()

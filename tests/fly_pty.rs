@@ -5,7 +5,7 @@ mod common;
 use common::*;
 use std::time::Duration;
 use uquad::core::motor::{
-    EscAction, MotorMap, REG_ENABLE, REG_SPEED, esc_startup_ramp, i2c_from_rad_s,
+    EscAction, MotorMap, REG_DISABLE, REG_ENABLE, REG_SPEED, esc_startup_ramp, i2c_from_rad_s,
 };
 use uquad::hw::esc_bus::Transaction;
 
@@ -115,7 +115,7 @@ async fn fly_through_a_pty_with_a_mock_bus_then_replay() {
         logged.len()
     );
     // 4. Shutdown: zero to every ESC, then disable every ESC, and nothing after.
-    assert_ends_zero_then_disable(&tx);
+    assert_ends_zero_then_disable(tx);
     assert_eq!(summary.esc_stop_reason.as_deref(), Some("shutdown"));
 
     // The run folder is self-contained and replays to identical bytes.

@@ -21,6 +21,8 @@ fn a_healthy_minute_has_no_trip_and_no_deadline_miss() {
             "69",
             "--config",
             "config/uquad.toml",
+            "--script",
+            HOVER_SCRIPT,
             "--report",
             report.to_str().unwrap(),
             "--log-dir",

@@ -253,9 +253,9 @@ impl<'a> FastSim<'a> {
         self.execute_halt();
         self.sample_hover();
         if self.opts.progress && t % 5_000_000 == 0 {
-            let phase = format!("{:?}", self.estimator.phase());
+            let mode = self.estimator.mode().name();
             let steps = self.estimator.counts().steps;
-            eprintln!("{}", progress_line(t, &self.plant, &phase, steps));
+            eprintln!("{}", progress_line(t, &self.plant, mode, steps));
         }
         // The run ends once the motors' stop has settled (confirmed, or out of retries): after
         // a halt, an error, or a landing once the script is done.

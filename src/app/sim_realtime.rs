@@ -208,10 +208,11 @@ impl SimThread {
                 self.trace.sample(t_us, l.mode, l.height_m, &plant);
             }
             if self.progress && t_us % 5_000_000 == 0 {
-                let phase = if view.ramp_done { "Flight" } else { "start-up" };
-                let steps = self.live.borrow().map_or(0, |l| u64::from(l.step));
+                let live = *self.live.borrow();
+                let mode = live.map_or("start-up", |l| l.mode.name());
+                let steps = live.map_or(0, |l| u64::from(l.step));
                 // Through the log queue: a stalled terminal must not stall the physics.
-                tracing::info!("{}", progress_line(t_us, &plant, phase, steps));
+                tracing::info!("{}", progress_line(t_us, &plant, mode, steps));
             }
         }
         SimResult {

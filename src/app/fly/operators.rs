@@ -64,7 +64,7 @@ pub(super) async fn notify_systemd(n: Arc<crate::hw::notify::Notifier>, h: RunHa
             _ = tokio::time::sleep(poll) => {}
         }
     }
-    n.send("READY=1\nSTATUS=IMU frames arriving; flying");
+    n.send("READY=1\nSTATUS=IMU frames arriving");
     let Some(every) = crate::hw::notify::watchdog_interval() else {
         return;
     };

@@ -304,6 +304,18 @@ pub enum Event {
     },
 }
 
+/// What became of a manual key.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum KeyOutcome {
+    /// Not the commander's: the planner applies it.
+    Planner,
+    /// The hold's target height is now this, m above the takeoff point.
+    Moved(f64),
+    OutOfBounds,
+    /// Only a hold's height moves.
+    Ignored(Mode),
+}
+
 /// What the commander asks of the ESCs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum EscRequest {
@@ -674,22 +686,24 @@ impl Commander {
         }
     }
 
-    /// A manual key; the altitude keys move the commander's target, the others are the
-    /// planner's. Returns whether the planner should apply it.
-    pub fn manual(&mut self, cmd: ManualCommand) -> bool {
-        if let ManualCommand::Altitude(d) = cmd {
-            if self.mode == Mode::Hold {
-                let step =
-                    crate::core::control::MANUAL_Z_STEP_M * if d == Dir::Up { 1.0 } else { -1.0 };
-                let ground = self.home_m.map_or(0.0, |h| h[2]);
-                let z = self.target_m[2] + step - ground;
-                if z >= self.p.z_min_m - 1e-12 && z <= self.p.z_max_m + 1e-12 {
-                    self.target_m[2] += step;
-                }
-            }
-            return false;
+    /// A manual key: the altitude keys move the hold's target height (spec 5.2's step, within
+    /// `control.manual.z_min_m`..`z_max_m` above the takeoff point); the others are the
+    /// planner's.
+    pub fn manual(&mut self, cmd: ManualCommand) -> KeyOutcome {
+        let ManualCommand::Altitude(d) = cmd else {
+            return KeyOutcome::Planner;
+        };
+        if self.mode != Mode::Hold {
+            return KeyOutcome::Ignored(self.mode);
         }
-        true
+        let step = crate::core::control::MANUAL_Z_STEP_M * if d == Dir::Up { 1.0 } else { -1.0 };
+        let ground = self.home_m.map_or(0.0, |h| h[2]);
+        let height_m = self.target_m[2] + step - ground;
+        if height_m < self.p.z_min_m - 1e-12 || height_m > self.p.z_max_m + 1e-12 {
+            return KeyOutcome::OutOfBounds;
+        }
+        self.target_m[2] += step;
+        KeyOutcome::Moved(height_m)
     }
 
     /// One Kalman step: timers, failsafes, the profiles, touchdown. The guidance is `None`

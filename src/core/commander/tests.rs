@@ -118,7 +118,8 @@ fn modes(ev: &[Event]) -> Vec<Mode> {
 
 #[test]
 fn arming_is_refused_with_the_failing_check_named() {
-    let cases: [(fn(&mut ArmFacts), &str); 6] = [
+    type Spoil = fn(&mut ArmFacts);
+    let cases: [(Spoil, &str); 6] = [
         (|f| f.imu_stable = false, "imu:"),
         (|f| f.gps_eph_m = None, "gps: no fix"),
         (|f| f.gps_eph_m = Some(9.0), "gps: horizontal error 9.0 m"),
@@ -545,11 +546,16 @@ fn a_flying_start_arms_at_once_and_steps_to_the_hover_point() {
 #[test]
 fn the_altitude_keys_move_the_hold_target_within_bounds() {
     let (mut c, _) = holding();
+    let up = ManualCommand::Altitude(Dir::Up);
+    assert_eq!(c.manual(up), KeyOutcome::Moved(1.2));
     for _ in 0..20 {
-        assert!(!c.manual(ManualCommand::Altitude(Dir::Up)));
+        c.manual(up);
     }
+    assert_eq!(c.manual(up), KeyOutcome::OutOfBounds);
     assert!((c.target_m()[2] - 3.0).abs() < 1e-9, "{}", c.target_m()[2]);
-    assert!(c.manual(ManualCommand::Roll(Dir::Up)), "the planner's");
+    assert_eq!(c.manual(ManualCommand::Roll(Dir::Up)), KeyOutcome::Planner);
+    c.command(Command::Land, 0, Ok(()), None, &mut Vec::new());
+    assert_eq!(c.manual(up), KeyOutcome::Ignored(Mode::Land));
 }
 
 #[test]

@@ -23,7 +23,7 @@
 use super::gps_feed::GpsFeed;
 use super::halves::{ControllerCore, Estimate, EstimatorCore};
 use crate::core::commander::{
-    self, ArmFacts, Commander, EscRequest, Mode, Observation, OperatorInput,
+    self, ArmFacts, Commander, EscRequest, KeyOutcome, Mode, Observation, OperatorInput,
 };
 use crate::core::control::{ManualCommand, ManualOutcome};
 use crate::core::ekf::{Ekf, GatedGroups, Input, TestRatios, idx};
@@ -357,9 +357,7 @@ impl EstimatorSide {
                 None
             }
             OperatorInput::Key(k) => {
-                if self.commander.manual(k) {
-                    self.keys.push_back(k);
-                }
+                self.key(k, out);
                 None
             }
             OperatorInput::Command(cmd, src) => {
@@ -372,6 +370,18 @@ impl EstimatorSide {
         };
         self.record_events(out);
         self.esc_request(request, t_us, out)
+    }
+
+    /// A manual key: the commander's (the hold's height, noted here) or the planner's (queued
+    /// for the controller, which notes it).
+    fn key(&mut self, k: crate::core::control::ManualCommand, out: &mut impl Outputs) {
+        let note = match self.commander.manual(k) {
+            KeyOutcome::Planner => return self.keys.push_back(k),
+            KeyOutcome::Moved(h) => format!("manual {k:?}: hold height {h:.2} m"),
+            KeyOutcome::OutOfBounds => format!("manual {k:?}: out of bounds"),
+            KeyOutcome::Ignored(m) => format!("manual {k:?} ignored in {}", m.name()),
+        };
+        out.record(FlightRecord::Note(note));
     }
 
     /// Whether the driver stops the ESCs for the commander's request: a start waits for the
