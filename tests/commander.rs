@@ -6,10 +6,10 @@
 mod common;
 use common::*;
 use serde_json::Value;
-use std::io::{BufRead, BufReader, Write};
+use std::io::Write;
 use std::os::unix::net::UnixStream;
 use std::path::Path;
-use std::sync::{Arc, Mutex};
+use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 /// `uquad sim --fast --config config/uquad.toml ARGS`: its exit status and report.
@@ -173,21 +173,6 @@ fn disarm_in_the_air_is_refused_and_kill_halts() {
     assert_escs_stopped(&r);
 }
 
-/// A console's lines, collected in the background.
-fn reader(stream: UnixStream) -> Arc<Mutex<Vec<String>>> {
-    let lines = Arc::new(Mutex::new(Vec::new()));
-    let out = lines.clone();
-    std::thread::spawn(move || {
-        for line in BufReader::new(stream).lines() {
-            match line {
-                Ok(l) => out.lock().unwrap().push(l),
-                Err(_) => break,
-            }
-        }
-    });
-    lines
-}
-
 /// Waits until a console line contains `text`.
 fn wait_for(lines: &Mutex<Vec<String>>, text: &str, limit: Duration) {
     let t0 = Instant::now();
@@ -248,18 +233,27 @@ fn a_console_arms_takes_off_and_lands_after_a_refusal() {
     let mut send = console.try_clone().unwrap();
     let lines = reader(console);
     let long = Duration::from_secs(20);
-    wait_for(&lines, "disarmed, waiting for arm", long);
+    // Settled before this console may have attached: err.log keeps what it missed.
+    let t0 = Instant::now();
+    while !std::fs::read_to_string(run.join("err.log"))
+        .unwrap_or_default()
+        .contains("disarmed, waiting for arm")
+    {
+        assert!(t0.elapsed() < long, "never settled:\n{}", child.stderr());
+        std::thread::sleep(Duration::from_millis(50));
+    }
     // The log folder taken away (a card pulled): a file where the folder was.
     let moved = dir.path().join("moved");
     std::fs::rename(&run, &moved).unwrap();
     std::fs::write(&run, b"not a folder").unwrap();
-    std::thread::sleep(Duration::from_millis(1500));
+    // The folder is probed once a second: two probes.
+    std::thread::sleep(Duration::from_millis(2500));
     send.write_all(b"arm\n").unwrap();
     wait_for(&lines, "arm refused: log: cannot write in", long);
     // Given back, the same command arms; then takeoff, land.
     std::fs::remove_file(&run).unwrap();
     std::fs::rename(&moved, &run).unwrap();
-    std::thread::sleep(Duration::from_millis(1500));
+    std::thread::sleep(Duration::from_millis(2500));
     send.write_all(b"arm\n").unwrap();
     wait_for(&lines, "mode armed: command arm", long);
     wait_for(&lines, "IMU calibration completed", long);
@@ -289,4 +283,92 @@ fn a_console_arms_takes_off_and_lands_after_a_refusal() {
         mode_log.contains(" in console arm | log: cannot write in"),
         "{mode_log}"
     );
+}
+
+/// `uquad sim --realtime` with ARGS to its end: its report, run folder and stderr.
+fn realtime(args: &[&str]) -> (Value, std::path::PathBuf, String, tempfile::TempDir) {
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = Uquad::spawn(&mut realtime_sim(args, dir.path()));
+    let status = child.child.wait().unwrap();
+    let stderr = child.stderr();
+    let text = std::fs::read_to_string(dir.path().join("report.json"))
+        .unwrap_or_else(|_| panic!("{status}: no report\n{stderr}"));
+    let r: Value = serde_json::from_str(&text).unwrap();
+    assert!(status.success(), "{status}: {r}\n{stderr}");
+    let run = std::path::PathBuf::from(r["run_dir"].as_str().unwrap());
+    (r, run, stderr, dir)
+}
+
+#[test]
+fn a_lost_link_lands_on_the_wall_clock_too() {
+    let (r, _run, stderr, _dir) = realtime(&[
+        "--set",
+        "commander.start=disarmed",
+        "--script",
+        "arm@2,takeoff@10,land@60",
+        "--inject",
+        "link-loss@17",
+        "--duration",
+        "45",
+    ]);
+    assert_eq!(
+        failsafes(&r),
+        [("link-loss".into(), "land".into())],
+        "{r}\n{stderr}"
+    );
+    assert_landed(true, &r, 0.5);
+    // Ended once disarmed, long before --duration.
+    assert!(r["simulated_s"].as_f64().unwrap() < 35.0, "{r}");
+}
+
+/// Column `col` of `log`'s rows whose time (column 0) lies in `from_s..to_s`, averaged.
+fn mean_between(log: &Path, col: usize, from_s: f64, to_s: f64) -> f64 {
+    let rows: Vec<f64> = numbers(log)
+        .into_iter()
+        .filter(|r| (from_s..to_s).contains(&r[0]))
+        .map(|r| r[col])
+        .collect();
+    assert!(
+        !rows.is_empty(),
+        "{}: no rows in {from_s}..{to_s}",
+        log.display()
+    );
+    rows.iter().sum::<f64>() / rows.len() as f64
+}
+
+#[test]
+fn the_flight_faults_strike_on_the_wall_clock_too() {
+    // thrust-loss: m0 speeds up to make up its lost thrust; log-stall: the x_hat logger
+    // blocks for 500 ms (records queue, then drop and are counted), no deadline is missed.
+    let (r, run, stderr, _dir) = realtime(&[
+        "--inject",
+        "thrust-loss@12",
+        "--inject",
+        "log-stall@12",
+        "--duration",
+        "18",
+    ]);
+    let w = run.join("w.log");
+    let before = mean_between(&w, 1, 10.5, 12.0);
+    let after = mean_between(&w, 1, 14.0, 18.0);
+    assert!(after > before * 1.1, "m0 {before:.1} -> {after:.1} rad/s");
+    assert!(stderr.contains("log writes stalled"), "{stderr}");
+    assert_eq!(r["deadline_misses"], 0, "{r}");
+    // gust: pushed north (seen on the fixes); gps-loss: the failsafe, 3 s after the last fix.
+    let (r, run, stderr, _dir) = realtime(&[
+        "--inject",
+        "gust@12",
+        "--inject",
+        "gps-loss@16",
+        "--duration",
+        "21",
+    ]);
+    assert_eq!(
+        failsafes(&r),
+        [("gps-loss".into(), "land".into())],
+        "{r}\n{stderr}"
+    );
+    let x_hat = numbers(&run.join("x_hat.log"));
+    let north = x_hat.iter().map(|x| x[0]).fold(f64::MIN, f64::max);
+    assert!(north > 0.5, "pushed {north:.2} m north");
 }

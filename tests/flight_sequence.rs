@@ -278,3 +278,40 @@ fn a_watchdog_halt_ends_the_sequence_in_every_phase() {
         assert_eq!(b.start_requests, u32::from(phase != Phase::Settle));
     }
 }
+
+#[test]
+fn the_quit_key_ends_the_run_in_any_mode_and_keys_wait_for_their_planner() {
+    use uquad::core::commander::{LinkSource, OperatorInput};
+    use uquad::core::control::{Dir, ManualCommand};
+    use uquad::core::flight::{ArmCheck, OperatorAction};
+    let mut b = Bench::new(30);
+    let ok = Ok(());
+    let key = |b: &mut Bench, k| {
+        let input = OperatorInput::Key(k);
+        b.estimator
+            .operator(input, b.t_us, ArmCheck::Recorded(&ok), &mut b.out)
+    };
+    // Before the flight (armed at start, still settling): a roll key is noted when its
+    // planner exists; the quit key ends the run at once.
+    assert_eq!(
+        key(&mut b, ManualCommand::Roll(Dir::Up)),
+        OperatorAction::Nothing
+    );
+    assert_eq!(key(&mut b, ManualCommand::Quit), OperatorAction::Quit);
+    assert!(
+        b.out.notes().contains(&"manual quit: stopping"),
+        "{:?}",
+        b.out.notes()
+    );
+    // An operator's command in the flight's records, as a replay reads it back.
+    let arm = OperatorInput::Command(uquad::core::commander::Command::Arm, LinkSource::Console);
+    b.estimator
+        .operator(arm, b.t_us, ArmCheck::Recorded(&ok), &mut b.out);
+    assert!(
+        b.out
+            .records
+            .iter()
+            .any(|r| matches!(r, FlightRecord::Operator { input, .. } if *input == arm)),
+        "the input is recorded"
+    );
+}

@@ -17,7 +17,7 @@ use crate::app::sim::SimOptions;
 use crate::config::{GpsMode, Profile};
 use crate::core::commander::{ArmFacts, Mode, OperatorInput};
 use crate::core::esc::{CycleKind, CycleRunner, EscDriver, EscPhase};
-use crate::core::flight::ArmCheck;
+use crate::core::flight::{ArmCheck, OperatorAction};
 use crate::core::flight::{
     Command, ControllerSide, EscState, EstimatorSide, Feedback, FlightRecord, FrameAction,
     FrameTimes, Outputs,
@@ -117,6 +117,8 @@ struct FastSim<'a> {
     newest_fix: Option<LiveFix>,
     /// The pre-arm inputs, and where the log folder's probe is published.
     prearm: (PreArm, tokio::sync::watch::Sender<Option<String>>),
+    /// The operator quit (the manual quit key): the run ends, as `fly`'s does.
+    quit: bool,
     /// The ESCs were started once: a disarmed vehicle has flown.
     armed_once: bool,
     trace: CycleTrace,
@@ -216,6 +218,7 @@ impl<'a> FastSim<'a> {
             inputs: Vec::with_capacity(4),
             newest_fix: None,
             prearm: prearm(cfg),
+            quit: false,
             armed_once: false,
             trace: CycleTrace::default(),
             faults,
@@ -261,7 +264,7 @@ impl<'a> FastSim<'a> {
         // a halt, an error, or a landing once the script is done.
         let landed =
             self.armed_once && self.estimator.mode() == Mode::Disarmed && self.operator.done(t);
-        let ended = self.trip.is_some() || self.fly.error.is_some() || landed;
+        let ended = self.trip.is_some() || self.fly.error.is_some() || landed || self.quit;
         !(ended && self.driver.stop_outcome().is_some())
     }
 
@@ -275,8 +278,13 @@ impl<'a> FastSim<'a> {
         let facts = self.arm_facts();
         for input in std::mem::take(&mut self.inputs) {
             let check = ArmCheck::Facts(&facts);
-            if self.estimator.operator(input, t, check, &mut self.out) {
-                self.driver.stop("disarmed", t, &mut self.cycles);
+            match self.estimator.operator(input, t, check, &mut self.out) {
+                OperatorAction::StopEscs => self.driver.stop("disarmed", t, &mut self.cycles),
+                OperatorAction::Quit => {
+                    self.quit = true;
+                    self.driver.stop("shutdown", t, &mut self.cycles);
+                }
+                OperatorAction::Nothing => {}
             }
         }
         self.dispatch_events();

@@ -84,9 +84,6 @@ impl ControllerTask {
                 }
             };
             let c = self.side.control(est, send, &mut self.out);
-            if c.quit {
-                self.cancel.cancel();
-            }
             self.feedback.send_replace(c.feedback);
             self.live.send_replace(Some(Live {
                 step: c.step,

@@ -14,7 +14,7 @@ use crate::core::commander::{ArmFacts, Command, LinkSource, OperatorInput};
 use crate::core::esc::EscPhase;
 use crate::core::flight::{
     ArmCheck, EscState, Estimate, EstimatorSide, Feedback, FrameAction, FrameTimes, GatedCounts,
-    Phase,
+    OperatorAction, Phase,
 };
 use crate::core::gps::LiveFix;
 use crate::tasks::TaskOutputs;
@@ -158,11 +158,13 @@ impl EstimatorTask {
         } else {
             ArmFacts::default()
         };
-        if self
+        match self
             .side
             .operator(input, t_us, ArmCheck::Facts(&facts), &mut self.out)
         {
-            self.esc.halt("disarmed");
+            OperatorAction::StopEscs => self.esc.halt("disarmed"),
+            OperatorAction::Quit => self.cancel.cancel(),
+            OperatorAction::Nothing => {}
         }
     }
 

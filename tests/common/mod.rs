@@ -481,3 +481,22 @@ pub fn assert_ends_zero_then_disable(tx: &[uquad::hw::esc_bus::Transaction]) {
     expected.extend(addrs.map(|a| (a, REG_DISABLE, 0)));
     assert_eq!(tail, expected);
 }
+
+/// A console's lines (or any stream's), collected in the background.
+#[allow(dead_code)]
+pub fn reader(
+    stream: std::os::unix::net::UnixStream,
+) -> std::sync::Arc<std::sync::Mutex<Vec<String>>> {
+    use std::io::BufRead;
+    let lines = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+    let out = lines.clone();
+    std::thread::spawn(move || {
+        for line in std::io::BufReader::new(stream).lines() {
+            match line {
+                Ok(l) => out.lock().unwrap().push(l),
+                Err(_) => break,
+            }
+        }
+    });
+    lines
+}

@@ -7,14 +7,25 @@
 //! Modes: `disarmed` → `arm` → `armed` (ESC start-up ramp, IMU calibration, motors idling) →
 //! `takeoff` → `hold` → `land` → touchdown → `disarmed`; `kill` (the watchdog's halt) from any
 //! mode. Heights are above the point where the takeoff started (the ground).
+//!
+//! Here the modes and their transitions; beside it the operator's words (`input`), the
+//! pre-arm checks (`checks`), the vertical set point's profile (`profile`), the failsafes
+//! (`failsafe`) and the takeoff's and touchdown's figures (`figures`).
 
+mod checks;
+mod failsafe;
 mod figures;
+mod input;
+mod profile;
 
+pub use checks::ArmFacts;
+pub use failsafe::{Action, Failsafe};
 pub use figures::{ClimbTrace, DescentTrace, Figures, Takeoff, Touchdown};
+pub use input::{Command, KeyOutcome, LinkSource, OperatorInput};
+use profile::{BRAKE_SHARE, Profile};
 
 use crate::core::control::{Dir, ManualCommand};
 use crate::core::model::GRAVITY_M_S2;
-use std::fmt;
 
 /// The vehicle's mode; [`Mode::name`] is what logs, the console and reports show.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -42,142 +53,6 @@ impl Mode {
     /// The motors carry the vehicle (it may be off the ground).
     pub fn airborne(self) -> bool {
         matches!(self, Mode::Takeoff | Mode::Hold | Mode::Land)
-    }
-}
-
-/// An operator's command: the same words from stdin, the console and the ground station.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Command {
-    Arm,
-    /// Climb to this height, m (default: the profile's hover height).
-    Takeoff(Option<f64>),
-    /// Hover here (x, y, z), m (default: where the vehicle is).
-    Hold(Option<[f64; 3]>),
-    Land,
-    Disarm,
-    Kill,
-}
-
-impl Command {
-    /// Parses `arm`, `takeoff [ALT_M]`, `hold [X Y Z]`, `land`, `disarm`, `kill`.
-    pub fn parse(line: &str) -> Result<Command, String> {
-        let mut words = line.split_whitespace();
-        let verb = words.next().unwrap_or("");
-        let args: Vec<&str> = words.collect();
-        let nums = args
-            .iter()
-            .map(|a| a.parse::<f64>().ok().filter(|v| v.is_finite()))
-            .collect::<Option<Vec<f64>>>()
-            .ok_or_else(|| format!("{verb}: arguments must be finite numbers, got {args:?}"))?;
-        match (verb, nums.as_slice()) {
-            ("arm", []) => Ok(Command::Arm),
-            ("takeoff", []) => Ok(Command::Takeoff(None)),
-            ("takeoff", [alt]) if *alt > 0.0 => Ok(Command::Takeoff(Some(*alt))),
-            ("takeoff", _) => Err("takeoff takes one height above 0 m, or none".into()),
-            ("hold", []) => Ok(Command::Hold(None)),
-            ("hold", [x, y, z]) => Ok(Command::Hold(Some([*x, *y, *z]))),
-            ("hold", _) => Err("hold takes X Y Z in metres, or nothing".into()),
-            ("land", []) => Ok(Command::Land),
-            ("disarm", []) => Ok(Command::Disarm),
-            ("kill", []) => Ok(Command::Kill),
-            ("arm" | "land" | "disarm" | "kill", _) => Err(format!("{verb} takes no arguments")),
-            _ => Err(format!(
-                "unknown command {verb:?}: arm, takeoff [ALT_M], hold [X Y Z], land, disarm, kill"
-            )),
-        }
-    }
-
-    /// `line` starts with a command word (not manual keys, though `hold` is made of keys).
-    pub fn is_word(line: &str) -> bool {
-        let verb = line.split_whitespace().next().unwrap_or("");
-        ["arm", "takeoff", "hold", "land", "disarm", "kill"].contains(&verb)
-    }
-
-    pub fn word(self) -> &'static str {
-        match self {
-            Command::Arm => "arm",
-            Command::Takeoff(_) => "takeoff",
-            Command::Hold(_) => "hold",
-            Command::Land => "land",
-            Command::Disarm => "disarm",
-            Command::Kill => "kill",
-        }
-    }
-}
-
-impl fmt::Display for Command {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Command::Takeoff(Some(a)) => write!(f, "takeoff {a}"),
-            Command::Hold(Some([x, y, z])) => write!(f, "hold {x} {y} {z}"),
-            c => f.write_str(c.word()),
-        }
-    }
-}
-
-/// Where an operator's input came from; which sources keep the link alive is configurable.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum LinkSource {
-    /// The terminal `fly` runs in (ssh).
-    Terminal,
-    /// An attached `uquad console`.
-    Console,
-    /// A ground station (and the simulator's scripted operator, which stands for one).
-    Gcs,
-}
-
-impl LinkSource {
-    pub const ALL: [LinkSource; 3] = [LinkSource::Terminal, LinkSource::Console, LinkSource::Gcs];
-
-    pub fn name(self) -> &'static str {
-        match self {
-            LinkSource::Terminal => "terminal",
-            LinkSource::Console => "console",
-            LinkSource::Gcs => "gcs",
-        }
-    }
-
-    pub fn from_name(s: &str) -> Option<LinkSource> {
-        LinkSource::ALL.into_iter().find(|l| l.name() == s)
-    }
-}
-
-/// What a failsafe does.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Action {
-    Land,
-    Hold,
-    Kill,
-}
-
-impl Action {
-    pub fn name(self) -> &'static str {
-        match self {
-            Action::Land => "land",
-            Action::Hold => "hold",
-            Action::Kill => "kill",
-        }
-    }
-}
-
-/// The graded failsafes; the watchdog's causes stay halts.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Failsafe {
-    LinkLoss,
-    GpsLoss,
-    Geofence,
-    Estimator,
-}
-
-impl Failsafe {
-    pub fn name(self) -> &'static str {
-        match self {
-            Failsafe::LinkLoss => "link-loss",
-            Failsafe::GpsLoss => "gps-loss",
-            Failsafe::Geofence => "geofence",
-            Failsafe::Estimator => "estimator",
-        }
     }
 }
 
@@ -227,63 +102,6 @@ pub struct Params {
     pub z_max_m: f64,
 }
 
-/// The checks that must pass before arming, as the driver observed them; the first failing
-/// one is named in the refusal.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct ArmFacts {
-    /// The IMU frames arrive at a stable period (settled).
-    pub imu_stable: bool,
-    /// GPS is required (gps.mode = "gpsd"); then the newest fix's horizontal error, m (None:
-    /// no fix, or one without an error estimate).
-    pub gps_required: bool,
-    pub gps_eph_m: Option<f64>,
-    pub gps_max_eph_m: f64,
-    /// Why the log folder cannot be written, if it cannot.
-    pub log_error: Option<String>,
-    /// Real-time priority held, or waived (`--allow-no-rt`, the simulator).
-    pub realtime: bool,
-    /// The ESC addresses that did not acknowledge the last probe.
-    pub esc_silent: Vec<u8>,
-}
-
-impl ArmFacts {
-    /// The first failing check, named.
-    pub fn verdict(&self) -> Result<(), String> {
-        if !self.imu_stable {
-            return Err("imu: frames are not arriving at a stable period yet".into());
-        }
-        if self.gps_required {
-            match self.gps_eph_m {
-                None => return Err("gps: no fix with a horizontal error estimate".into()),
-                Some(e) if e > self.gps_max_eph_m => {
-                    return Err(format!(
-                        "gps: horizontal error {e:.1} m above commander.gps_max_eph_m = {} m",
-                        self.gps_max_eph_m
-                    ));
-                }
-                Some(_) => {}
-            }
-        }
-        if let Some(e) = &self.log_error {
-            return Err(format!("log: {e}"));
-        }
-        if !self.realtime {
-            return Err(
-                "realtime: SCHED_FIFO not held (run as the service or use --allow-no-rt)".into(),
-            );
-        }
-        if !self.esc_silent.is_empty() {
-            let a: Vec<String> = self
-                .esc_silent
-                .iter()
-                .map(|a| format!("0x{a:02x}"))
-                .collect();
-            return Err(format!("esc: no acknowledgement from {}", a.join(", ")));
-        }
-        Ok(())
-    }
-}
-
 /// What the commander reports; the flight turns these into records.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Event {
@@ -302,18 +120,6 @@ pub enum Event {
         command: String,
         why: String,
     },
-}
-
-/// What became of a manual key.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum KeyOutcome {
-    /// Not the commander's: the planner applies it.
-    Planner,
-    /// The hold's target height is now this, m above the takeoff point.
-    Moved(f64),
-    OutOfBounds,
-    /// Only a hold's height moves.
-    Ignored(Mode),
 }
 
 /// What the commander asks of the ESCs.
@@ -390,37 +196,6 @@ const SPOOL_UP_STEPS: u32 = crate::core::motor::FLIGHT_RAMP_STEPS;
 
 /// A landing is slow over this last height, m.
 const LAST_METRE_M: f64 = 1.0;
-
-/// The share of the acceleration limit the profile brakes with.
-const BRAKE_SHARE: f64 = 0.9;
-
-/// The vertical set point's profile: speed and acceleration limited, ends at rest.
-#[derive(Debug, Clone, Copy, PartialEq)]
-struct Profile {
-    z_m: f64,
-    vz_m_s: f64,
-}
-
-impl Profile {
-    /// Moves toward `target_m` by `dt_s` with speed ≤ `v_max`, acceleration ≤ `a_max`, braking
-    /// in time to stop at the target.
-    fn advance(&mut self, target_m: f64, v_max: f64, a_max: f64, dt_s: f64) {
-        let dist = target_m - self.z_m;
-        // Braking on a curve a little gentler than the limit, so that the limited
-        // deceleration can follow it.
-        let v_brake = (2.0 * BRAKE_SHARE * a_max * dist.abs()).sqrt();
-        let v_want = dist.signum() * v_max.min(v_brake);
-        let dv_max = a_max * dt_s;
-        self.vz_m_s += (v_want - self.vz_m_s).clamp(-dv_max, dv_max);
-        let step = self.vz_m_s * dt_s;
-        // Never past the target: there, the last of the speed decays within the limit.
-        if (dist - step) * dist <= 0.0 {
-            self.z_m = target_m;
-        } else {
-            self.z_m += step;
-        }
-    }
-}
 
 /// The commander's state.
 #[derive(Debug, Clone)]
@@ -816,129 +591,6 @@ impl Commander {
             (true, Some(_)) => {}
         }
         None
-    }
-
-    /// The graded failsafes, in the air.
-    fn failsafes(&mut self, o: &Observation, out: &mut Vec<Event>) -> Option<EscRequest> {
-        let t = o.t_us;
-        let secs = |since: i64| (t - since) as f64 / 1e6;
-        let p = self.p;
-        let link_lost = self
-            .link_seen_us
-            .is_some_and(|s| secs(s) > p.link_timeout_s);
-        if link_lost {
-            return self.fire(Failsafe::LinkLoss, p.link_action, o, out);
-        }
-        let gps_stale = self.last_fix_us.is_some_and(|s| secs(s) > p.gps_timeout_s);
-        self.hold_xy = !gps_stale;
-        if gps_stale {
-            // Attitude and altitude are held at once; the action comes after a grace time.
-            let since = *self.gps_lost_us.get_or_insert(t);
-            self.record(Failsafe::GpsLoss, p.gps_loss_action, t, out);
-            if secs(since) >= p.gps_loss_land_s && !self.acted.contains(&Failsafe::GpsLoss) {
-                self.acted.push(Failsafe::GpsLoss);
-                return self.act(p.gps_loss_action, Failsafe::GpsLoss, o, out);
-            }
-        } else {
-            self.gps_lost_us = None;
-        }
-        if !gps_stale && self.last_fix_us.is_some() && self.outside_fence(o) {
-            return self.fire(Failsafe::Geofence, p.fence_action, o, out);
-        }
-        let bad = o.test_ratio_max > 1.0;
-        let since = if bad {
-            *self.ekf_bad_since_us.get_or_insert(t)
-        } else {
-            t
-        };
-        if !bad {
-            self.ekf_bad_since_us = None;
-        }
-        if bad && secs(since) >= p.ekf_bad_s {
-            return self.fire(Failsafe::Estimator, p.ekf_action, o, out);
-        }
-        None
-    }
-
-    fn outside_fence(&self, o: &Observation) -> bool {
-        let Some(h) = self.home_m else {
-            return false;
-        };
-        let r = (o.pos_m[0] - h[0]).hypot(o.pos_m[1] - h[1]);
-        r > self.p.fence_radius_m || o.pos_m[2] - h[2] > self.p.fence_alt_max_m
-    }
-
-    /// Records a failsafe the first time it fires in this run.
-    fn record(&mut self, kind: Failsafe, action: Action, t_us: i64, out: &mut Vec<Event>) {
-        if !self.fired.contains(&kind) {
-            self.fired.push(kind);
-            out.push(Event::Failsafe { t_us, kind, action });
-        }
-    }
-
-    /// A failsafe fires and its action is taken, once per run: the operator may then choose
-    /// another mode.
-    fn fire(
-        &mut self,
-        kind: Failsafe,
-        action: Action,
-        o: &Observation,
-        out: &mut Vec<Event>,
-    ) -> Option<EscRequest> {
-        if self.acted.contains(&kind) {
-            return None;
-        }
-        self.acted.push(kind);
-        self.record(kind, action, o.t_us, out);
-        self.act(action, kind, o, out)
-    }
-
-    fn act(
-        &mut self,
-        action: Action,
-        kind: Failsafe,
-        o: &Observation,
-        out: &mut Vec<Event>,
-    ) -> Option<EscRequest> {
-        let (t_us, why) = (o.t_us, format!("failsafe {}", kind.name()));
-        match action {
-            Action::Kill => return Some(EscRequest::Kill),
-            Action::Land => self.begin_land(Some(o), t_us, &why, out),
-            Action::Hold if self.mode != Mode::Hold => self.set_mode(Mode::Hold, t_us, &why, out),
-            _ => {}
-        }
-        None
-    }
-}
-
-/// One input from the operator's side, as the flight applies and records it.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum OperatorInput {
-    Command(Command, LinkSource),
-    Beat(LinkSource),
-    Key(ManualCommand),
-}
-
-impl OperatorInput {
-    /// One line an operator typed (stdin, a console): a command word with its arguments,
-    /// `quit` (or `esc`), or manual keys (spec 5.2: `e` raises the set point; `eee` three
-    /// times). Empty lines give nothing.
-    pub fn parse_line(line: &str, source: LinkSource) -> Result<Vec<OperatorInput>, String> {
-        let line = line.trim();
-        if line.is_empty() {
-            return Ok(Vec::new());
-        }
-        if line == "quit" || line == "esc" {
-            return Ok(vec![OperatorInput::Key(ManualCommand::Quit)]);
-        }
-        let keys: Option<Vec<OperatorInput>> = line
-            .bytes()
-            .map(|b| ManualCommand::from_key(b).map(OperatorInput::Key))
-            .collect();
-        match keys {
-            Some(k) if !Command::is_word(line) => Ok(k),
-            _ => Command::parse(line).map(|c| vec![OperatorInput::Command(c, source)]),
-        }
     }
 }
 

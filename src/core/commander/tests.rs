@@ -213,6 +213,16 @@ fn takeoff_needs_an_armed_vehicle_and_a_running_estimator() {
     assert_eq!(c.mode(), Mode::Armed);
 }
 
+/// Armed and taking off at 0 with parameters `p`.
+fn taking_off(p: Params) -> (Commander, Vec<Event>) {
+    let mut c = Commander::new(p);
+    let mut ev = Vec::new();
+    c.command(Command::Arm, 0, good_facts().verdict(), None, &mut ev);
+    let o = at(0, 0.0);
+    c.command(Command::Takeoff(None), 0, Ok(()), Some(&o), &mut ev);
+    (c, ev)
+}
+
 /// Armed, took off to 1 m and holding there, at 10 s.
 fn holding() -> (Commander, Vec<Event>) {
     let (mut c, mut ev) = armed();
@@ -401,16 +411,7 @@ fn a_silent_link_lands_once_and_the_operator_may_then_choose() {
 fn a_link_never_seen_is_not_lost_and_sources_not_counted_are_ignored() {
     let mut p = params();
     p.link_sources = [true, false, false];
-    let mut c = Commander::new(p);
-    let mut ev = Vec::new();
-    c.command(Command::Arm, 0, good_facts().verdict(), None, &mut ev);
-    c.command(
-        Command::Takeoff(None),
-        0,
-        Ok(()),
-        Some(&at(0, 0.0)),
-        &mut ev,
-    );
+    let (mut c, mut ev) = taking_off(p);
     c.link_beat(LinkSource::Console, 0);
     follow(&mut c, 10_000, 30_000_000, &mut ev);
     assert!(failsafes(&ev).is_empty(), "{ev:?}");
@@ -504,16 +505,7 @@ fn an_estimator_outside_its_gate_for_long_lands() {
 fn a_kill_action_asks_for_the_halt() {
     let mut p = params();
     p.link_action = Action::Kill;
-    let mut c = Commander::new(p);
-    let mut ev = Vec::new();
-    c.command(Command::Arm, 0, good_facts().verdict(), None, &mut ev);
-    c.command(
-        Command::Takeoff(None),
-        0,
-        Ok(()),
-        Some(&at(0, 0.0)),
-        &mut ev,
-    );
+    let (mut c, mut ev) = taking_off(p);
     c.link_beat(LinkSource::Gcs, 0);
     let mut kill = None;
     let mut t = STEP_US;

@@ -12,6 +12,6 @@ pub use halves::{
 };
 pub use sequence::{
     Abort, ArmCheck, Command, ControllerCounts, ControllerSide, EscState, EstimatorCounts,
-    EstimatorSide, Feedback, FlightRecord, FrameAction, FrameTimes, GatedCounts, Outputs, Phase,
-    RecordedClock,
+    EstimatorSide, Feedback, FlightRecord, FrameAction, FrameTimes, GatedCounts, OperatorAction,
+    Outputs, Phase, RecordedClock,
 };

@@ -25,7 +25,7 @@ use super::halves::{ControllerCore, Estimate, EstimatorCore};
 use crate::core::commander::{
     self, ArmFacts, Commander, EscRequest, KeyOutcome, Mode, Observation, OperatorInput,
 };
-use crate::core::control::{ManualCommand, ManualOutcome};
+use crate::core::control::ManualCommand;
 use crate::core::ekf::{Ekf, GatedGroups, Input, TestRatios, idx};
 use crate::core::esc::EscPhase;
 use crate::core::gps::LiveFix;
@@ -326,14 +326,13 @@ impl EstimatorSide {
 
     /// An operator's input at `t_us`. An `arm` is checked against `arm`: the facts the
     /// driver observed (the IMU's settling is this side's own), or a replay's recorded verdict.
-    /// `true`: zero and disable the ESCs (disarmed on the ground); the run goes on.
     pub fn operator(
         &mut self,
         input: OperatorInput,
         t_us: i64,
         arm: ArmCheck<'_>,
         out: &mut impl Outputs,
-    ) -> bool {
+    ) -> OperatorAction {
         self.start(out);
         let verdict = match (input, arm) {
             (OperatorInput::Command(commander::Command::Arm, _), ArmCheck::Recorded(v)) => {
@@ -356,6 +355,10 @@ impl EstimatorSide {
                 self.commander.link_beat(src, t_us);
                 None
             }
+            OperatorInput::Key(ManualCommand::Quit) => {
+                out.record(FlightRecord::Note("manual quit: stopping".into()));
+                return OperatorAction::Quit;
+            }
             OperatorInput::Key(k) => {
                 self.key(k, out);
                 None
@@ -369,12 +372,16 @@ impl EstimatorSide {
             }
         };
         self.record_events(out);
-        self.esc_request(request, t_us, out)
+        if self.esc_request(request, t_us, out) {
+            OperatorAction::StopEscs
+        } else {
+            OperatorAction::Nothing
+        }
     }
 
     /// A manual key: the commander's (the hold's height, noted here) or the planner's (queued
     /// for the controller, which notes it).
-    fn key(&mut self, k: crate::core::control::ManualCommand, out: &mut impl Outputs) {
+    fn key(&mut self, k: ManualCommand, out: &mut impl Outputs) {
         let note = match self.commander.manual(k) {
             KeyOutcome::Planner => return self.keys.push_back(k),
             KeyOutcome::Moved(h) => format!("manual {k:?}: hold height {h:.2} m"),
@@ -452,7 +459,7 @@ impl EstimatorSide {
                 if self.commander.mode() != Mode::Armed {
                     return FrameAction::Wait;
                 }
-                self.esc_start(esc, out)
+                self.esc_start(esc, times.t_frame_us, out)
             }
             FrontEndEvent::Calibrating { .. } => {
                 self.phase = Phase::Calibration;
@@ -477,7 +484,7 @@ impl EstimatorSide {
     }
 
     /// Settled: start the ESCs once, calibrate when their ramp is done, abort if they stopped.
-    fn esc_start(&mut self, esc: EscState<'_>, out: &mut impl Outputs) -> FrameAction {
+    fn esc_start(&mut self, esc: EscState<'_>, t_us: i64, out: &mut impl Outputs) -> FrameAction {
         if !self.esc_start_asked {
             self.esc_start_asked = true;
             out.record(FlightRecord::Note(
@@ -494,7 +501,7 @@ impl EstimatorSide {
             }
             EscPhase::Stopped => {
                 let why = esc.stop_reason.unwrap_or("no reason given").to_string();
-                self.commander.on_esc_stopped(0, &why, &mut self.events);
+                self.commander.on_esc_stopped(t_us, &why, &mut self.events);
                 self.record_events(out);
                 self.abort(Abort::EscStopped(why))
             }
@@ -615,6 +622,16 @@ impl EstimatorSide {
     }
 }
 
+/// What the driver does after an operator's input.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OperatorAction {
+    Nothing,
+    /// Zero and disable the ESCs (disarmed on the ground); the run goes on.
+    StopEscs,
+    /// The manual quit key (the original's Esc): end the run, the motors stopped first.
+    Quit,
+}
+
 /// How an `arm` is checked.
 #[derive(Debug, Clone, Copy)]
 pub enum ArmCheck<'a> {
@@ -646,8 +663,6 @@ pub struct Command {
     pub saturated: bool,
     /// Zero and disable the ESCs instead of sending the speeds (disarmed on the ground).
     pub stop_escs: bool,
-    /// A manual quit key: end the run.
-    pub quit: bool,
 }
 
 /// Counters of the controller side.
@@ -698,20 +713,17 @@ impl ControllerSide {
             .map(|p| [p.sp.x[0], p.sp.x[1], p.sp.x[2]])
     }
 
-    /// A manual set-point command (spec 5.2); `true` when it asks to quit.
-    pub fn manual(&mut self, cmd: ManualCommand, out: &mut impl Outputs) -> bool {
+    /// A manual set-point command for the planner (spec 5.2): attitude and weight keys.
+    fn manual(&mut self, cmd: ManualCommand, out: &mut impl Outputs) {
         self.counts.manual_commands += 1;
-        let outcome = self.core.apply_manual(cmd);
-        let note = match outcome {
-            Some(ManualOutcome::Quit) => "manual quit: stopping".to_string(),
+        let note = match self.core.apply_manual(cmd) {
             Some(o) => format!(
                 "manual {cmd:?}: {o:?}; set point {:?}",
                 self.core.planner().map(|p| p.sp.x)
             ),
-            None => format!("manual {cmd:?} ignored before flight"),
+            None => format!("manual {cmd:?} ignored before the takeoff"),
         };
         out.record(FlightRecord::Note(note));
-        outcome == Some(ManualOutcome::Quit)
     }
 
     /// Step 3: one control step on `est`. The command goes to `send` (the ESC driver) before
@@ -722,7 +734,9 @@ impl ControllerSide {
         send: impl FnOnce(&Command),
         out: &mut impl Outputs,
     ) -> Command {
-        let quit = est.manual.is_some_and(|k| self.manual(k, out));
+        if let Some(k) = est.manual {
+            self.manual(k, out);
+        }
         let c = self.core.control(est, est.t_ctrl_us, est.t_cmd_us);
         let command = Command {
             step: c.step,
@@ -735,7 +749,6 @@ impl ControllerSide {
             },
             saturated: c.saturated,
             stop_escs: est.stop_escs,
-            quit,
         };
         send(&command);
         if est.guidance.fly && c.position_hold != self.position_hold {

@@ -1,0 +1,147 @@
+//! The operator's words: the commander's commands (`arm`, `takeoff [ALT_M]`, `hold [X Y Z]`,
+//! `land`, `disarm`, `kill`), where an input came from (the link sources the `link-loss`
+//! failsafe counts), a typed line as inputs, and what became of a manual key (spec 5.2).
+
+use super::Mode;
+use crate::core::control::ManualCommand;
+use std::fmt;
+
+/// An operator's command: the same words from stdin, the console and the ground station.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Command {
+    Arm,
+    /// Climb to this height, m (default: the profile's hover height).
+    Takeoff(Option<f64>),
+    /// Hover here (x, y, z), m (default: where the vehicle is).
+    Hold(Option<[f64; 3]>),
+    Land,
+    Disarm,
+    Kill,
+}
+
+impl Command {
+    /// Parses `arm`, `takeoff [ALT_M]`, `hold [X Y Z]`, `land`, `disarm`, `kill`.
+    pub fn parse(line: &str) -> Result<Command, String> {
+        let mut words = line.split_whitespace();
+        let verb = words.next().unwrap_or("");
+        let args: Vec<&str> = words.collect();
+        let nums = args
+            .iter()
+            .map(|a| a.parse::<f64>().ok().filter(|v| v.is_finite()))
+            .collect::<Option<Vec<f64>>>()
+            .ok_or_else(|| format!("{verb}: arguments must be finite numbers, got {args:?}"))?;
+        match (verb, nums.as_slice()) {
+            ("arm", []) => Ok(Command::Arm),
+            ("takeoff", []) => Ok(Command::Takeoff(None)),
+            ("takeoff", [alt]) if *alt > 0.0 => Ok(Command::Takeoff(Some(*alt))),
+            ("takeoff", _) => Err("takeoff takes one height above 0 m, or none".into()),
+            ("hold", []) => Ok(Command::Hold(None)),
+            ("hold", [x, y, z]) => Ok(Command::Hold(Some([*x, *y, *z]))),
+            ("hold", _) => Err("hold takes X Y Z in metres, or nothing".into()),
+            ("land", []) => Ok(Command::Land),
+            ("disarm", []) => Ok(Command::Disarm),
+            ("kill", []) => Ok(Command::Kill),
+            ("arm" | "land" | "disarm" | "kill", _) => Err(format!("{verb} takes no arguments")),
+            _ => Err(format!(
+                "unknown command {verb:?}: arm, takeoff [ALT_M], hold [X Y Z], land, disarm, kill"
+            )),
+        }
+    }
+
+    /// `line` starts with a command word (not manual keys, though `hold` is made of keys).
+    pub fn is_word(line: &str) -> bool {
+        let verb = line.split_whitespace().next().unwrap_or("");
+        ["arm", "takeoff", "hold", "land", "disarm", "kill"].contains(&verb)
+    }
+
+    pub fn word(self) -> &'static str {
+        match self {
+            Command::Arm => "arm",
+            Command::Takeoff(_) => "takeoff",
+            Command::Hold(_) => "hold",
+            Command::Land => "land",
+            Command::Disarm => "disarm",
+            Command::Kill => "kill",
+        }
+    }
+}
+
+impl fmt::Display for Command {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Command::Takeoff(Some(a)) => write!(f, "takeoff {a}"),
+            Command::Hold(Some([x, y, z])) => write!(f, "hold {x} {y} {z}"),
+            c => f.write_str(c.word()),
+        }
+    }
+}
+
+/// Where an operator's input came from; which sources keep the link alive is configurable.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LinkSource {
+    /// The terminal `fly` runs in (ssh).
+    Terminal,
+    /// An attached `uquad console`.
+    Console,
+    /// A ground station (and the simulator's scripted operator, which stands for one).
+    Gcs,
+}
+
+impl LinkSource {
+    pub const ALL: [LinkSource; 3] = [LinkSource::Terminal, LinkSource::Console, LinkSource::Gcs];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            LinkSource::Terminal => "terminal",
+            LinkSource::Console => "console",
+            LinkSource::Gcs => "gcs",
+        }
+    }
+
+    pub fn from_name(s: &str) -> Option<LinkSource> {
+        LinkSource::ALL.into_iter().find(|l| l.name() == s)
+    }
+}
+
+/// What became of a manual key.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum KeyOutcome {
+    /// Not the commander's: the planner applies it.
+    Planner,
+    /// The hold's target height is now this, m above the takeoff point.
+    Moved(f64),
+    OutOfBounds,
+    /// Only a hold's height moves.
+    Ignored(Mode),
+}
+
+/// One input from the operator's side, as the flight applies and records it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum OperatorInput {
+    Command(Command, LinkSource),
+    Beat(LinkSource),
+    Key(ManualCommand),
+}
+
+impl OperatorInput {
+    /// One line an operator typed (stdin, a console): a command word with its arguments,
+    /// `quit` (or `esc`), or manual keys (spec 5.2: `e` raises the set point; `eee` three
+    /// times). Empty lines give nothing.
+    pub fn parse_line(line: &str, source: LinkSource) -> Result<Vec<OperatorInput>, String> {
+        let line = line.trim();
+        if line.is_empty() {
+            return Ok(Vec::new());
+        }
+        if line == "quit" || line == "esc" {
+            return Ok(vec![OperatorInput::Key(ManualCommand::Quit)]);
+        }
+        let keys: Option<Vec<OperatorInput>> = line
+            .bytes()
+            .map(|b| ManualCommand::from_key(b).map(OperatorInput::Key))
+            .collect();
+        match keys {
+            Some(k) if !Command::is_word(line) => Ok(k),
+            _ => Command::parse(line).map(|c| vec![OperatorInput::Command(c, source)]),
+        }
+    }
+}
