@@ -1,15 +1,17 @@
 //! `uquad replay`: runs the core on a run folder as the original wrote it.
 //!
 //! The flight sequence (`core::flight::sequence`) runs here as in flight, on the run's recorded
-//! clock, with no ESCs and no watchdog. The whole loop runs closed, as in flight: measurement → EKF → controller → flight ramp and
-//! saturation → the motor speeds fed back as the EKF input (ERRATA 6). No recorded motor speed
+//! clock, with no ESCs and no watchdog. The whole loop runs closed, as in flight: measurement
+//! → EKF → controller → flight ramp and saturation → the motor speeds fed back as the EKF input (ERRATA 6). No recorded motor speed
 //! is fed in; only the run's recorded clock is: the time columns of `kalman_in.log` (Kalman
 //! step times, ERRATA 3), `int.log` (control step times) and `w.log` (motor command times,
 //! ERRATA 8), and `gps.log` (GPS sample times or gpsd fixes, ERRATA 5). Without them the frames'
 //! own times stand in.
 //!
 //! Outputs in OUT_DIR, in the original's formats: `kalman_in.log`, `x_hat.log`, `w.log`,
-//! `int.log`; and uquad's `innov.log` (the innovation test ratios). They are built in memory and written once at the end (no sync per record).
+//! `int.log`; and uquad's `innov.log` (the innovation test ratios) and `mode.log` (the
+//! commander's, from the run's recorded operator inputs and halt). They are built in memory
+//! and written once at the end (no sync per record).
 //! Replay is deterministic: the same inputs give byte-identical outputs.
 
 use crate::config::{GpsMode, Profile};
@@ -327,7 +329,8 @@ pub fn run_observed(
         raw_frames: raw.len(),
         ..ReplaySummary::default()
     };
-    let mut inputs = recorded_inputs(run_dir)?.into_iter().peekable();
+    let (inputs, halt) = recorded_inputs(run_dir)?;
+    let mut inputs = inputs.into_iter().peekable();
     for rec in &raw {
         let times = FrameTimes {
             t_main_us: rec.t_main_us,
@@ -354,6 +357,10 @@ pub fn run_observed(
         }
         feedback = controller.control(&est, |_| {}, &mut out).feedback;
     }
+    // The run's halt, from its record: a replay has no watchdog.
+    if let Some((t_us, reason)) = halt {
+        estimator.note_halt(t_us, &reason, &mut out);
+    }
     let (e, c) = (estimator.counts(), controller.counts());
     summary.kalman_steps = e.steps as usize;
     summary.gps_updates = e.gps_updates as usize;
@@ -375,14 +382,19 @@ pub fn run_observed(
     Ok(summary)
 }
 
-/// The operator's inputs of a run (its mode.log); none for runs without one (the 2012
-/// flights, which started flying).
-fn recorded_inputs(run_dir: &Path) -> anyhow::Result<Vec<logs::mode_log::RecordedInput>> {
+/// The operator's inputs of a run (its mode.log) and its halt, if the watchdog halted it;
+/// none for runs without a mode.log (the 2012 flights, which started flying).
+type Recorded = (Vec<logs::mode_log::RecordedInput>, Option<(i64, String)>);
+
+fn recorded_inputs(run_dir: &Path) -> anyhow::Result<Recorded> {
     let path = run_dir.join("mode.log");
     match std::fs::read_to_string(&path) {
-        Ok(text) => logs::mode_log::read_inputs(&text)
-            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display())),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(Vec::new()),
+        Ok(text) => {
+            let inputs = logs::mode_log::read_inputs(&text)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+            Ok((inputs, logs::mode_log::read_halt(&text)))
+        }
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok((Vec::new(), None)),
         Err(e) => Err(anyhow::anyhow!("cannot read {}: {e}", path.display())),
     }
 }

@@ -15,7 +15,7 @@ use crate::app::report::{FlySummary, SimSummary};
 use crate::app::run_dir::{create_run_dir, write_run_config};
 use crate::app::sim::SimOptions;
 use crate::config::{GpsMode, Profile};
-use crate::core::commander::{ArmFacts, Mode, OperatorInput};
+use crate::core::commander::{ArmFacts, Command as OperatorCommand, Mode, OperatorInput};
 use crate::core::esc::{CycleKind, CycleRunner, EscDriver, EscPhase};
 use crate::core::flight::{ArmCheck, OperatorAction};
 use crate::core::flight::{
@@ -275,8 +275,12 @@ impl<'a> FastSim<'a> {
         if self.inputs.is_empty() {
             return;
         }
-        let facts = self.arm_facts();
         for input in std::mem::take(&mut self.inputs) {
+            let facts = if matches!(input, OperatorInput::Command(OperatorCommand::Arm, _)) {
+                self.arm_facts()
+            } else {
+                ArmFacts::default()
+            };
             let check = ArmCheck::Facts(&facts);
             match self.estimator.operator(input, t, check, &mut self.out) {
                 OperatorAction::StopEscs => self.driver.stop("disarmed", t, &mut self.cycles),

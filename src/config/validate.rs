@@ -266,6 +266,7 @@ pub(super) fn validate(c: &Config) -> Vec<Check> {
         manual_rules(c),
         integral_rules(c),
         commander_rules(c),
+        failsafe_rules(c),
     ];
     rules.into_iter().flatten().filter(|r| !r.passed).collect()
 }
@@ -583,59 +584,51 @@ fn sim_rules(sim: &Sim) -> Vec<Check> {
     ]
 }
 
-/// Arming, takeoff, landing, the failsafes and the fence.
+/// Arming, takeoff and landing: each a positive number up to a limit, the landing's slow
+/// speed no faster than its speed.
 fn commander_rules(c: &Config) -> Vec<Check> {
-    let (m, f, fence) = (&c.commander, &c.failsafe, &c.fence);
+    let m = &c.commander;
+    let limits = [
+        ("commander.climb_m_s", m.climb_m_s, 5.0, "m/s"),
+        ("commander.climb_acc_m_s2", m.climb_acc_m_s2, 10.0, "m/s²"),
+        (
+            "commander.takeoff_tolerance_m",
+            m.takeoff_tolerance_m,
+            2.0,
+            "m",
+        ),
+        ("commander.land_m_s", m.land_m_s, 3.0, "m/s"),
+        ("commander.touchdown_v_m_s", m.touchdown_v_m_s, 1.0, "m/s"),
+        ("commander.touchdown_thrust", m.touchdown_thrust, 1.0, ""),
+        ("commander.touchdown_s", m.touchdown_s, 10.0, "s"),
+        ("commander.gps_max_eph_m", m.gps_max_eph_m, 100.0, "m"),
+    ];
+    let mut checks: Vec<Check> = limits
+        .into_iter()
+        .map(|(key, v, max, unit)| in_range(key, v, positive_to(max), unit))
+        .collect();
+    checks.push(
+        in_range(
+            "commander.land_slow_m_s",
+            m.land_slow_m_s,
+            positive_to(1.0),
+            "m/s",
+        )
+        .and(m.land_slow_m_s <= m.land_m_s, "at most commander.land_m_s"),
+    );
+    checks
+}
+
+/// The failsafes and the fence: known link sources, a link timeout longer than the links'
+/// one-second beat, a fence above the takeoff's default height.
+fn failsafe_rules(c: &Config) -> Vec<Check> {
+    let (f, fence) = (&c.failsafe, &c.fence);
     let unknown: Vec<&String> = f
         .link_sources
         .iter()
         .filter(|s| crate::core::commander::LinkSource::from_name(s).is_none())
         .collect();
     vec![
-        in_range("commander.climb_m_s", m.climb_m_s, positive_to(5.0), "m/s"),
-        in_range(
-            "commander.climb_acc_m_s2",
-            m.climb_acc_m_s2,
-            positive_to(10.0),
-            "m/s²",
-        ),
-        in_range(
-            "commander.takeoff_tolerance_m",
-            m.takeoff_tolerance_m,
-            positive_to(2.0),
-            "m",
-        ),
-        in_range("commander.land_m_s", m.land_m_s, positive_to(3.0), "m/s"),
-        in_range(
-            "commander.land_slow_m_s",
-            m.land_slow_m_s,
-            positive_to(1.0),
-            "m/s",
-        ),
-        in_range(
-            "commander.touchdown_v_m_s",
-            m.touchdown_v_m_s,
-            positive_to(1.0),
-            "m/s",
-        ),
-        in_range(
-            "commander.touchdown_thrust",
-            m.touchdown_thrust,
-            positive_to(1.0),
-            "",
-        ),
-        in_range(
-            "commander.touchdown_s",
-            m.touchdown_s,
-            positive_to(10.0),
-            "s",
-        ),
-        in_range(
-            "commander.gps_max_eph_m",
-            m.gps_max_eph_m,
-            positive_to(100.0),
-            "m",
-        ),
         Check::new(
             "failsafe.link_sources",
             unknown.is_empty(),
@@ -645,9 +638,10 @@ fn commander_rules(c: &Config) -> Vec<Check> {
         in_range(
             "failsafe.link_timeout_s",
             f.link_timeout_s,
-            positive_to(600.0),
+            1.5..=600.0,
             "s",
-        ),
+        )
+        .note("the links beat once a second"),
         in_range(
             "failsafe.gps_loss_land_s",
             f.gps_loss_land_s,
@@ -666,6 +660,10 @@ fn commander_rules(c: &Config) -> Vec<Check> {
             fence.alt_max_m,
             positive_to(10_000.0),
             "m",
+        )
+        .and(
+            fence.alt_max_m > c.control.hover_z_m,
+            "above control.hover_z_m (the takeoff's default height)",
         ),
     ]
 }

@@ -369,13 +369,17 @@ pub struct CycleDone {
     pub at_us: i64,
     /// After a failed cycle: the run of consecutive failed cycles, for the watchdog.
     pub failures: Option<Event>,
+    /// This cycle settled a stop: nothing spins any more.
+    pub stopped: bool,
 }
 
 impl CycleDone {
-    /// What the watchdog hears of this cycle: the motors enabled, a run of failed cycles.
+    /// What the watchdog hears of this cycle: the motors enabled, a run of failed cycles, the
+    /// motors stopped.
     pub fn watchdog_events(&self) -> impl Iterator<Item = Event> + use<> {
         let enabled = (self.kind == CycleKind::Enable).then_some(Event::MotorsEnabled(self.at_us));
-        enabled.into_iter().chain(self.failures)
+        let stopped = self.stopped.then_some(Event::MotorsStopped(self.at_us));
+        enabled.into_iter().chain(self.failures).chain(stopped)
     }
 }
 
@@ -436,14 +440,17 @@ impl CycleRunner {
                     first_us: self.first_failure_us,
                 })
             };
-            let cycle_done = CycleDone {
+            let mut cycle_done = CycleDone {
                 kind,
                 ok,
                 acked,
                 at_us,
                 failures,
+                stopped: false,
             };
+            let settled_before = driver.stop_outcome().is_some();
             driver.on_done(&cycle_done);
+            cycle_done.stopped = !settled_before && driver.stop_outcome().is_some();
             done(cycle_done, first_error);
         }
     }

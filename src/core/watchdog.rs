@@ -88,8 +88,11 @@ pub enum Event {
     Frame(i64),
     /// The commander asks for a halt (`kill`).
     Kill(i64),
-    /// The commander disarmed on the ground (zero, then disable): nothing spins, so neither
-    /// the deadline nor the IMU timeout applies any more.
+    /// The commander disarms on the ground: no more flight commands, so the deadline no
+    /// longer applies (the IMU timeout does, until the stop has settled).
+    Disarming(i64),
+    /// A stop of the ESCs settled (zero, then disable, acknowledged): nothing spins, so the
+    /// IMU timeout no longer applies either.
     MotorsStopped(i64),
     /// The ESCs were enabled (the first write of their start-up ramp): the motors may spin
     /// from now on, so a silent IMU halts them.
@@ -152,6 +155,8 @@ pub struct Watchdog {
     uncommanded_us: std::collections::VecDeque<i64>,
     /// Motors under flight commands (the deadline applies from then on).
     flying: bool,
+    /// The commander disarmed: no flight command is expected any more.
+    disarmed: bool,
     /// When the ESCs were enabled (the IMU timeout applies from then on).
     motors_on_us: Option<i64>,
     sanity_counter: u32,
@@ -168,6 +173,7 @@ impl Watchdog {
             last_frame_us: None,
             uncommanded_us: std::collections::VecDeque::with_capacity(UNCOMMANDED_CAP),
             flying: false,
+            disarmed: false,
             motors_on_us: None,
             sanity_counter: 0,
             refused_updates: 0,
@@ -207,7 +213,8 @@ impl Watchdog {
     /// The command for the frame that arrived at `frame_us` was written at `written_us`. It
     /// answers that frame and any older one (the ESC writer keeps only the newest command).
     pub fn on_command(&mut self, frame_us: i64, written_us: i64) -> Option<Trip> {
-        self.flying = true;
+        // A command written after the disarm (queued before it) does not restart the deadline.
+        self.flying = !self.disarmed;
         // A flight command spins the motors, whether or not their enable was reported.
         self.motors_on_us.get_or_insert(frame_us);
         while self.uncommanded_us.front().is_some_and(|&f| f <= frame_us) {
@@ -289,6 +296,12 @@ impl Watchdog {
                 None
             }
             Event::Kill(at) => self.decide(TripReason::Kill, at, now_us),
+            Event::Disarming(_) => {
+                self.disarmed = true;
+                self.flying = false;
+                self.uncommanded_us.clear();
+                None
+            }
             Event::MotorsStopped(_) => {
                 self.flying = false;
                 self.motors_on_us = None;
@@ -425,6 +438,27 @@ mod tests {
         assert_eq!(w.on_esc_failures(2, 1_000, 3_000), None);
         let trip = w.on_esc_failures(3, 1_000, 5_000).unwrap();
         assert_eq!((trip.reason, trip.event_us), (TripReason::EscAck, 1_000));
+    }
+
+    #[test]
+    fn a_disarm_ends_the_deadline_and_a_settled_stop_the_imu_timeout() {
+        let mut w = wd();
+        w.on_event(Event::MotorsEnabled(0), 0);
+        w.on_frame(10_000);
+        assert_eq!(w.on_command(10_000, 10_100), None);
+        w.on_frame(15_000);
+        w.on_event(Event::Disarming(20_000), 20_000);
+        w.on_frame(20_000);
+        // A command queued before the disarm, written after it, restarts nothing.
+        assert_eq!(w.on_command(15_000, 20_500), None);
+        w.on_frame(30_000);
+        // Frames of 20 ms and 30 ms without a command: no deadline once disarming.
+        assert_eq!(w.tick(39_000), None);
+        // Until the stop settles, a silent IMU still halts.
+        let trip = w.clone().tick(60_000).unwrap();
+        assert_eq!(trip.reason, TripReason::ImuTimeout);
+        w.on_event(Event::MotorsStopped(46_000), 46_000);
+        assert_eq!(w.tick(1_000_000), None, "nothing spins: no IMU timeout");
     }
 
     #[test]

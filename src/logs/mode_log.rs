@@ -68,6 +68,17 @@ pub fn read_inputs(text: &str) -> Result<Vec<RecordedInput>, String> {
     Ok(inputs)
 }
 
+/// The commander's `kill` of a mode.log (the watchdog's halt): its time and reason, which a
+/// replay, having no watchdog, takes from the run.
+pub fn read_halt(text: &str) -> Option<(i64, String)> {
+    text.lines().find_map(|line| {
+        let mut parts = line.trim_end_matches('\r').splitn(4, ' ');
+        let t_us = parts.next()?.parse().ok()?;
+        (parts.next()? == "mode" && parts.next()? == "kill")
+            .then(|| (t_us, parts.next().unwrap_or("").to_string()))
+    })
+}
+
 fn parse_input(line: &str) -> Result<Option<RecordedInput>, String> {
     let mut parts = line.splitn(3, ' ');
     let t_us: i64 = parts
@@ -149,6 +160,14 @@ mod tests {
             ]
         );
         assert!(s.contains("10 failsafe link-loss land\n"), "{s}");
+        let kill = Event::Mode {
+            t_us: 12,
+            mode: Mode::Kill,
+            why: "imu-timeout".into(),
+        };
+        write_event(&mut s, &kill);
+        assert_eq!(read_halt(&s), Some((12, "imu-timeout".to_string())));
+        assert_eq!(read_inputs(&s).unwrap().len(), 5, "a kill is an output");
     }
 
     #[test]

@@ -21,6 +21,7 @@ use crate::tasks::TaskOutputs;
 use crate::tasks::esc_writer::{EscMailbox, EscStatus};
 use crate::tasks::imu_reader::StampedFrame;
 use crate::tasks::prearm::PreArm;
+use crate::tasks::watchdog::WatchdogStatus;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, watch};
@@ -68,6 +69,8 @@ pub struct EstimatorTask {
     pub prearm: PreArm,
     /// `fly --arm`: arm once the IMU has settled.
     pub auto_arm: bool,
+    /// The watchdog's state: a halt ends the run, and the commander records its `kill`.
+    pub watchdog: Arc<WatchdogStatus>,
 }
 
 impl EstimatorTask {
@@ -119,6 +122,10 @@ impl EstimatorTask {
             if self.estimates.send(msg).await.is_err() {
                 break;
             }
+        }
+        if let Some(h) = self.watchdog.halt() {
+            self.side
+                .note_halt(h.halt_us, h.trip.reason.name(), &mut self.out);
         }
         let c = self.side.counts();
         Ok(EstimatorReport {

@@ -114,6 +114,7 @@ pub(super) fn spawn(
                 operator: inputs.operator,
                 prearm,
                 auto_arm,
+                watchdog: h.wd_status.clone(),
             }
             .run()
             .instrument(tracing::info_span!("estimator"))

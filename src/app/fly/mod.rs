@@ -4,7 +4,7 @@
 //! imu_reader --frames (mpsc)--> estimator --estimates (mpsc 1)--> controller --command--> esc_writer
 //!                                  ^                                  |        (mailbox)   (own thread)
 //!                                  +------ feedback: next u (watch) --+
-//! stdin keys, console --manual (mpsc)---------------------------------^
+//! stdin lines, consoles, sim operator --operator inputs (mpsc)--^ (to the estimator)
 //! every stream --records (try_send, drops counted)--> logger[stream] --> <run>/<stream>.log
 //! ```
 //!
@@ -268,7 +268,7 @@ fn start_watchdog(
     .context("cannot start the watchdog thread")
 }
 
-/// Phase 5: signals, stdin keys, the console socket and systemd, on the main runtime.
+/// Phase 5: signals, stdin's lines, the console socket and systemd, on the main runtime.
 fn serve_operator(
     profile: &Profile,
     opts: &FlyOptions,

@@ -87,7 +87,8 @@ pub(super) async fn notify_systemd(n: Arc<crate::hw::notify::Notifier>, h: RunHa
 }
 
 /// The terminal `fly` runs in: lines typed on stdin (commands, `quit`, manual keys; see
-/// [`OperatorInput::parse_line`]); the Esc key quits at once. While stdin is open, a link beat
+/// [`OperatorInput::parse_line`]); Esc alone on a line quits (an arrow key's escape sequence
+/// in a line is no quit). While stdin is open, a link beat
 /// each second: the terminal is an operator link (`failsafe.link_sources`), lost when its ssh
 /// session drops.
 pub(super) async fn read_terminal(tx: mpsc::Sender<OperatorInput>, cancel: CancellationToken) {
@@ -115,7 +116,6 @@ pub(super) async fn read_terminal(tx: mpsc::Sender<OperatorInput>, cancel: Cance
             return;
         }
         let text = match byte[0] {
-            27 => "quit".to_string(),
             b'\n' => String::from_utf8_lossy(&std::mem::take(&mut line)).into_owned(),
             // A line longer than the console's cap is dropped.
             b if line.len() < crate::console::MAX_LINE_BYTES => {

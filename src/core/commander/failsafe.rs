@@ -44,50 +44,92 @@ impl Failsafe {
 }
 
 impl Commander {
-    /// The graded failsafes, in the air.
+    /// The graded failsafes, in the air: each condition is checked on every step; a
+    /// failsafe is recorded when its condition begins and acts once while it lasts.
     pub(super) fn failsafes(
         &mut self,
         o: &Observation,
         out: &mut Vec<Event>,
     ) -> Option<EscRequest> {
-        let t = o.t_us;
+        let (t, p) = (o.t_us, self.p);
         let secs = |since: i64| (t - since) as f64 / 1e6;
-        let p = self.p;
         let link_lost = self
             .link_seen_us
             .is_some_and(|s| secs(s) > p.link_timeout_s);
-        if link_lost {
-            return self.fire(Failsafe::LinkLoss, p.link_action, o, out);
-        }
         let gps_stale = self.last_fix_us.is_some_and(|s| secs(s) > p.gps_timeout_s);
+        // Without fixes attitude and altitude are held at once; the action waits its grace.
         self.hold_xy = !gps_stale;
-        if gps_stale {
-            // Attitude and altitude are held at once; the action comes after a grace time.
-            let since = *self.gps_lost_us.get_or_insert(t);
-            self.record(Failsafe::GpsLoss, p.gps_loss_action, t, out);
-            if secs(since) >= p.gps_loss_land_s && !self.acted.contains(&Failsafe::GpsLoss) {
-                self.acted.push(Failsafe::GpsLoss);
-                return self.act(p.gps_loss_action, Failsafe::GpsLoss, o, out);
-            }
+        self.gps_lost_us = if gps_stale {
+            Some(self.gps_lost_us.unwrap_or(t))
         } else {
-            self.gps_lost_us = None;
-        }
-        if !gps_stale && self.last_fix_us.is_some() && self.outside_fence(o) {
-            return self.fire(Failsafe::Geofence, p.fence_action, o, out);
-        }
-        let bad = o.test_ratio_max > 1.0;
-        let since = if bad {
-            *self.ekf_bad_since_us.get_or_insert(t)
-        } else {
-            t
+            None
         };
-        if !bad {
-            self.ekf_bad_since_us = None;
+        let gps_due = self
+            .gps_lost_us
+            .is_some_and(|s| secs(s) >= p.gps_loss_land_s);
+        let fence = !gps_stale && self.last_fix_us.is_some() && self.outside_fence(o);
+        let ekf_bad = self.estimator_bad(o);
+        let checks = [
+            (Failsafe::LinkLoss, link_lost, link_lost, p.link_action),
+            (Failsafe::GpsLoss, gps_stale, gps_due, p.gps_loss_action),
+            (Failsafe::Geofence, fence, fence, p.fence_action),
+            (Failsafe::Estimator, ekf_bad, ekf_bad, p.ekf_action),
+        ];
+        let mut request = None;
+        for (kind, on, act_now, action) in checks {
+            request = request.or(self.edge(kind, on, act_now, action, o, out));
         }
-        if bad && secs(since) >= p.ekf_bad_s {
-            return self.fire(Failsafe::Estimator, p.ekf_action, o, out);
+        request
+    }
+
+    /// One failsafe's condition at this step: recorded when it begins, acted on once when
+    /// `act_now`, forgotten when it ends.
+    fn edge(
+        &mut self,
+        kind: Failsafe,
+        on: bool,
+        act_now: bool,
+        action: Action,
+        o: &Observation,
+        out: &mut Vec<Event>,
+    ) -> Option<EscRequest> {
+        let k = kind as usize;
+        if !on {
+            (self.recorded[k], self.acted[k]) = (false, false);
+            return None;
+        }
+        if !self.recorded[k] {
+            self.recorded[k] = true;
+            out.push(Event::Failsafe {
+                t_us: o.t_us,
+                kind,
+                action,
+            });
+        }
+        if act_now && !self.acted[k] {
+            self.acted[k] = true;
+            return self.act(action, kind, o, out);
         }
         None
+    }
+
+    /// A measurement group outside its gate for `failsafe.ekf_bad_s`: each group's time is
+    /// kept across the steps that do not measure it (GPS between fixes).
+    fn estimator_bad(&mut self, o: &Observation) -> bool {
+        let r = o.ratios;
+        let groups = [Some(r.attitude), Some(r.altitude), r.gps];
+        for (since, ratio) in self.ekf_bad_since_us.iter_mut().zip(groups) {
+            match ratio {
+                Some(v) if v > 1.0 || v.is_nan() => *since = Some(since.unwrap_or(o.t_us)),
+                Some(_) => *since = None,
+                None => {}
+            }
+        }
+        let limit_s = self.p.ekf_bad_s;
+        self.ekf_bad_since_us
+            .iter()
+            .flatten()
+            .any(|s| (o.t_us - s) as f64 / 1e6 >= limit_s)
     }
 
     fn outside_fence(&self, o: &Observation) -> bool {
@@ -96,31 +138,6 @@ impl Commander {
         };
         let r = (o.pos_m[0] - h[0]).hypot(o.pos_m[1] - h[1]);
         r > self.p.fence_radius_m || o.pos_m[2] - h[2] > self.p.fence_alt_max_m
-    }
-
-    /// Records a failsafe the first time it fires in this run.
-    fn record(&mut self, kind: Failsafe, action: Action, t_us: i64, out: &mut Vec<Event>) {
-        if !self.fired.contains(&kind) {
-            self.fired.push(kind);
-            out.push(Event::Failsafe { t_us, kind, action });
-        }
-    }
-
-    /// A failsafe fires and its action is taken, once per run: the operator may then choose
-    /// another mode.
-    fn fire(
-        &mut self,
-        kind: Failsafe,
-        action: Action,
-        o: &Observation,
-        out: &mut Vec<Event>,
-    ) -> Option<EscRequest> {
-        if self.acted.contains(&kind) {
-            return None;
-        }
-        self.acted.push(kind);
-        self.record(kind, action, o.t_us, out);
-        self.act(action, kind, o, out)
     }
 
     fn act(

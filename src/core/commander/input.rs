@@ -12,7 +12,8 @@ pub enum Command {
     Arm,
     /// Climb to this height, m (default: the profile's hover height).
     Takeoff(Option<f64>),
-    /// Hover here (x, y, z), m (default: where the vehicle is).
+    /// Hover here: (x, y) from the takeoff point and z above it, m (default: where the vehicle
+    /// is).
     Hold(Option<[f64; 3]>),
     Land,
     Disarm,

@@ -25,6 +25,7 @@ pub use input::{Command, KeyOutcome, LinkSource, OperatorInput};
 use profile::{BRAKE_SHARE, Profile};
 
 use crate::core::control::{Dir, ManualCommand};
+use crate::core::ekf::TestRatios;
 use crate::core::model::GRAVITY_M_S2;
 
 /// The vehicle's mode; [`Mode::name`] is what logs, the console and reports show.
@@ -146,8 +147,8 @@ pub struct Observation {
     pub acc_z_m_s2: f64,
     /// A GPS fix was fused in this step.
     pub gps_fused: bool,
-    /// The largest innovation test ratio of this step (above 1: rejected).
-    pub test_ratio_max: f64,
+    /// The step's innovation test ratios per measurement group (above 1: outside the gate).
+    pub ratios: TestRatios,
 }
 
 /// What the controller does this step.
@@ -211,12 +212,14 @@ pub struct Commander {
     link_seen_us: Option<i64>,
     last_fix_us: Option<i64>,
     gps_lost_us: Option<i64>,
-    ekf_bad_since_us: Option<i64>,
+    /// Since when each measurement group (attitude, altitude, GPS) has been outside its gate.
+    ekf_bad_since_us: [Option<i64>; 3],
     touchdown_since_us: Option<i64>,
-    /// Failsafes recorded, and those whose action was taken (once each per run, so the
-    /// operator can choose another mode afterwards).
-    fired: Vec<Failsafe>,
-    acted: Vec<Failsafe>,
+    /// Per failsafe, by [`Failsafe`] order: recorded, and its action taken, while its
+    /// condition lasts (so the operator can choose another mode meanwhile; a new occurrence
+    /// fires again).
+    recorded: [bool; 4],
+    acted: [bool; 4],
     /// Disarmed after a flight: the ESCs cannot be started again in this run.
     spent: bool,
     /// The takeoff's overshoot and the touchdown, on the estimate.
@@ -243,10 +246,10 @@ impl Commander {
             link_seen_us: None,
             last_fix_us: None,
             gps_lost_us: None,
-            ekf_bad_since_us: None,
+            ekf_bad_since_us: [None; 3],
             touchdown_since_us: None,
-            fired: Vec::new(),
-            acted: Vec::new(),
+            recorded: [false; 4],
+            acted: [false; 4],
             spent: false,
             climb: ClimbTrace::default(),
             descent: DescentTrace::default(),
@@ -302,6 +305,20 @@ impl Commander {
         });
     }
 
+    /// The manual quit key (the original's Esc: the run ends, the motors stopped): taken on
+    /// the ground, refused in the air — a landing or a kill ends a flight.
+    pub fn quit(&mut self, t_us: i64, out: &mut Vec<Event>) -> bool {
+        if self.mode.airborne() {
+            out.push(Event::Refusal {
+                t_us,
+                command: "quit".into(),
+                why: format!("in the air ({}): land first, or kill", self.mode.name()),
+            });
+            return false;
+        }
+        true
+    }
+
     /// A link source was heard from.
     pub fn link_beat(&mut self, source: LinkSource, t_us: i64) {
         if self.p.link_sources[source as usize] {
@@ -328,6 +345,32 @@ impl Commander {
         }
     }
 
+    /// Why a takeoff's height or a hold's point is out of bounds, if it is: heights within
+    /// `control.manual.z_min_m`..`z_max_m` and under `fence.alt_max_m`, points inside the
+    /// fence (both above and around the takeoff point).
+    fn target_problem(&self, cmd: Command) -> Option<String> {
+        let p = &self.p;
+        let (z_m, r_m) = match cmd {
+            Command::Takeoff(Some(z)) => (z, 0.0),
+            Command::Hold(Some([x, y, z])) => (z, x.hypot(y)),
+            _ => return None,
+        };
+        let z_max = p.z_max_m.min(p.fence_alt_max_m);
+        if !(p.z_min_m..=z_max).contains(&z_m) {
+            return Some(format!(
+                "height {z_m} m outside {}..{z_max} m (control.manual.z_min_m, z_max_m, \
+                 fence.alt_max_m)",
+                p.z_min_m
+            ));
+        }
+        (r_m > p.fence_radius_m).then(|| {
+            format!(
+                "{r_m:.1} m from the takeoff point: outside fence.radius_m = {} m",
+                p.fence_radius_m
+            )
+        })
+    }
+
     /// Why `cmd` cannot be done now, if it cannot.
     fn check(
         &self,
@@ -336,6 +379,9 @@ impl Commander {
         est: Option<&Observation>,
     ) -> Result<(), String> {
         let m = self.mode;
+        if let Some(why) = self.target_problem(cmd) {
+            return Err(why);
+        }
         match cmd {
             Command::Kill => Ok(()),
             _ if m == Mode::Kill => Err("killed: restart uquad to fly again".into()),
@@ -352,9 +398,10 @@ impl Commander {
             }
             Command::Takeoff(_) => match est {
                 None => Err("estimator: not running yet (the IMU calibration is not done)".into()),
-                Some(o) if o.test_ratio_max > 1.0 => Err(format!(
-                    "estimator: innovation test ratio {:.2} above 1",
-                    o.test_ratio_max
+                Some(o) if outside_gate(&o.ratios) => Err(format!(
+                    "estimator: innovation test ratios outside the gate (attitude {:.2}, \
+                     altitude {:.2}, gps {:?})",
+                    o.ratios.attitude, o.ratios.altitude, o.ratios.gps
                 )),
                 Some(_) => Ok(()),
             },
@@ -390,7 +437,8 @@ impl Commander {
             }
             Command::Hold(at) => {
                 let here = est.map_or(self.target_m, |o| o.pos_m);
-                self.target_m = at.unwrap_or(here);
+                let home = self.home_m.unwrap_or_default();
+                self.target_m = at.map_or(here, |a| std::array::from_fn(|i| home[i] + a[i]));
                 self.set_mode(Mode::Hold, t_us, &why, out);
                 None
             }
@@ -417,6 +465,9 @@ impl Commander {
             self.target_m[0] = o.pos_m[0];
             self.target_m[1] = o.pos_m[1];
         }
+        // A landing left and begun again starts its touchdown watch afresh.
+        self.touchdown_since_us = None;
+        self.descent = DescentTrace::default();
         self.set_mode(Mode::Land, t_us, why, out);
     }
 
@@ -592,6 +643,12 @@ impl Commander {
         }
         None
     }
+}
+
+/// A group outside its gate (a ratio above 1, or not a number: a measurement that is not).
+fn outside_gate(r: &TestRatios) -> bool {
+    let bad = |v: f64| v > 1.0 || v.is_nan();
+    bad(r.attitude) || bad(r.altitude) || r.gps.is_some_and(bad)
 }
 
 #[cfg(test)]

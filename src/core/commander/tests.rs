@@ -2,6 +2,7 @@
 //! the original's spec, except the link rule (spec 8.2).
 
 use super::*;
+use crate::core::ekf::TestRatios;
 
 fn params() -> Params {
     Params {
@@ -52,7 +53,11 @@ fn at(t_us: i64, z_m: f64) -> Observation {
         thrust_ratio: 1.0,
         acc_z_m_s2: GRAVITY_M_S2,
         gps_fused: t_us % 1_000_000 == 0,
-        test_ratio_max: 0.0,
+        ratios: TestRatios {
+            attitude: 0.0,
+            altitude: 0.0,
+            gps: None,
+        },
     }
 }
 
@@ -201,13 +206,15 @@ fn takeoff_needs_an_armed_vehicle_and_a_running_estimator() {
     c.command(Command::Arm, 0, good_facts().verdict(), None, &mut ev);
     c.command(Command::Takeoff(None), 1, Ok(()), None, &mut ev);
     let mut bad = at(2, 0.0);
-    bad.test_ratio_max = 3.0;
+    bad.ratios.altitude = 3.0;
     c.command(Command::Takeoff(None), 2, Ok(()), Some(&bad), &mut ev);
     let why = refusals(&ev);
     assert!(why[0].contains("takeoff needs armed"), "{why:?}");
     assert!(why[1].starts_with("estimator: not running"), "{why:?}");
     assert!(
-        why[2].starts_with("estimator: innovation test ratio 3.00"),
+        why[2].starts_with(
+            "estimator: innovation test ratios outside the gate (attitude 0.00, altitude 3.00"
+        ),
         "{why:?}"
     );
     assert_eq!(c.mode(), Mode::Armed);
@@ -484,7 +491,7 @@ fn an_estimator_outside_its_gate_for_long_lands() {
     while t < 14_000_000 {
         let mut o = at(t, 1.0);
         // A spike of 0.5 s, then from 11 s on for good.
-        o.test_ratio_max = if (10_200_000..10_700_000).contains(&t) || t >= 11_000_000 {
+        o.ratios.altitude = if (10_200_000..10_700_000).contains(&t) || t >= 11_000_000 {
             2.0
         } else {
             0.1
@@ -589,4 +596,150 @@ fn operator_lines_are_commands_keys_or_errors() {
         Ok(cmd),
         "Display reads back"
     );
+}
+
+#[test]
+fn a_failsafe_fires_again_when_its_cause_returns_and_others_are_still_watched() {
+    let mut p = params();
+    p.link_action = Action::Hold;
+    let (mut c, mut ev) = taking_off(p);
+    follow(&mut c, 10_000, 10_000_000, &mut ev);
+    // The link silent from 10 s: hold (the action), and the fence still watched meanwhile.
+    follow_with(&mut c, 10_010_000, 13_000_000, &mut ev, false);
+    assert_eq!(failsafes(&ev), [(Failsafe::LinkLoss, Action::Hold)]);
+    let mut o = at(13_010_000, 1.0);
+    o.pos_m[0] = 6.0;
+    c.on_estimate(&o, &mut ev);
+    assert_eq!(
+        failsafes(&ev)[1],
+        (Failsafe::Geofence, Action::Land),
+        "{ev:?}"
+    );
+    // Back on the link and holding, then lost again: it fires again.
+    c.link_beat(LinkSource::Gcs, 13_020_000);
+    c.command(
+        Command::Hold(None),
+        13_020_000,
+        Ok(()),
+        Some(&at(13_020_000, 1.0)),
+        &mut ev,
+    );
+    follow_with(&mut c, 13_030_000, 16_000_000, &mut ev, false);
+    let kinds: Vec<Failsafe> = failsafes(&ev).into_iter().map(|f| f.0).collect();
+    assert_eq!(kinds.last(), Some(&Failsafe::LinkLoss), "{ev:?}");
+    assert_eq!(
+        kinds.iter().filter(|k| **k == Failsafe::LinkLoss).count(),
+        2
+    );
+}
+
+#[test]
+fn a_landing_begun_again_watches_its_touchdown_afresh() {
+    let (mut c, mut ev) = holding();
+    c.command(
+        Command::Land,
+        10_000_000,
+        Ok(()),
+        Some(&at(10_000_000, 1.0)),
+        &mut ev,
+    );
+    // Resting-like for 0.6 s (a gust's pause), then the operator holds again.
+    for k in 0..60 {
+        let o = Observation {
+            thrust_ratio: 0.5,
+            ..at(10_010_000 + k * STEP_US, 0.5)
+        };
+        c.link_beat(LinkSource::Gcs, o.t_us);
+        assert_eq!(c.on_estimate(&o, &mut ev).1, None);
+    }
+    c.command(
+        Command::Hold(None),
+        10_610_000,
+        Ok(()),
+        Some(&at(10_610_000, 0.5)),
+        &mut ev,
+    );
+    c.command(
+        Command::Land,
+        11_000_000,
+        Ok(()),
+        Some(&at(11_000_000, 0.5)),
+        &mut ev,
+    );
+    // The first resting steps of the new landing are not a touchdown.
+    for k in 0..50 {
+        let o = Observation {
+            thrust_ratio: 0.5,
+            ..at(11_010_000 + k * STEP_US, 0.5)
+        };
+        c.link_beat(LinkSource::Gcs, o.t_us);
+        assert_eq!(c.on_estimate(&o, &mut ev).1, None, "step {k}");
+    }
+    assert_eq!(c.mode(), Mode::Land);
+}
+
+#[test]
+fn an_estimator_measuring_gps_badly_at_every_fix_lands() {
+    let (mut c, mut ev) = holding();
+    let mut t = 10_000_000;
+    while t < 14_000_000 {
+        let mut o = at(t, 1.0);
+        // The GPS group outside its gate at each fix; nothing measured in between.
+        o.ratios.gps = (t % 1_000_000 == 0).then_some(4.0);
+        c.link_beat(LinkSource::Gcs, t);
+        c.on_estimate(&o, &mut ev);
+        t += STEP_US;
+    }
+    assert_eq!(failsafes(&ev), [(Failsafe::Estimator, Action::Land)]);
+}
+
+#[test]
+fn targets_outside_the_bounds_or_the_fence_are_refused() {
+    let (mut c, mut ev) = holding();
+    let o = at(10_000_000, 1.0);
+    c.command(
+        Command::Hold(Some([6.0, 0.0, 1.0])),
+        10_000_000,
+        Ok(()),
+        Some(&o),
+        &mut ev,
+    );
+    c.command(
+        Command::Hold(Some([0.0, 0.0, 3.5])),
+        10_000_000,
+        Ok(()),
+        Some(&o),
+        &mut ev,
+    );
+    let why = refusals(&ev);
+    assert!(why[0].contains("outside fence.radius_m = 5 m"), "{why:?}");
+    assert!(
+        why[1].starts_with("height 3.5 m outside 0.2..3 m"),
+        "{why:?}"
+    );
+    c.command(
+        Command::Hold(Some([1.0, -1.0, 2.0])),
+        10_000_000,
+        Ok(()),
+        Some(&o),
+        &mut ev,
+    );
+    assert_eq!(
+        c.target_m(),
+        [1.0, -1.0, 2.0],
+        "relative to the takeoff point at 0"
+    );
+    let (mut c, mut ev) = armed();
+    c.command(
+        Command::Takeoff(Some(12.0)),
+        1,
+        Ok(()),
+        Some(&at(1, 0.0)),
+        &mut ev,
+    );
+    assert!(
+        refusals(&ev)[0].starts_with("height 12 m outside"),
+        "{ev:?}"
+    );
+    assert_eq!(c.mode(), Mode::Armed);
 }

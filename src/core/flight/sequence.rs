@@ -265,9 +265,10 @@ pub struct EstimatorSide {
     history: Vec<commander::Event>,
 }
 
-/// Commander events a run keeps for its report; more (an operator repeating a refused
-/// command) are only logged.
+/// Mode changes and failsafes a run keeps for its report, and refusals apart (an operator
+/// repeating a refused command must not push the failsafes out); more are only logged.
 pub const HISTORY_MAX: usize = 1000;
+pub const REFUSALS_MAX: usize = 100;
 
 impl EstimatorSide {
     pub fn new(core: EstimatorCore, gps: GpsFeed, commander: Commander) -> Self {
@@ -316,7 +317,13 @@ impl EstimatorSide {
     /// The commander's events into the mode stream, and a line each into err.log.
     fn record_events(&mut self, out: &mut impl Outputs) {
         for e in self.events.drain(..) {
-            if self.history.len() < HISTORY_MAX {
+            let refusal = matches!(e, commander::Event::Refusal { .. });
+            let kept = self
+                .history
+                .iter()
+                .filter(|h| matches!(h, commander::Event::Refusal { .. }) == refusal);
+            let cap = if refusal { REFUSALS_MAX } else { HISTORY_MAX };
+            if kept.count() < cap {
                 self.history.push(e.clone());
             }
             out.record(FlightRecord::Note(commander_line(&e)));
@@ -356,15 +363,17 @@ impl EstimatorSide {
                 None
             }
             OperatorInput::Key(ManualCommand::Quit) => {
-                out.record(FlightRecord::Note("manual quit: stopping".into()));
-                return OperatorAction::Quit;
+                if self.commander.quit(t_us, &mut self.events) {
+                    out.record(FlightRecord::Note("manual quit: stopping".into()));
+                    return OperatorAction::Quit;
+                }
+                None
             }
             OperatorInput::Key(k) => {
                 self.key(k, out);
                 None
             }
-            OperatorInput::Command(cmd, src) => {
-                self.commander.link_beat(src, t_us);
+            OperatorInput::Command(cmd, _) => {
                 let v = verdict.unwrap_or(Ok(()));
                 let o = self.observed;
                 self.commander
@@ -401,7 +410,7 @@ impl EstimatorSide {
     ) -> bool {
         match request {
             Some(EscRequest::Stop) => {
-                out.watchdog(Event::MotorsStopped(t_us));
+                out.watchdog(Event::Disarming(t_us));
                 true
             }
             Some(EscRequest::Kill) => {
@@ -587,7 +596,7 @@ impl EstimatorSide {
             thrust_ratio: thrust_n / (fb.mass_kg * crate::core::model::GRAVITY_M_S2),
             acc_z_m_s2: est.sample.acc_m_s2[2],
             gps_fused: est.gps_used,
-            test_ratio_max: est.ratios.max(),
+            ratios: est.ratios,
         };
         self.observed = Some(o);
         let (guidance, request) = self.commander.on_estimate(&o, &mut self.events);
@@ -613,12 +622,17 @@ impl EstimatorSide {
     /// The watchdog halted the motors: record it once; nothing more is stepped.
     pub fn on_halt(&mut self, halt: Halt, out: &mut impl Outputs) {
         if self.phase != Phase::Ended {
-            self.phase = Phase::Ended;
-            self.commander
-                .on_halt(halt.halt_us, halt.trip.reason.name(), &mut self.events);
-            self.record_events(out);
+            self.note_halt(halt.halt_us, halt.trip.reason.name(), out);
             out.record(FlightRecord::Halt(halt));
         }
+    }
+
+    /// A halt the driver recorded elsewhere (`fly`'s watchdog thread; a replay's mode.log):
+    /// the commander's `kill`, settled at `t_us`; nothing more is stepped.
+    pub fn note_halt(&mut self, t_us: i64, reason: &str, out: &mut impl Outputs) {
+        self.phase = Phase::Ended;
+        self.commander.on_halt(t_us, reason, &mut self.events);
+        self.record_events(out);
     }
 }
 
