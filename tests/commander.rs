@@ -159,6 +159,21 @@ fn arming_is_refused_with_the_failing_check_named() {
 }
 
 #[test]
+fn an_implausible_calibration_refuses_the_arming_after_all() {
+    // A gyro offset of 0.5 rad/s (a broken gyro, or a vehicle turning while calibrated).
+    let bias = "sim.gyro_bias_rad_s=[0.5, 0.0, 0.0]";
+    let (ok, r, _logs) = fast(&["--duration", "15", "--set", bias]);
+    assert!(!ok, "a failed start-up fails the run: {r}");
+    assert!(
+        refusal(&r, "arm").starts_with("calibration: gyro offset 0.49"),
+        "{r}"
+    );
+    assert_eq!(modes(&r), ["disarmed", "armed", "disarmed"], "{r}");
+    assert!(r["error"].as_str().unwrap().contains("calibration"), "{r}");
+    assert_escs_stopped(&r);
+}
+
+#[test]
 fn disarm_in_the_air_is_refused_and_kill_halts() {
     let script = "arm@2,takeoff@10,disarm@20,kill@25";
     let (ok, r, _logs) = fast(&["--script", script]);

@@ -1,5 +1,6 @@
-//! The pre-arm checks: what the driver observed, and the first failing check named. Not in
-//! the original's spec.
+//! The pre-arm checks: what the driver observed, and the first failing check named; and the
+//! calibration's plausibility, checked as the IMU calibration (after `arm`) ends. Not in the
+//! original's spec.
 
 /// The checks that must pass before arming, as the driver observed them; the first failing
 /// one is named in the refusal.
@@ -55,5 +56,50 @@ impl ArmFacts {
             return Err(format!("esc: no acknowledgement from {}", a.join(", ")));
         }
         Ok(())
+    }
+}
+
+/// The null estimate's acceleration may differ from g by this much: the vehicle stands still
+/// on the ground while it is taken, m/s².
+pub const CALIB_ACC_TOLERANCE_M_S2: f64 = 1.0;
+/// Largest rate the null estimate may show on any axis (a gyro offset, or the vehicle moved
+/// while it was taken), rad/s.
+pub const CALIB_GYRO_MAX_RAD_S: f64 = 0.2;
+
+/// Why the calibration's null sample is not plausible, if it is not: its acceleration norm not
+/// g, its rates not near zero, or a value not a number.
+pub fn calibration_problem(acc_m_s2: &[f64; 3], gyro_rad_s: &[f64; 3]) -> Option<String> {
+    let norm = acc_m_s2.iter().map(|a| a * a).sum::<f64>().sqrt();
+    let g = crate::core::model::GRAVITY_M_S2;
+    if !((norm - g).abs() <= CALIB_ACC_TOLERANCE_M_S2) {
+        return Some(format!(
+            "calibration: acceleration norm {norm:.2} m/s2, not within {CALIB_ACC_TOLERANCE_M_S2} of {g}"
+        ));
+    }
+    let worst = gyro_rad_s.iter().map(|w| w.abs()).fold(0.0, f64::max);
+    if !(worst <= CALIB_GYRO_MAX_RAD_S) || gyro_rad_s.iter().any(|w| w.is_nan()) {
+        return Some(format!(
+            "calibration: gyro offset {worst:.3} rad/s above {CALIB_GYRO_MAX_RAD_S}"
+        ));
+    }
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_still_vehicle_calibrates_and_a_moving_or_broken_one_does_not() {
+        assert_eq!(
+            calibration_problem(&[0.01, -0.01, 9.77], &[0.01, -0.005, 0.002]),
+            None
+        );
+        let e = calibration_problem(&[0.0, 0.0, 0.3], &[0.0; 3]).unwrap();
+        assert!(e.starts_with("calibration: acceleration norm 0.30"), "{e}");
+        let e = calibration_problem(&[0.0, 0.0, 9.8], &[0.0, 0.5, 0.0]).unwrap();
+        assert!(e.starts_with("calibration: gyro offset 0.500"), "{e}");
+        assert!(calibration_problem(&[f64::NAN, 0.0, 9.8], &[0.0; 3]).is_some());
+        assert!(calibration_problem(&[0.0, 0.0, 9.8], &[f64::NAN; 3]).is_some());
     }
 }

@@ -18,7 +18,7 @@ mod figures;
 mod input;
 mod profile;
 
-pub use checks::ArmFacts;
+pub use checks::{ArmFacts, calibration_problem};
 pub use failsafe::{Action, Failsafe};
 pub use figures::{ClimbTrace, DescentTrace, Figures, Takeoff, Touchdown};
 pub use input::{Command, KeyOutcome, LinkSource, OperatorInput};
@@ -503,6 +503,13 @@ impl Commander {
         if self.mode != Mode::Kill {
             self.set_mode(Mode::Kill, t_us, reason, out);
         }
+    }
+
+    /// The calibration that followed `arm` is not plausible: the arming is refused after all,
+    /// the check named (the run's start-up fails with it).
+    pub fn on_calibration_refused(&mut self, t_us: i64, why: &str, out: &mut Vec<Event>) {
+        self.refuse(Command::Arm, t_us, why.to_string(), out);
+        self.disarm(t_us, "calibration not plausible", out);
     }
 
     /// The ESCs stopped on their own (their ramp failed): nothing spins.

@@ -147,6 +147,8 @@ pub enum Abort {
     EscStopped(String),
     #[error("IMU start-up failed: {0}")]
     Startup(StartupError),
+    #[error("arming refused: {0}")]
+    Calibration(String),
 }
 
 /// What the driver does after a frame.
@@ -478,10 +480,18 @@ impl EstimatorSide {
             FrontEndEvent::Failed(e) => self.abort(Abort::Startup(e)),
             FrontEndEvent::Calibrated(null) => {
                 out.record(record);
+                let (n, gyro_null) = (&null.sample, null.reference.gyro_null_rad_s);
                 out.record(FlightRecord::Note(format!(
-                    "IMU calibration completed: acc {:?} m/s2, euler {:?} rad, temp {} C",
-                    null.sample.acc_m_s2, null.sample.euler_rad, null.sample.temp_c
+                    "IMU calibration completed: acc {:?} m/s2, gyro offset {gyro_null:?} rad/s, euler {:?} rad, temp {} C",
+                    n.acc_m_s2, n.euler_rad, n.temp_c
                 )));
+                if let Some(why) = commander::calibration_problem(&n.acc_m_s2, &gyro_null) {
+                    let t_us = times.t_frame_us;
+                    self.commander
+                        .on_calibration_refused(t_us, &why, &mut self.events);
+                    self.record_events(out);
+                    return self.abort(Abort::Calibration(why));
+                }
                 self.phase = Phase::FlightRamp;
                 FrameAction::Step(null.sample)
             }
