@@ -71,13 +71,15 @@ pub const CALIB_GYRO_MAX_RAD_S: f64 = 0.2;
 pub fn calibration_problem(acc_m_s2: &[f64; 3], gyro_rad_s: &[f64; 3]) -> Option<String> {
     let norm = acc_m_s2.iter().map(|a| a * a).sum::<f64>().sqrt();
     let g = crate::core::model::GRAVITY_M_S2;
-    if !((norm - g).abs() <= CALIB_ACC_TOLERANCE_M_S2) {
+    // A norm that is not a number fails too: it is not within the tolerance.
+    let plausible = (norm - g).abs() <= CALIB_ACC_TOLERANCE_M_S2;
+    if !plausible {
         return Some(format!(
             "calibration: acceleration norm {norm:.2} m/s2, not within {CALIB_ACC_TOLERANCE_M_S2} of {g}"
         ));
     }
     let worst = gyro_rad_s.iter().map(|w| w.abs()).fold(0.0, f64::max);
-    if !(worst <= CALIB_GYRO_MAX_RAD_S) || gyro_rad_s.iter().any(|w| w.is_nan()) {
+    if worst > CALIB_GYRO_MAX_RAD_S || gyro_rad_s.iter().any(|w| w.is_nan()) {
         return Some(format!(
             "calibration: gyro offset {worst:.3} rad/s above {CALIB_GYRO_MAX_RAD_S}"
         ));
