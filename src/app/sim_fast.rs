@@ -52,6 +52,21 @@ struct FastOutputs {
 }
 
 impl FastOutputs {
+    /// Empty streams; the x_hat logger stalls from `stall_from_us` with a queue of
+    /// `queue_records`.
+    fn new(stall_from_us: Option<i64>, queue_records: u32) -> Self {
+        FastOutputs {
+            text: PerStream::default(),
+            records: PerStream::default(),
+            drops: PerStream::default(),
+            events: Vec::with_capacity(8),
+            now_us: 0,
+            stall_from_us,
+            stalled_queue: 0,
+            queue_cap: u64::from(queue_records),
+        }
+    }
+
     fn log(&mut self, r: Record) {
         let s = r.stream();
         let stalled = s == Stream::XHat
@@ -163,16 +178,7 @@ impl<'a> FastSim<'a> {
         let map = profile.motor_map();
         let (estimator, controller) = live_sides(profile);
         let faults = FaultSchedule::new(&opts.inject);
-        let mut out = FastOutputs {
-            text: PerStream::default(),
-            records: PerStream::default(),
-            drops: PerStream::default(),
-            events: Vec::with_capacity(8),
-            now_us: 0,
-            stall_from_us: faults.at_us(Fault::LogStall),
-            stalled_queue: 0,
-            queue_cap: u64::from(cfg.log.queue_records),
-        };
+        let mut out = FastOutputs::new(faults.at_us(Fault::LogStall), cfg.log.queue_records);
         out.log(Record::note(format!(
             "uquad {} simulation, seed {seed}, run {}",
             env!("CARGO_PKG_VERSION"),

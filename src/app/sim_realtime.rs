@@ -17,6 +17,7 @@ use crate::sim::hover::{
     CycleTrace, FlightView, HoverStats, HoverWindow, TrueState, progress_line,
 };
 use crate::sim::operator::SimOperator;
+use crate::sim::physics::Plant;
 use crate::sim::{FRAME_US, frame_start_byte, gps_fix};
 use crate::tasks::SIM_PRIORITY;
 use crate::tasks::controller::Live;
@@ -172,12 +173,7 @@ impl SimThread {
                 std::thread::sleep(wait);
             }
             let now_us = self.start.elapsed().as_micros() as i64;
-            plant.w_cmd_rad_s = self.motor_commands(t_us, now_us);
-            if self.faults.active(Fault::ThrustLoss, t_us) {
-                plant.thrust_scale[0] = 0.7;
-            }
-            plant.push_n = crate::sim::gust_n(&self.faults, &sc, t_us);
-            plant.step(step_us);
+            self.physics(&mut plant, t_us, now_us, step_us);
             if t_us % FRAME_US == FRAME_US / 2 {
                 imu.first_half(&plant);
             }
@@ -202,23 +198,38 @@ impl SimThread {
             if self.rt.block_on(self.imu_end.write_all(&bytes)).is_err() {
                 break;
             }
-            let view = self.flight_view();
-            hover.sample(t_us, view, TrueState::of(&plant));
-            if let Some(l) = *self.live.borrow() {
-                self.trace.sample(t_us, l.mode, l.height_m, &plant);
-            }
-            if self.progress && t_us % 5_000_000 == 0 {
-                let live = *self.live.borrow();
-                let mode = live.map_or("start-up", |l| l.mode.name());
-                let steps = live.map_or(0, |l| u64::from(l.step));
-                // Through the log queue: a stalled terminal must not stall the physics.
-                tracing::info!("{}", progress_line(t_us, &plant, mode, steps));
-            }
+            hover.sample(t_us, self.flight_view(), TrueState::of(&plant));
+            self.watch(t_us, &plant);
         }
         SimResult {
             simulated_us: t_us,
             hover: hover.stats(),
             figures: self.trace.figures(),
+        }
+    }
+
+    /// One physics step: the motors follow the ESCs (and the thrust and gust faults), then
+    /// the plant advances.
+    fn physics(&self, plant: &mut Plant, t_us: i64, now_us: i64, step_us: i64) {
+        plant.w_cmd_rad_s = self.motor_commands(t_us, now_us);
+        if self.faults.active(Fault::ThrustLoss, t_us) {
+            plant.thrust_scale[0] = 0.7;
+        }
+        plant.push_n = crate::sim::gust_n(&self.faults, &self.profile.config.sim, t_us);
+        plant.step(step_us);
+    }
+
+    /// The true takeoff and touchdown, and the progress line every 5 s.
+    fn watch(&mut self, t_us: i64, plant: &Plant) {
+        let live = *self.live.borrow();
+        if let Some(l) = live {
+            self.trace.sample(t_us, l.mode, l.height_m, plant);
+        }
+        if self.progress && t_us % 5_000_000 == 0 {
+            let mode = live.map_or("start-up", |l| l.mode.name());
+            let steps = live.map_or(0, |l| u64::from(l.step));
+            // Through the log queue: a stalled terminal must not stall the physics.
+            tracing::info!("{}", progress_line(t_us, plant, mode, steps));
         }
     }
 

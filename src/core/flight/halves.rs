@@ -10,7 +10,7 @@
 //! every mode makes these same calls in the same order with the same inputs.
 
 use crate::core::commander::{Guidance, Mode};
-use crate::core::control::{Controller, HoverPlanner, ManualCommand, ManualOutcome};
+use crate::core::control::{Controller, HoverPlanner, ManualCommand, ManualOutcome, SetPoint};
 use crate::core::ekf::{
     Ekf, EkfError, EkfParams, GatedGroups, Input, State, StepInput, TestRatios,
 };
@@ -299,9 +299,7 @@ impl ControllerCore {
         };
         let w_model = [limits.w_hover_rad_s; 4];
         self.prev = Some((w_model, w_model, t_cmd_us));
-        let n_int = self.controller.x_int().len();
-        let mut x_int = [0.0; 4];
-        x_int[..n_int].copy_from_slice(self.controller.x_int());
+        let (x_int, n_int) = self.integrators();
         ControlOut {
             step: est.step,
             t_ctrl_us,
@@ -322,15 +320,58 @@ impl ControllerCore {
 
     /// One control step on `est` (spec 4.4, 8.3 steps 10–11), with the commander's guidance.
     pub fn control(&mut self, est: &Estimate, t_ctrl_us: i64, t_cmd_us: i64) -> ControlOut {
-        let g = est.guidance;
-        if !g.fly {
+        if !est.guidance.fly {
             return self.rest(est, t_ctrl_us, t_cmd_us);
         }
         let ramp_step = est
             .step
             .saturating_sub(*self.ramp_from.get_or_insert(est.step))
             + 1;
-        let spec = self.make_planner;
+        let (sp, mass_kg) = self.guided_set_point(est);
+        let limits = MotorLimits::new(mass_kg, self.make_planner.w_max_rad_s);
+        let t_s = self.period_us(t_ctrl_us) as f64 / 1e6;
+        let position_hold = self.position_hold(est);
+        let mut w_ctrl = self
+            .controller
+            .step_with_hold(&est.x, &sp, t_s, position_hold);
+        // The observer starts once the flight ramp is over: before, the vehicle stands on the
+        // ground, which holds any torque, and the motors are far from the hover speeds the
+        // correction is linearised around.
+        if let Some(o) = &mut self.observer
+            && ramp_step > FLIGHT_RAMP_STEPS
+        {
+            o.observe(&est.x, est.t_us, mass_kg);
+            let c = o.correction_rad_s(&limits);
+            for (w, dw) in w_ctrl.iter_mut().zip(c) {
+                *w += dw;
+            }
+        }
+        let w_sent = command_for_step(&w_ctrl, ramp_step, &limits);
+        if let Some(o) = &mut self.observer {
+            o.sent(&est.x, est.t_us, &w_sent);
+        }
+        self.prev = Some((w_ctrl, w_sent, t_cmd_us));
+        let (x_int, n_int) = self.integrators();
+        let saturated = w_sent
+            .iter()
+            .any(|&w| w == limits.w_min_rad_s || w == limits.w_max_rad_s);
+        ControlOut {
+            step: est.step,
+            t_ctrl_us,
+            t_cmd_us,
+            w_ctrl,
+            w_sent,
+            x_int,
+            n_int,
+            saturated,
+            position_hold,
+        }
+    }
+
+    /// The planner's set point with the commander's position and climb speed (the planner
+    /// keeps the attitude and the weight keys'), and the mass it flies with.
+    fn guided_set_point(&mut self, est: &Estimate) -> (SetPoint, f64) {
+        let (g, spec) = (est.guidance, self.make_planner);
         let planner = self.planner.get_or_insert_with(|| {
             HoverPlanner::new(
                 g.pos_m[2],
@@ -341,62 +382,41 @@ impl ControllerCore {
                 spec.bounds,
             )
         });
-        // The commander's set point; the planner keeps the attitude and the weight keys'.
         planner.sp.x[0] = g.pos_m[0];
         planner.sp.x[1] = g.pos_m[1];
         planner.sp.x[2] = g.pos_m[2];
         planner.sp.x[crate::core::ekf::idx::VQZ] = g.vz_m_s;
         planner.update_setpoint();
-        let limits = planner.limits();
-        // T_s = this control step's time − the previous command's (ERRATA 8). The original's
-        // first step measured from the program's start and kept only the microseconds.
-        let t_s_us = match self.prev {
+        (planner.sp, planner.mass_kg())
+    }
+
+    /// T_s = this control step's time − the previous command's (ERRATA 8). The original's
+    /// first step measured from the program's start and kept only the microseconds.
+    fn period_us(&self, t_ctrl_us: i64) -> i64 {
+        match self.prev {
             Some((_, _, t_prev_cmd)) => t_ctrl_us - t_prev_cmd,
             None if self.original_timing => t_ctrl_us.rem_euclid(1_000_000),
             None => NOMINAL_PERIOD_US,
-        };
+        }
+    }
+
+    /// The horizontal position is held while a fix was fused lately and the commander has
+    /// not let it go (a lost GPS).
+    fn position_hold(&mut self, est: &Estimate) -> bool {
         if est.gps_used {
             self.last_gps_us = Some(est.t_us);
         }
-        let position_hold = g.hold_xy
+        est.guidance.hold_xy
             && self
                 .last_gps_us
-                .is_some_and(|t| est.t_us - t <= self.gps_hold_timeout_us);
-        let mut w_ctrl =
-            self.controller
-                .step_with_hold(&est.x, &planner.sp, t_s_us as f64 / 1e6, position_hold);
-        // The observer starts once the flight ramp is over: before, the vehicle stands on the
-        // ground, which holds any torque, and the motors are far from the hover speeds the
-        // correction is linearised around.
-        if let Some(o) = &mut self.observer
-            && ramp_step > FLIGHT_RAMP_STEPS
-        {
-            o.observe(&est.x, est.t_us, planner.mass_kg());
-            let c = o.correction_rad_s(&limits);
-            for (w, dw) in w_ctrl.iter_mut().zip(c) {
-                *w += dw;
-            }
-        }
-        let w_sent = command_for_step(&w_ctrl, ramp_step, &limits);
-        if let Some(o) = &mut self.observer {
-            o.sent(&est.x, est.t_us, &w_sent);
-        }
+                .is_some_and(|t| est.t_us - t <= self.gps_hold_timeout_us)
+    }
+
+    /// The integrators and how many are meaningful.
+    fn integrators(&self) -> ([f64; 4], usize) {
         let n_int = self.controller.x_int().len();
         let mut x_int = [0.0; 4];
         x_int[..n_int].copy_from_slice(self.controller.x_int());
-        self.prev = Some((w_ctrl, w_sent, t_cmd_us));
-        ControlOut {
-            step: est.step,
-            t_ctrl_us,
-            t_cmd_us,
-            w_ctrl,
-            w_sent,
-            x_int,
-            n_int,
-            saturated: w_sent
-                .iter()
-                .any(|&w| w == limits.w_min_rad_s || w == limits.w_max_rad_s),
-            position_hold,
-        }
+        (x_int, n_int)
     }
 }

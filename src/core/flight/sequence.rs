@@ -343,17 +343,7 @@ impl EstimatorSide {
         out: &mut impl Outputs,
     ) -> OperatorAction {
         self.start(out);
-        let verdict = match (input, arm) {
-            (OperatorInput::Command(commander::Command::Arm, _), ArmCheck::Recorded(v)) => {
-                Some(v.clone())
-            }
-            (OperatorInput::Command(commander::Command::Arm, _), ArmCheck::Facts(f)) => {
-                let mut f = f.clone();
-                f.imu_stable = self.phase == Phase::EscStart;
-                Some(f.verdict())
-            }
-            _ => None,
-        };
+        let verdict = self.arm_verdict(input, arm);
         out.record(FlightRecord::Operator {
             t_us,
             input,
@@ -388,6 +378,22 @@ impl EstimatorSide {
         } else {
             OperatorAction::Nothing
         }
+    }
+
+    /// An `arm`'s pre-arm verdict: the facts' (the IMU's settling is this side's own), or the
+    /// one a replay recorded; none for other inputs.
+    fn arm_verdict(&self, input: OperatorInput, arm: ArmCheck<'_>) -> Option<Result<(), String>> {
+        if !matches!(input, OperatorInput::Command(commander::Command::Arm, _)) {
+            return None;
+        }
+        Some(match arm {
+            ArmCheck::Recorded(v) => v.clone(),
+            ArmCheck::Facts(f) => {
+                let mut f = f.clone();
+                f.imu_stable = self.phase == Phase::EscStart;
+                f.verdict()
+            }
+        })
     }
 
     /// A manual key: the commander's (the hold's height, noted here) or the planner's (queued
@@ -480,26 +486,36 @@ impl EstimatorSide {
             FrontEndEvent::Failed(e) => self.abort(Abort::Startup(e)),
             FrontEndEvent::Calibrated(null) => {
                 out.record(record);
-                let (n, gyro_null) = (&null.sample, null.reference.gyro_null_rad_s);
-                out.record(FlightRecord::Note(format!(
-                    "IMU calibration completed: acc {:?} m/s2, gyro offset {gyro_null:?} rad/s, euler {:?} rad, temp {} C",
-                    n.acc_m_s2, n.euler_rad, n.temp_c
-                )));
-                if let Some(why) = commander::calibration_problem(&n.acc_m_s2, &gyro_null) {
-                    let t_us = times.t_frame_us;
-                    self.commander
-                        .on_calibration_refused(t_us, &why, &mut self.events);
-                    self.record_events(out);
-                    return self.abort(Abort::Calibration(why));
-                }
-                self.phase = Phase::FlightRamp;
-                FrameAction::Step(null.sample)
+                self.calibrated(&null, times.t_frame_us, out)
             }
             FrontEndEvent::Sample(s) => {
                 out.record(record);
                 FrameAction::Step(s)
             }
         }
+    }
+
+    /// The calibration ended: noted, checked for plausibility (an implausible one refuses the
+    /// arming after all), then the first Kalman step on its null sample.
+    fn calibrated(
+        &mut self,
+        null: &crate::core::imu::calib::NullEstimate,
+        t_us: i64,
+        out: &mut impl Outputs,
+    ) -> FrameAction {
+        let (n, gyro_null) = (&null.sample, null.reference.gyro_null_rad_s);
+        out.record(FlightRecord::Note(format!(
+            "IMU calibration completed: acc {:?} m/s2, gyro offset {gyro_null:?} rad/s, euler {:?} rad, temp {} C",
+            n.acc_m_s2, n.euler_rad, n.temp_c
+        )));
+        if let Some(why) = commander::calibration_problem(&n.acc_m_s2, &gyro_null) {
+            self.commander
+                .on_calibration_refused(t_us, &why, &mut self.events);
+            self.record_events(out);
+            return self.abort(Abort::Calibration(why));
+        }
+        self.phase = Phase::FlightRamp;
+        FrameAction::Step(null.sample)
     }
 
     /// Settled: start the ESCs once, calibrate when their ramp is done, abort if they stopped.
