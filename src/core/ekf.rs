@@ -182,14 +182,6 @@ pub struct TestRatios {
 }
 
 impl TestRatios {
-    /// The largest ratio of the step (a NaN, a measurement not a number, counts as none).
-    pub fn max(&self) -> f64 {
-        [self.attitude, self.altitude, self.gps.unwrap_or(0.0)]
-            .into_iter()
-            .filter(|r| !r.is_nan())
-            .fold(0.0, f64::max)
-    }
-
     /// The groups outside the gate (ratio above 1; NaN is not).
     pub fn outside_gate(&self) -> GatedGroups {
         GatedGroups {

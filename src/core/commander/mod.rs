@@ -262,10 +262,6 @@ impl Commander {
         self.mode
     }
 
-    pub fn params(&self) -> &Params {
-        &self.p
-    }
-
     pub fn figures(&self) -> Figures {
         Figures {
             takeoff: self.climb.takeoff(),
