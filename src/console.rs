@@ -124,7 +124,7 @@ pub const MAX_COMMANDS_PER_S: u32 = 20;
 pub async fn serve(
     path: PathBuf,
     stats: StatsFn,
-    manual: mpsc::Sender<OperatorInput>,
+    operator: mpsc::Sender<OperatorInput>,
     dropped: Arc<AtomicU64>,
     cancel: CancellationToken,
 ) -> std::io::Result<()> {
@@ -146,7 +146,7 @@ pub async fn serve(
                 }
                 let (stats, manual, dropped, cancel, clients) = (
                     stats.clone(),
-                    manual.clone(),
+                    operator.clone(),
                     dropped.clone(),
                     cancel.clone(),
                     clients.clone(),
@@ -201,7 +201,7 @@ async fn bind(path: &Path) -> std::io::Result<UnixListener> {
 async fn client(
     stream: UnixStream,
     stats: StatsFn,
-    manual: mpsc::Sender<OperatorInput>,
+    operator: mpsc::Sender<OperatorInput>,
     dropped: Arc<AtomicU64>,
     cancel: CancellationToken,
 ) {
@@ -221,7 +221,7 @@ async fn client(
         let out: Option<String> = tokio::select! {
             _ = cancel.cancelled() => None,
             line = futures_util::StreamExt::next(&mut lines) => match line {
-                Some(Ok(l)) if rate.allows(Instant::now()) => Some(command(&l, &mut filter, &manual)),
+                Some(Ok(l)) if rate.allows(Instant::now()) => Some(command(&l, &mut filter, &operator)),
                 Some(Ok(_)) => Some(format!(
                     "console: more than {MAX_COMMANDS_PER_S} commands a second; refused\n"
                 )),
@@ -243,7 +243,7 @@ async fn client(
             },
             _ = tick.tick() => {
                 // An attached console keeps the operator link alive (failsafe.link_sources).
-                let _ = manual.try_send(OperatorInput::Beat(LinkSource::Console));
+                let _ = operator.try_send(OperatorInput::Beat(LinkSource::Console));
                 Some(format!("{}\n", stats()))
             }
         };

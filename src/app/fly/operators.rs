@@ -88,9 +88,8 @@ pub(super) async fn notify_systemd(n: Arc<crate::hw::notify::Notifier>, h: RunHa
 
 /// The terminal `fly` runs in: lines typed on stdin (commands, `quit`, manual keys; see
 /// [`OperatorInput::parse_line`]); Esc alone on a line quits (an arrow key's escape sequence
-/// in a line is no quit). While stdin is open, a link beat
-/// each second: the terminal is an operator link (`failsafe.link_sources`), lost when its ssh
-/// session drops.
+/// in a line is no quit). While stdin is an open terminal, a link beat each second: the
+/// terminal is an operator link (`failsafe.link_sources`), lost when its ssh session drops.
 pub(super) async fn read_terminal(tx: mpsc::Sender<OperatorInput>, cancel: CancellationToken) {
     use tokio::io::AsyncReadExt;
     let mut stdin = tokio::io::stdin();
@@ -117,7 +116,7 @@ pub(super) async fn read_terminal(tx: mpsc::Sender<OperatorInput>, cancel: Cance
         }
         let text = match byte[0] {
             b'\n' => String::from_utf8_lossy(&std::mem::take(&mut line)).into_owned(),
-            // A line longer than the console's cap is dropped.
+            // Bytes past the console's line cap are dropped (the line then reads as an error).
             b if line.len() < crate::console::MAX_LINE_BYTES => {
                 line.push(b);
                 continue;
