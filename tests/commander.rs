@@ -188,17 +188,7 @@ fn disarm_in_the_air_is_refused_and_kill_halts() {
     assert_escs_stopped(&r);
     // The replay has no watchdog: it takes the halt from mode.log, to the same bytes.
     let run = Path::new(r["run_dir"].as_str().unwrap()).to_path_buf();
-    let out = tempfile::tempdir().unwrap();
-    let o = uquad(
-        &root(),
-        &[
-            "replay",
-            run.to_str().unwrap(),
-            "--out",
-            out.path().to_str().unwrap(),
-        ],
-    );
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let out = replay_run(&run);
     for name in ["mode.log", "w.log", "x_hat.log"] {
         let a = std::fs::read(run.join(name)).unwrap();
         assert_eq!(a, std::fs::read(out.path().join(name)).unwrap(), "{name}");

@@ -78,17 +78,7 @@ fn a_sim_run_replays_to_identical_bytes() {
         "{report}"
     );
     let run = Path::new(report["run_dir"].as_str().unwrap()).to_path_buf();
-    let out = tempfile::tempdir().unwrap();
-    let o = uquad(
-        &root(),
-        &[
-            "replay",
-            run.to_str().unwrap(),
-            "--out",
-            out.path().to_str().unwrap(),
-        ],
-    );
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let out = replay_run(&run);
     for name in [
         "x_hat.log",
         "w.log",

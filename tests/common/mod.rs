@@ -186,6 +186,22 @@ pub fn replay_2012(run: &Path, extra: &[&str]) -> (Output, tempfile::TempDir) {
     (uquad(&root(), &args), out)
 }
 
+/// `uquad replay RUN --out <fresh folder>` with the run's own configuration, which must
+/// succeed; returns the output folder.
+#[allow(dead_code)]
+pub fn replay_run(run: &Path) -> tempfile::TempDir {
+    let out = tempfile::tempdir().expect("temp dir");
+    let args = [
+        "replay",
+        run.to_str().expect("utf-8 path"),
+        "--out",
+        out.path().to_str().expect("utf-8 path"),
+    ];
+    let o = uquad(&root(), &args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    out
+}
+
 /// [`replay_2012`], which must succeed; returns the output folder.
 pub fn replay_ok(run: &Path, extra: &[&str]) -> tempfile::TempDir {
     let (o, out) = replay_2012(run, extra);
