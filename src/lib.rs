@@ -7,6 +7,7 @@ pub mod app;
 pub mod config;
 pub mod console;
 pub mod core;
+pub mod gcs;
 pub mod hw;
 pub mod logs;
 pub mod sim;

@@ -78,6 +78,15 @@ e/d altitude, i/k mass, 0 reset mass, quit; 'filter LEVEL[,TEXT]' changes the fi
 consoles can attach at once; one that stops reading only loses its own events."
     )]
     Console(ConsoleArgs),
+    /// List the parameters a ground station sees: MAVLink id, key, value.
+    #[command(
+        long_about = "List the parameters a ground station sees over MAVLink: one line each with \
+its id (at most 16 characters), the configuration key it stands for, its value in this profile \
+(with the parameters kept from earlier runs applied, as `fly` and `sim` apply them) and whether \
+it is flight-critical (a ground station's change is refused while armed).\n\n\
+The profile's numbers and true/false keys are parameters; text keys and lists are not."
+    )]
+    Params(ParamsArgs),
     /// Print the fixes gpsd gives, one JSON object per line: a check to run before flying.
     #[command(
         long_about = "Print the fixes gpsd gives, one JSON object per line on stdout: mode (2 or 3), \
@@ -217,6 +226,15 @@ struct ConsoleArgs {
 }
 
 #[derive(clap::Args, Debug)]
+struct ParamsArgs {
+    #[command(flatten)]
+    profile: ProfileArgs,
+    /// The log folder whose params.toml holds the kept parameters (default: log.dir).
+    #[arg(long, value_name = "DIR")]
+    log_dir: Option<PathBuf>,
+}
+
+#[derive(clap::Args, Debug)]
 struct GpsArgs {
     /// gpsd's address.
     #[arg(long, value_name = "HOST:PORT", default_value = "127.0.0.1:2947")]
@@ -292,6 +310,18 @@ impl ProfileArgs {
         let path = config::resolve_path(self.config.as_deref()).map_err(Refused)?;
         self.sets.load(&path)
     }
+
+    /// The profile with the parameters a ground station kept from earlier runs (`fly`,
+    /// `sim`): the log folder is `log_dir` when the command line gives one.
+    fn load_kept(&self, log_dir: Option<&Path>) -> anyhow::Result<Profile> {
+        let path = config::resolve_path(self.config.as_deref()).map_err(Refused)?;
+        let (profile, kept) = config::load_kept(&path, &self.sets.sets, log_dir)
+            .map_err(|e| Refused(format!("invalid configuration:\n{e}")))?;
+        if let Some((file, n)) = kept {
+            tracing::info!("{n} parameter(s) kept from {}", file.display());
+        }
+        Ok(profile)
+    }
 }
 
 /// Logs to stderr, filtered by RUST_LOG: compact and coloured on a terminal; under systemd
@@ -339,6 +369,7 @@ fn main() -> ExitCode {
         Command::Sim(a) => a.run(),
         Command::Plot(a) => a.run(),
         Command::Console(a) => a.run(),
+        Command::Params(a) => a.run(),
         Command::Gps(a) => a.run(),
         Command::Lqr(a) => a.run(),
         Command::Replay(a) => a.run(),
@@ -395,7 +426,7 @@ impl CheckConfigArgs {
 impl FlyArgs {
     fn run(self) -> anyhow::Result<ExitCode> {
         use uquad::app::fly::{Edges, FlyOptions};
-        let profile = self.profile.load()?;
+        let profile = self.profile.load_kept(self.log_dir.as_deref())?;
         let cfg = &profile.config;
         // Before any device is opened: a flight without real-time guarantees is refused.
         if !self.allow_no_rt
@@ -412,6 +443,7 @@ impl FlyArgs {
             handle_signals: true,
             arm_at_start: self.arm,
             realtime_waived: self.allow_no_rt,
+            gcs: cfg.gcs.enabled == config::GcsEnabled::Always,
             ..FlyOptions::default()
         };
         let summary = on_runtime(Duration::from_millis(200), async {
@@ -447,7 +479,7 @@ impl SimArgs {
 
     fn run(self) -> anyhow::Result<ExitCode> {
         let mode = self.mode();
-        let profile = self.profile.load()?;
+        let profile = self.profile.load_kept(self.log_dir.as_deref())?;
         let opts = SimOptions {
             inject: self.inject,
             duration_s: self.duration,
@@ -492,6 +524,24 @@ impl ConsoleArgs {
             Duration::from_millis(100),
             uquad::console::attach(&path, self.filter.as_deref()),
         )??;
+        Ok(ExitCode::SUCCESS)
+    }
+}
+
+impl ParamsArgs {
+    fn run(self) -> anyhow::Result<ExitCode> {
+        let profile = self.profile.load_kept(self.log_dir.as_deref())?;
+        let params = uquad::gcs::params::Params::of(&profile.config);
+        println!(
+            "{:<16}  {:<36}  {:>12}  flight-critical",
+            "id", "key", "value"
+        );
+        for i in 0..params.len() {
+            if let Some(p) = params.get(i) {
+                let critical = if p.flight_critical() { "yes" } else { "no" };
+                println!("{:<16}  {:<36}  {:>12}  {critical}", p.id, p.key, p.value);
+            }
+        }
         Ok(ExitCode::SUCCESS)
     }
 }

@@ -204,27 +204,6 @@ fn wait_for(lines: &Mutex<Vec<String>>, text: &str, limit: Duration) {
     }
 }
 
-/// The run folder under `dir` (named by its start time).
-fn run_dir(dir: &Path) -> std::path::PathBuf {
-    let t0 = Instant::now();
-    loop {
-        let found = std::fs::read_dir(dir)
-            .unwrap()
-            .filter_map(Result::ok)
-            .map(|e| e.path())
-            .find(|p| {
-                p.is_dir()
-                    && p.file_name()
-                        .is_some_and(|n| n.to_string_lossy().starts_with("20"))
-            });
-        if let Some(p) = found {
-            return p;
-        }
-        assert!(t0.elapsed() < Duration::from_secs(10), "no run folder");
-        std::thread::sleep(Duration::from_millis(20));
-    }
-}
-
 #[test]
 fn a_console_arms_takes_off_and_lands_after_a_refusal() {
     let dir = tempfile::tempdir().unwrap();

@@ -10,7 +10,9 @@
 //! - `config_loader`: `config::load` of generated TOML with generated `--set` overrides
 //!   (`parse_set`), and what a loaded profile builds;
 //! - `log_readers`: `parse_log` with every record parser of `logs::format`, `parse_time_us`,
-//!   and the fixed-point printer the logs are written with.
+//!   and the fixed-point printer the logs are written with;
+//! - `mavlink_frames`: the ground-station link's MAVLink decoder (`gcs::wire::Decoder`, as
+//!   datagrams and as a stream cut anywhere), the command mapping and parameter values.
 //!
 //! Each takes random input and structure-aware mutations of valid input (frames with bytes
 //! flipped, a TPV report with fields changed or cut, a shipped profile with values replaced by
@@ -1661,4 +1663,136 @@ fn log_readers() {
         prop_assert_eq!(ours, format!("{v:.*}", decimals as usize));
         Ok(())
     });
+}
+
+// ---------------------------------------------------------------------------------------------
+// mavlink_frames: the ground-station link's framing and what it does with a message
+// ---------------------------------------------------------------------------------------------
+
+/// A message a ground station sends, from generated numbers.
+fn gcs_message(kind: u8, f: [f32; 7], id: u8) -> mavlink::dialects::common::MavMessage {
+    use mavlink::dialects::common::*;
+    let cmd = [
+        MavCmd::MAV_CMD_COMPONENT_ARM_DISARM,
+        MavCmd::MAV_CMD_NAV_TAKEOFF,
+        MavCmd::MAV_CMD_DO_SET_MODE,
+        MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL,
+        MavCmd::MAV_CMD_REQUEST_MESSAGE,
+    ][usize::from(id % 5)];
+    let param_id = uquad::gcs::params::TABLE[usize::from(id) % uquad::gcs::params::TABLE.len()].0;
+    match kind % 4 {
+        0 => MavMessage::HEARTBEAT(HEARTBEAT_DATA::DEFAULT),
+        1 => MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
+            param1: f[0],
+            param2: f[1],
+            param7: f[6],
+            command: cmd,
+            ..COMMAND_LONG_DATA::DEFAULT
+        }),
+        2 => MavMessage::PARAM_SET(PARAM_SET_DATA {
+            param_value: f[2],
+            param_id: param_id.into(),
+            ..PARAM_SET_DATA::DEFAULT
+        }),
+        _ => MavMessage::PARAM_REQUEST_READ(PARAM_REQUEST_READ_DATA {
+            param_index: -1,
+            param_id: param_id.into(),
+            ..PARAM_REQUEST_READ_DATA::DEFAULT
+        }),
+    }
+}
+
+/// Any float, the odd ones often.
+fn odd_f32() -> impl Strategy<Value = f32> {
+    prop_oneof![
+        select(vec![
+            0.0,
+            1.0,
+            -1.0,
+            f32::NAN,
+            f32::INFINITY,
+            21196.0,
+            1e30,
+            0.4
+        ]),
+        any::<f32>()
+    ]
+}
+
+#[test]
+fn mavlink_frames() {
+    use uquad::gcs::wire::{Decoder, Encoder};
+    let message = (any::<u8>(), std::array::from_fn(|_| odd_f32()), any::<u8>());
+    let strategy = (
+        vec(message, 1..6),
+        vec(byte_edit(), 0..4),
+        vec(any::<Index>(), 0..4),
+    );
+    let tally = Tally::default();
+    fuzz(
+        "mavlink_frames",
+        strategy,
+        &tally,
+        |(msgs, edits, splits)| {
+            let mut enc = Encoder::new(255, 190);
+            let mut bytes = Vec::new();
+            for (kind, f, id) in &msgs {
+                enc.encode(&gcs_message(*kind, *f, *id), &mut bytes);
+            }
+            let clean = bytes.clone();
+            for e in &edits {
+                apply_byte_edit(&mut bytes, e);
+            }
+            // As one datagram, and as a stream cut anywhere: no panic; untouched bytes give back
+            // every message.
+            let mut d = Decoder::for_datagrams();
+            d.push(&bytes);
+            let mut got = Vec::new();
+            while let Some(m) = d.next_message() {
+                got.push(m);
+            }
+            let mut s = Decoder::for_stream();
+            let mut cuts: Vec<usize> = splits.iter().map(|i| i.index(bytes.len() + 1)).collect();
+            cuts.sort_unstable();
+            let mut from = 0;
+            for cut in cuts.into_iter().chain([bytes.len()]) {
+                s.push(&bytes[from..cut]);
+                from = cut;
+                while s.next_message().is_some() {}
+            }
+            if bytes == clean {
+                prop_assert_eq!(got.len(), msgs.len());
+                prop_assert_eq!(s.counts.frames as usize, msgs.len());
+                tally.add("clean");
+            } else {
+                tally.add(if got.is_empty() {
+                    "edited, none"
+                } else {
+                    "edited, some"
+                });
+            }
+            // What the link does with each message: map a command, convert a parameter's value.
+            let params = uquad::gcs::params::Params::of(&uquad::config::Config::default());
+            for r in got {
+                use mavlink::dialects::common::MavMessage;
+                match r.msg {
+                    MavMessage::COMMAND_LONG(c) => {
+                        let p = [
+                            c.param1, c.param2, c.param3, c.param4, c.param5, c.param6, c.param7,
+                        ];
+                        let args = uquad::gcs::commands::Args { p, frame: None };
+                        let _ = uquad::gcs::commands::map(c.command, args);
+                    }
+                    MavMessage::PARAM_SET(p) => {
+                        let id = p.param_id.to_str().unwrap_or("");
+                        if let Some(param) = params.find(id).and_then(|i| params.get(i)) {
+                            let _ = param.toml_value(p.param_value);
+                        }
+                    }
+                    _ => {}
+                }
+            }
+            Ok(())
+        },
+    );
 }

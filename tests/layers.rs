@@ -8,17 +8,20 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
 /// What each top-level module may import.
-const ALLOWED: [(&str, &[&str]); 8] = [
+const ALLOWED: [(&str, &[&str]); 9] = [
     ("core", &[]),
     ("hw", &["core"]),
     ("logs", &["core"]),
     ("config", &["core"]),
     ("console", &["core"]),
+    ("gcs", &["core", "config"]),
     ("sim", &["core", "config", "hw"]),
-    ("tasks", &["core", "hw", "logs", "config"]),
+    ("tasks", &["core", "hw", "logs", "config", "gcs"]),
     (
         "app",
-        &["core", "hw", "logs", "config", "console", "sim", "tasks"],
+        &[
+            "core", "hw", "logs", "config", "console", "gcs", "sim", "tasks",
+        ],
     ),
 ];
 

@@ -17,6 +17,15 @@ if [ "${#missing[@]}" -gt 0 ]; then
     DEBIAN_FRONTEND=noninteractive $sudo_cmd apt-get install -y -qq --no-install-recommends "${missing[@]}"
 fi
 
+# Python packages the tests need, in a virtual environment of the project's: pymavlink, the
+# ground station of tests/gcs.rs (which runs the python named by UQUAD_PYTHON).
+venv=target/venv
+if ! "$venv/bin/python" -c "import pymavlink" >/dev/null 2>&1; then
+    python3 -m venv "$venv"
+    "$venv/bin/pip" install --quiet pymavlink==2.4.50
+fi
+export UQUAD_PYTHON="$PWD/$venv/bin/python"
+
 rustup component add rustfmt clippy >/dev/null 2>&1 || true
 cargo fmt --all -- --check
 cargo clippy --all-targets --locked -- -D warnings

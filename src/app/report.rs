@@ -42,6 +42,8 @@ pub struct FlySummary {
     pub console_drops: u64,
     /// Log lines stderr could not take (a stalled terminal).
     pub stderr_drops: u64,
+    /// The ground-station link's counters, when it was served.
+    pub gcs: Option<crate::tasks::gcs::GcsReport>,
     /// Records written per stream.
     pub log_records: PerStream<u64>,
     /// Frame arrival → ESC write, µs.
@@ -116,6 +118,8 @@ pub struct FlyReport {
     pub log_io_errors_by_stream: PerStream<u64>,
     pub console_drops: u64,
     pub stderr_drops: u64,
+    /// The ground-station link (null when it was not served).
+    pub gcs: Option<crate::tasks::gcs::GcsReport>,
     pub esc: EscReport,
     pub imu: ImuReport,
     pub gps: GpsReport,
@@ -201,6 +205,7 @@ impl FlySummary {
             log_io_errors_by_stream: self.log_io_errors,
             console_drops: self.console_drops,
             stderr_drops: self.stderr_drops,
+            gcs: self.gcs.clone(),
             esc: EscReport {
                 commands: self.esc_commands,
                 writes: self.esc_writes,
@@ -258,6 +263,23 @@ impl FlySummary {
             lines.push(Record::note(format!(
                 "console: {} events missed by slow consoles",
                 self.console_drops
+            )));
+        }
+        if let Some(g) = &self.gcs {
+            lines.push(Record::note(format!(
+                "ground-station link: {} frames in, {} out; {} commands ({} refused); dropped: \
+                 {} over the rate, {} out; noise: {} bad CRC, {} cut short, {} unknown, {} \
+                 bytes outside frames",
+                g.rx.frames,
+                g.tx_frames,
+                g.commands,
+                g.commands_refused,
+                g.flood_drops,
+                g.tx_drops,
+                g.rx.bad_crc,
+                g.rx.truncated,
+                g.rx.unknown,
+                g.rx.garbage_bytes
             )));
         }
         lines.push(Record::note(format!(

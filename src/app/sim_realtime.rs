@@ -7,7 +7,7 @@
 use crate::app::fly::{self, Edges, FlyOptions};
 use crate::app::report::SimSummary;
 use crate::app::sim::SimOptions;
-use crate::config::{GpsMode, Profile};
+use crate::config::{GcsEnabled, GpsMode, Profile};
 use crate::core::commander::{Mode, OperatorInput};
 use crate::core::gps::LiveFix;
 use crate::core::motor::FLIGHT_RAMP_STEPS;
@@ -128,6 +128,7 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
         handle_signals: true,
         realtime_waived: true,
         log_stall,
+        gcs: run_profile.config.gcs.enabled != GcsEnabled::Never,
         ..Default::default()
     };
     let summary = fly::run(&run_profile, edges, opts, cancel).await;

@@ -66,9 +66,101 @@ pub fn resolve_path(given: Option<&Path>) -> Result<PathBuf, String> {
 
 /// Loads, overrides, validates and resolves a configuration file and its data files.
 pub fn load(path: &Path, sets: &[(String, toml::Value)]) -> Result<Profile, ConfigError> {
+    load_layers(path, None, sets)
+}
+
+/// [`load`], with the parameters a ground station set in earlier runs applied before the
+/// `--set` overrides (which win): the file [`kept_params_path`] names, when it exists. Also
+/// which file that was and how many it applied.
+pub fn load_kept(
+    path: &Path,
+    sets: &[(String, toml::Value)],
+    log_dir: Option<&Path>,
+) -> Result<(Profile, Option<(PathBuf, usize)>), ConfigError> {
+    let plain = load(path, sets)?;
+    let file = kept_params_path(&plain.config, log_dir);
+    let Some(kept) = read_kept(&file)? else {
+        return Ok((plain, None));
+    };
+    let profile = load_layers(path, Some((&file, &kept)), sets)?;
+    Ok((profile, Some((file, kept.len()))))
+}
+
+/// Where a ground station's parameters are kept: `gcs.params_file`, else `params.toml` in the
+/// log folder (`log_dir` when the command line names one).
+pub fn kept_params_path(c: &Config, log_dir: Option<&Path>) -> PathBuf {
+    if !c.gcs.params_file.as_os_str().is_empty() {
+        return c.gcs.params_file.clone();
+    }
+    log_dir.unwrap_or(&c.log.dir).join("params.toml")
+}
+
+/// The kept parameters as dotted keys and values; none when there is no such file.
+fn read_kept(file: &Path) -> Result<Option<Vec<(String, toml::Value)>>, ConfigError> {
+    if !file.exists() {
+        return Ok(None);
+    }
+    let table = read_table(file)?;
+    let mut out = Vec::new();
+    flatten("", &table, &mut out);
+    Ok(Some(out))
+}
+
+fn flatten(prefix: &str, t: &toml::Table, out: &mut Vec<(String, toml::Value)>) {
+    for (k, v) in t {
+        let key = format!("{prefix}{k}");
+        match v {
+            toml::Value::Table(sub) => flatten(&format!("{key}."), sub, out),
+            v => out.push((key, v.clone())),
+        }
+    }
+}
+
+/// Sets `key` to `value` in the kept-parameters file (created when missing), written whole
+/// under a temporary name and renamed into place, so a power cut leaves the old file or the
+/// new one.
+pub fn write_kept(file: &Path, key: &str, value: toml::Value) -> Result<(), String> {
+    let mut table = if file.exists() {
+        read_table(file).map_err(|e| e.to_string())?
+    } else {
+        toml::Table::new()
+    };
+    set_dotted(&mut table, key, value)?;
+    let text = toml::to_string(&table).map_err(|e| e.to_string())?;
+    let header = "# Parameters set by a ground station (uquad writes this file). `uquad fly` and \
+                  `uquad sim` apply them at start, under --set.\n";
+    let tmp = file.with_extension("toml.tmp");
+    std::fs::write(&tmp, format!("{header}{text}"))
+        .and_then(|()| std::fs::rename(&tmp, file))
+        .map_err(|e| format!("cannot write {}: {e}", file.display()))
+}
+
+/// Whether `key = value` is a valid change of the configuration at `path`, checked as `--set`
+/// is; the first problem otherwise, as "key: message".
+pub fn check_set(path: &Path, key: &str, value: toml::Value) -> Result<(), String> {
+    let sets = [(key.to_string(), value)];
+    load(path, &sets).map(|_| ()).map_err(|e| {
+        e.problems.first().map_or_else(String::new, |p| {
+            // The change's origin is the caller's to say.
+            let message = p.message.replace(" (from --set)", "");
+            match &p.key {
+                Some(k) => format!("{k}: {message}"),
+                None => message,
+            }
+        })
+    })
+}
+
+/// Loads with the kept parameters (when any) and then the `--set` overrides applied.
+fn load_layers(
+    path: &Path,
+    kept: Option<(&Path, &[(String, toml::Value)])>,
+    sets: &[(String, toml::Value)],
+) -> Result<Profile, ConfigError> {
     let mut table = read_table(path)?;
     let mut report = Report {
         path,
+        kept,
         sets,
         problems: Vec::new(),
     };
@@ -103,6 +195,8 @@ pub fn load(path: &Path, sets: &[(String, toml::Value)]) -> Result<Profile, Conf
 struct Report<'a> {
     /// The configuration file.
     path: &'a Path,
+    /// The kept parameters' file and its keys, applied before the `--set` overrides.
+    kept: Option<(&'a Path, &'a [(String, toml::Value)])>,
     /// The `--set` overrides applied to it.
     sets: &'a [(String, toml::Value)],
     problems: Vec<Problem>,
@@ -111,11 +205,12 @@ struct Report<'a> {
 impl Report<'_> {
     /// " (from --set)" for a key given with `--set`: the user then knows the file is not at
     /// fault.
-    fn origin(&self, key: &str) -> &'static str {
-        if self.sets.iter().any(|(k, _)| k == key) {
-            " (from --set)"
-        } else {
-            ""
+    fn origin(&self, key: &str) -> String {
+        let has = |list: &[(String, toml::Value)]| list.iter().any(|(k, _)| k == key);
+        match self.kept {
+            _ if has(self.sets) => " (from --set)".into(),
+            Some((file, kept)) if has(kept) => format!(" (from {})", file.display()),
+            _ => String::new(),
         }
     }
 
@@ -149,9 +244,11 @@ fn read_table(path: &Path) -> Result<toml::Table, ConfigError> {
     toml::from_str(&text).map_err(|e| fail(format!("not valid TOML: {}", e.to_string().trim())))
 }
 
-/// Applies the `--set` overrides in order; one that cannot apply is reported and skipped.
+/// Applies the kept parameters, then the `--set` overrides, in order; one that cannot apply
+/// is reported and skipped.
 fn apply_sets(table: &mut toml::Table, report: &mut Report<'_>) {
-    for (key, value) in report.sets {
+    let kept = report.kept.map_or(&[][..], |(_, k)| k);
+    for (key, value) in kept.iter().chain(report.sets) {
         if let Err(e) = set_dotted(table, key, value.clone()) {
             report.push(Some(key), format!("--set cannot apply: {e}"));
         }
@@ -226,6 +323,11 @@ fn resolve_paths(c: &mut Config, path: &Path) {
     c.log.dir = resolve(&c.log.dir);
     if !c.console.socket.as_os_str().is_empty() {
         c.console.socket = resolve(&c.console.socket);
+    }
+    for p in [&mut c.gcs.serial, &mut c.gcs.params_file] {
+        if !p.as_os_str().is_empty() {
+            *p = resolve(p);
+        }
     }
     c.control.k_prop_file = resolve(&c.control.k_prop_file);
     c.control.k_int_file = resolve(&c.control.k_int_file);

@@ -12,6 +12,7 @@
 //! - `profile`: the loaded profile and the core objects it describes.
 
 mod commander;
+mod gcs;
 mod load;
 mod overrides;
 mod profile;
@@ -19,7 +20,11 @@ mod schema;
 mod validate;
 
 pub use commander::{CommanderConfig, FailsafeConfig, Fence};
-pub use load::{ConfigError, DEFAULT_CONFIG, Problem, load, resolve_path};
+pub use gcs::{GcsConfig, GcsEnabled};
+pub use load::{
+    ConfigError, DEFAULT_CONFIG, Problem, check_set, kept_params_path, load, load_kept,
+    resolve_path, write_kept,
+};
 pub use overrides::parse_set;
 pub use profile::Profile;
 pub use schema::{

@@ -23,6 +23,7 @@ pub struct Config {
     pub commander: super::CommanderConfig,
     pub failsafe: super::FailsafeConfig,
     pub fence: super::Fence,
+    pub gcs: super::GcsConfig,
 }
 
 /// The ESC writer (spec 6.3, 6.4).

@@ -267,6 +267,7 @@ pub(super) fn validate(c: &Config) -> Vec<Check> {
         integral_rules(c),
         commander_rules(c),
         failsafe_rules(c),
+        gcs_rules(c),
     ];
     rules.into_iter().flatten().filter(|r| !r.passed).collect()
 }
@@ -617,6 +618,34 @@ fn commander_rules(c: &Config) -> Vec<Check> {
         .and(m.land_slow_m_s <= m.land_m_s, "at most commander.land_m_s"),
     );
     checks
+}
+
+/// The ground-station link: addresses that parse, a radio speed a radio has, rates that a
+/// link can carry.
+fn gcs_rules(c: &Config) -> Vec<Check> {
+    let g = &c.gcs;
+    let address = |key: &str, text: &str| {
+        Check::new(
+            key,
+            text.parse::<std::net::SocketAddr>().is_ok(),
+            format!("{text:?}"),
+            "an IP address and port, like \"127.0.0.1:14550\"",
+        )
+    };
+    vec![
+        address("gcs.udp_remote", &g.udp_remote),
+        address("gcs.udp_local", &g.udp_local),
+        one_of(
+            "gcs.baud",
+            g.baud,
+            &[
+                9_600, 19_200, 38_400, 57_600, 115_200, 230_400, 460_800, 921_600,
+            ],
+        ),
+        in_range("gcs.system_id", u32::from(g.system_id), 1..=254, ""),
+        in_range("gcs.telemetry_hz", g.telemetry_hz, 0.1..=50.0, "Hz"),
+        in_range("gcs.max_rx_per_s", g.max_rx_per_s, 10..=10_000, "frames/s"),
+    ]
 }
 
 /// The failsafes and the fence: known link sources, a link timeout longer than the links'

@@ -30,3 +30,25 @@ pub fn asin(x: f64) -> f64 {
 pub fn pow(x: f64, y: f64) -> f64 {
     libm::pow(x, y)
 }
+
+/// Body-to-inertial rotation (ZYX: yaw θ, pitch φ, roll ψ), as the filter's kinematics use.
+/// With std's sin and cos: for the simulator's physics and the ground station's telemetry,
+/// never for a logged estimate.
+pub fn rotation(psi: f64, phi: f64, theta: f64) -> [[f64; 3]; 3] {
+    let (sps, cps) = psi.sin_cos();
+    let (sph, cph) = phi.sin_cos();
+    let (sth, cth) = theta.sin_cos();
+    [
+        [
+            cph * cth,
+            cth * sph * sps - cps * sth,
+            sps * sth + cps * cth * sph,
+        ],
+        [
+            cph * sth,
+            sth * sph * sps + cps * cth,
+            cps * sth * sph - cth * sps,
+        ],
+        [-sph, cph * sps, cph * cps],
+    ]
+}

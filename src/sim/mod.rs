@@ -41,17 +41,23 @@ pub fn vehicle(profile: &Profile, seed: u64) -> (physics::Plant, imu::SimImu) {
     (plant, imu)
 }
 
+/// Where the simulated vehicle flies: the 2012 flight's first fix (Facultad de Ingeniería,
+/// Montevideo), latitude and longitude, degrees.
+pub const SITE_DEG: [f64; 2] = [-34.919588333, -56.166258333];
+
 /// Simulated gpsd: a fix of the true position `pos_m` (local frame) arriving at `t_us`, the
-/// next in `seq`. The simulator has no place on the Earth: latitude and longitude are 0; the
-/// run's gps.log carries the local position, which is what a replay fuses.
+/// next in `seq`. Its latitude and longitude place the local frame at [`SITE_DEG`] (for a
+/// ground station's map); the run's gps.log carries the local position, which is what the
+/// filter and a replay fuse.
 pub fn gps_fix(seq: &mut u64, pos_m: [f64; 3], t_us: i64) -> LiveFix {
     *seq += 1;
+    let [lat_deg, lon_deg] = crate::core::gps::offset_deg(SITE_DEG, [pos_m[0], pos_m[1]]);
     LiveFix {
         seq: *seq,
         fix: Fix {
             mode: 3,
-            lat_deg: 0.0,
-            lon_deg: 0.0,
+            lat_deg,
+            lon_deg,
             alt_m: Some(pos_m[2]),
             // The simulated fixes are the true position: no error.
             eph_m: Some(0.0),

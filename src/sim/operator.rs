@@ -1,6 +1,7 @@
 //! The simulated operator: a script of commands at simulated times (`uquad sim --script`) and
 //! the link heartbeats of the ground station it stands for, which `--inject link-loss@T`
-//! silences. Both ways of simulating read it.
+//! silences; without a script (`none`) there is no simulated operator and no heartbeat. Both
+//! ways of simulating read it.
 
 use crate::core::commander::{Command, LinkSource, OperatorInput};
 use std::collections::VecDeque;
@@ -50,6 +51,9 @@ pub struct SimOperator {
     next_beat_us: i64,
     /// `link-loss`: no heartbeats (and no commands) from this time on.
     silent_from_us: Option<i64>,
+    /// Without a script there is no simulated operator: no heartbeats either (a real ground
+    /// station or console may be the link).
+    present: bool,
 }
 
 impl SimOperator {
@@ -58,6 +62,7 @@ impl SimOperator {
             script: script.0.iter().copied().collect(),
             next_beat_us: BEAT_PERIOD_US,
             silent_from_us,
+            present: !script.0.is_empty(),
         }
     }
 
@@ -72,7 +77,7 @@ impl SimOperator {
 
     /// The inputs due by `t_us`, in order, into `out`.
     pub fn due(&mut self, t_us: i64, out: &mut Vec<OperatorInput>) {
-        if self.silent(t_us) {
+        if !self.present || self.silent(t_us) {
             return;
         }
         if t_us >= self.next_beat_us {
@@ -123,5 +128,15 @@ mod tests {
         assert_eq!(beats, 3, "{got:?}");
         assert!(got.contains(&OperatorInput::Command(Command::Arm, LinkSource::Gcs)));
         assert!(op.done(4_000_000));
+    }
+
+    #[test]
+    fn no_script_is_no_operator_and_no_heartbeat() {
+        let mut op = SimOperator::new(&Script::default(), None);
+        let mut got = Vec::new();
+        for t_ms in (0..=5000).step_by(10) {
+            op.due(t_ms * 1000, &mut got);
+        }
+        assert!(got.is_empty(), "{got:?}");
     }
 }

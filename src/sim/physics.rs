@@ -41,25 +41,7 @@ pub struct Plant {
     pub push_n: [f64; 3],
 }
 
-/// Body-to-inertial rotation (ZYX: yaw θ, pitch φ, roll ψ), as the filter's kinematics use.
-pub fn rotation(psi: f64, phi: f64, theta: f64) -> [[f64; 3]; 3] {
-    let (sps, cps) = psi.sin_cos();
-    let (sph, cph) = phi.sin_cos();
-    let (sth, cth) = theta.sin_cos();
-    [
-        [
-            cph * cth,
-            cth * sph * sps - cps * sth,
-            sps * sth + cps * cth * sph,
-        ],
-        [
-            cph * sth,
-            sth * sph * sps + cps * cth,
-            cps * sth * sph - cth * sps,
-        ],
-        [-sph, cph * sps, cph * cps],
-    ]
-}
+pub use crate::core::math::rotation;
 
 fn mul(r: &[[f64; 3]; 3], v: &[f64; 3]) -> [f64; 3] {
     std::array::from_fn(|i| r[i][0] * v[0] + r[i][1] * v[1] + r[i][2] * v[2])

@@ -51,6 +51,9 @@ pub struct Live {
     pub height_m: f64,
     /// Steps under the control law so far (the flight ramp is done after 100).
     pub flying_steps: u64,
+    /// The estimate's innovation test ratios, and the takeoff point (m), for a ground station.
+    pub ratios: crate::core::ekf::TestRatios,
+    pub home_m: Option<[f64; 3]>,
 }
 
 impl ControllerTask {
@@ -93,6 +96,8 @@ impl ControllerTask {
                 mode: est.guidance.mode,
                 height_m: est.guidance.height_m,
                 flying_steps: self.side.counts().flying_steps,
+                ratios: est.ratios,
+                home_m: est.guidance.home_m,
             }));
         }
         let c = self.side.counts();

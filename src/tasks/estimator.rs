@@ -20,6 +20,7 @@ use crate::core::gps::LiveFix;
 use crate::tasks::TaskOutputs;
 use crate::tasks::esc_writer::{EscMailbox, EscStatus};
 use crate::tasks::imu_reader::StampedFrame;
+use crate::tasks::notices::Notice;
 use crate::tasks::prearm::PreArm;
 use crate::tasks::watchdog::WatchdogStatus;
 use std::sync::Arc;
@@ -165,10 +166,18 @@ impl EstimatorTask {
         } else {
             ArmFacts::default()
         };
-        match self
+        let action = self
             .side
-            .operator(input, t_us, ArmCheck::Facts(&facts), &mut self.out)
-        {
+            .operator(input, t_us, ArmCheck::Facts(&facts), &mut self.out);
+        if let OperatorInput::Command(command, source) = input {
+            let refused = self.side.last_refusal().map(str::to_string);
+            self.out.notices.send(Notice::Outcome {
+                command,
+                source,
+                refused,
+            });
+        }
+        match action {
             OperatorAction::StopEscs => self.esc.halt("disarmed"),
             OperatorAction::Quit => self.cancel.cancel(),
             OperatorAction::Nothing => {}

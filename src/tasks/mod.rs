@@ -3,10 +3,12 @@
 pub mod controller;
 pub mod esc_writer;
 pub mod estimator;
+pub mod gcs;
 pub mod gps_client;
 pub mod heartbeats;
 pub mod imu_reader;
 pub mod logger;
+pub mod notices;
 pub mod prearm;
 pub mod watchdog;
 
@@ -23,12 +25,16 @@ use std::sync::Arc;
 pub struct TaskOutputs {
     pub logs: LogHub,
     pub beats: Arc<Heartbeats>,
+    /// The commander's events, for the operators' links.
+    pub notices: notices::Notices,
 }
 
 impl Outputs for TaskOutputs {
     fn record(&mut self, r: FlightRecord) {
-        if let FlightRecord::Note(line) = &r {
-            tracing::info!("{line}");
+        match &r {
+            FlightRecord::Note(line) => tracing::info!("{line}"),
+            FlightRecord::Commander(e) => self.notices.send(notices::Notice::Event(e.clone())),
+            _ => {}
         }
         self.logs.log(Record::Flight(r));
     }

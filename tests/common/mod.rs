@@ -516,3 +516,24 @@ pub fn reader(
     });
     lines
 }
+
+/// The run folder under `dir` (named by its start time), waiting up to 10 s for it.
+pub fn run_dir(dir: &Path) -> PathBuf {
+    let t0 = std::time::Instant::now();
+    loop {
+        let found = std::fs::read_dir(dir)
+            .unwrap()
+            .filter_map(Result::ok)
+            .map(|e| e.path())
+            .find(|p| {
+                p.is_dir()
+                    && p.file_name()
+                        .is_some_and(|n| n.to_string_lossy().starts_with("20"))
+            });
+        if let Some(p) = found {
+            return p;
+        }
+        assert!(t0.elapsed() < Duration::from_secs(10), "no run folder");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}

@@ -22,7 +22,8 @@ use tracing::Instrument;
 /// What the control path reads from and publishes to, beyond the shared handles.
 pub(super) struct Inputs {
     pub imu: Box<dyn super::ImuIo>,
-    pub gps_fixes: Option<watch::Receiver<Option<LiveFix>>>,
+    /// Live fixes (gps.mode = gpsd), from [`live_fixes`].
+    pub gps_live: Option<watch::Receiver<Option<LiveFix>>>,
     pub operator: mpsc::Receiver<OperatorInput>,
     pub live: watch::Sender<Option<Live>>,
     /// Why the run folder cannot be written, as last probed (a pre-arm check).
@@ -42,7 +43,7 @@ pub(super) fn spawn(
     opts: &FlyOptions,
     h: &RunHandles,
 ) -> anyhow::Result<JoinHandle<anyhow::Result<Reports>>> {
-    let gps_live = live_fixes(profile, inputs.gps_fixes, h);
+    let gps_live = inputs.gps_live.clone();
     let (estimator, controller) = live_sides(profile);
     let prearm = PreArm {
         log_problem: inputs.log_problem.clone(),
@@ -72,6 +73,7 @@ pub(super) fn spawn(
         let out = TaskOutputs {
             logs: h.logs.clone(),
             beats: h.beats.clone(),
+            notices: h.notices.clone(),
         };
         let (fb_tx, fb_rx) = watch::channel(controller.first_feedback());
         let (est_tx, est_rx) = mpsc::channel(1);
@@ -143,7 +145,7 @@ pub(super) fn spawn(
 
 /// gps.mode = "gpsd": the caller's fixes (the simulator) or a gpsd client on the main runtime,
 /// so the control path never waits on gpsd. The gps.log header says the log holds fixes.
-fn live_fixes(
+pub(super) fn live_fixes(
     profile: &Profile,
     given: Option<watch::Receiver<Option<LiveFix>>>,
     h: &RunHandles,

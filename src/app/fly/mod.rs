@@ -15,6 +15,7 @@
 //! first, then the control path stops, then the loggers drain and flush.
 
 mod control;
+mod gcs_link;
 mod operators;
 
 use crate::app::report::FlySummary;
@@ -27,10 +28,12 @@ use crate::hw::esc_bus::EscBus;
 use crate::logs::{Record, halt_line};
 use crate::tasks::controller::Live;
 use crate::tasks::esc_writer::{self, EscMailbox, EscParams, EscStatus};
+use crate::tasks::gcs::GcsStats;
 use crate::tasks::gps_client::GpsStats;
 use crate::tasks::heartbeats::Heartbeats;
 use crate::tasks::imu_reader::ImuStats;
 use crate::tasks::logger::{self, LogHub, LogStall, LoggerReport};
+use crate::tasks::notices::Notices;
 use crate::tasks::watchdog::{self, WatchdogStatus};
 use anyhow::Context;
 use std::path::PathBuf;
@@ -81,6 +84,8 @@ pub struct FlyOptions {
     pub arm_at_start: bool,
     /// Arming does not require SCHED_FIFO (`--allow-no-rt`, the simulator).
     pub realtime_waived: bool,
+    /// Serve the ground-station link (`gcs.enabled` decides, per command).
+    pub gcs: bool,
 }
 
 /// The handles every phase of a run shares; cheap to clone.
@@ -98,6 +103,9 @@ struct RunHandles {
     live: watch::Receiver<Option<Live>>,
     /// Console events missed by slow consoles.
     console_drops: Arc<std::sync::atomic::AtomicU64>,
+    /// The commander's events and commands' outcomes, for the ground-station link.
+    notices: Notices,
+    gcs_stats: Option<Arc<GcsStats>>,
     /// systemd's notification socket, when run as a `Type=notify` service.
     notifier: Option<Arc<crate::hw::notify::Notifier>>,
     cancel: CancellationToken,
@@ -131,6 +139,8 @@ pub async fn run(
         gps_stats: Arc::new(GpsStats::default()),
         live: live_tx.subscribe(),
         console_drops: Arc::default(),
+        notices: Notices::new(),
+        gcs_stats: opts.gcs.then(Arc::default),
         notifier: crate::hw::notify::Notifier::from_env().map(Arc::new),
         cancel,
     };
@@ -140,11 +150,14 @@ pub async fn run(
     let _esc_guard = operators::StopEscOnDrop(h.mailbox.clone());
     let watchdog = start_watchdog(profile, &h, opts.realtime)?;
     let (operator_tx, operator_rx) = mpsc::channel::<OperatorInput>(OPERATOR_QUEUE);
+    let gps_live = control::live_fixes(profile, edges.gps_fixes, &h);
+    // Subscribed before the flight starts: the link hears the commander's first events.
+    let notices = h.notices.subscribe();
     let control = control::spawn(
         profile,
         control::Inputs {
             imu: edges.imu,
-            gps_fixes: edges.gps_fixes,
+            gps_live: gps_live.clone(),
             operator: operator_rx,
             live: live_tx,
             log_problem: watch_log_folder(&h),
@@ -153,6 +166,16 @@ pub async fn run(
         &h,
     )?;
     serve_operator(profile, &opts, &h, &operator_tx);
+    if let (Some(notices), Some(stats)) = (notices, h.gcs_stats.clone()) {
+        let link = gcs_link::Inputs {
+            operator: operator_tx.clone(),
+            notices,
+            gps_live,
+            control_cpu: crate::tasks::gcs::thread_clock(&control),
+            stats,
+        };
+        gcs_link::spawn(profile, &opts, &h, link);
+    }
     if let Some(extra) = edges.operator {
         tokio::spawn(operators::forward(
             extra,
@@ -397,6 +420,7 @@ fn summarise(h: &RunHandles, r: control::Reports, error: Option<String>) -> FlyS
         log_drops: h.logs.dropped(),
         log_io_errors: h.logs.io_errors(),
         console_drops: load(&h.console_drops),
+        gcs: h.gcs_stats.as_ref().map(|s| s.report()),
         stderr_drops: crate::console::stderr_drops(),
         log_records: Default::default(),
         latencies_us,

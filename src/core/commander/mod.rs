@@ -164,6 +164,8 @@ pub struct Guidance {
     pub hold_xy: bool,
     /// The height above the takeoff point the vehicle is sent to, m.
     pub height_m: f64,
+    /// Where the takeoff began (the ground station's home), m.
+    pub home_m: Option<[f64; 3]>,
 }
 
 impl Guidance {
@@ -175,6 +177,7 @@ impl Guidance {
         vz_m_s: 0.0,
         hold_xy: false,
         height_m: 0.0,
+        home_m: None,
     };
 }
 
@@ -573,6 +576,7 @@ impl Commander {
             vz_m_s: p.vz_m_s,
             hold_xy: self.hold_xy,
             height_m: self.target_m[2] - self.home_m.map_or(0.0, |h| h[2]),
+            home_m: self.home_m,
         }
     }
 

@@ -265,6 +265,8 @@ pub struct EstimatorSide {
     started: bool,
     /// The commander's events so far, for the report (at most [`HISTORY_MAX`]).
     history: Vec<commander::Event>,
+    /// Why the last operator input was refused, if it was (a ground station's answer).
+    last_refusal: Option<String>,
 }
 
 /// Mode changes and failsafes a run keeps for its report, and refusals apart (an operator
@@ -289,7 +291,13 @@ impl EstimatorSide {
             keys: VecDeque::with_capacity(4),
             started: false,
             history: Vec::with_capacity(32),
+            last_refusal: None,
         }
+    }
+
+    /// Why the last operator input was refused; `None` when it was taken.
+    pub fn last_refusal(&self) -> Option<&str> {
+        self.last_refusal.as_deref()
     }
 
     /// The vehicle's mode.
@@ -372,6 +380,10 @@ impl EstimatorSide {
                     .command(cmd, t_us, v, o.as_ref(), &mut self.events)
             }
         };
+        self.last_refusal = self.events.iter().find_map(|e| match e {
+            commander::Event::Refusal { why, .. } => Some(why.clone()),
+            _ => None,
+        });
         self.record_events(out);
         if self.esc_request(request, t_us, out) {
             OperatorAction::StopEscs

@@ -1,0 +1,62 @@
+//! Phase 5's ground-station link: opens it (a link that cannot open is logged and the run
+//! flies without it, as with the console) and starts its task on the main runtime.
+
+use super::{FlyOptions, RunHandles};
+use crate::config::Profile;
+use crate::core::commander::OperatorInput;
+use crate::core::gps::LiveFix;
+use crate::gcs::params::Params;
+use crate::tasks::gcs::{self, GcsContext, GcsStats, Link, ParamStore};
+use crate::tasks::notices::Notice;
+use std::sync::Arc;
+use tokio::sync::{broadcast, mpsc, watch};
+
+/// What the link takes from the run beyond the shared handles.
+pub(super) struct Inputs {
+    pub operator: mpsc::Sender<OperatorInput>,
+    pub notices: broadcast::Receiver<Notice>,
+    pub gps_live: Option<watch::Receiver<Option<LiveFix>>>,
+    pub control_cpu: Option<libc::clockid_t>,
+    pub stats: Arc<GcsStats>,
+}
+
+pub(super) fn spawn(profile: &Profile, opts: &FlyOptions, h: &RunHandles, i: Inputs) {
+    let cfg = &profile.config;
+    let ctx = GcsContext {
+        cfg: cfg.gcs.clone(),
+        params: Params::of(cfg),
+        store: ParamStore {
+            run_config: h.run_dir.join("config.toml"),
+            kept_file: crate::config::kept_params_path(cfg, opts.log_dir.as_deref()),
+            logs: h.logs.clone(),
+        },
+        operator: i.operator,
+        notices: i.notices,
+        live: h.live.clone(),
+        gps: i.gps_live,
+        gps_timeout_us: (cfg.control.gps_hold_timeout_s * 1e6).round() as i64,
+        watchdog: h.wd_status.clone(),
+        imu: h.imu_stats.clone(),
+        esc: h.esc_status.clone(),
+        esc_addresses: profile.motor_map().addresses,
+        beats: h.beats.clone(),
+        control_cpu: i.control_cpu,
+        stats: i.stats,
+        cancel: h.cancel.clone(),
+    };
+    let logs = h.logs.clone();
+    tokio::spawn(async move {
+        match Link::open(&ctx.cfg).await {
+            Ok(link) => {
+                let line = format!("ground-station link (MAVLink 2): {}", link.describe());
+                tracing::info!("{line}");
+                logs.err(line);
+                gcs::run(link, ctx).await;
+            }
+            Err(e) => {
+                tracing::error!("ground-station link: {e:#}; flying without it");
+                logs.err(format!("ground-station link: {e:#}; flying without it"));
+            }
+        }
+    });
+}

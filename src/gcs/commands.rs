@@ -1,0 +1,214 @@
+//! A ground station's commands (COMMAND_LONG, COMMAND_INT) mapped onto what uquad does with
+//! them: the commander's commands, or requests the link answers itself. Pure.
+//!
+//! - COMPONENT_ARM_DISARM: 1 → `arm`; 0 → `disarm`; 0 with the force code 21196 → `kill`.
+//! - NAV_TAKEOFF: `takeoff` to param 7, the height above the takeoff point in m (as
+//!   ArduPilot reads it; NaN: `control.hover_z_m`); COMMAND_INT in a relative or local frame.
+//! - NAV_LAND → `land`; NAV_LOITER_UNLIM → `hold` where it is; DO_FLIGHTTERMINATION → `kill`.
+//! - DO_SET_MODE with a custom mode (HEARTBEAT's numbering): hold → `hold`, land → `land`;
+//!   the others are entered by their own commands.
+//! - REQUEST_MESSAGE, SET_MESSAGE_INTERVAL, REQUEST_AUTOPILOT_CAPABILITIES: answered by the
+//!   link.
+
+use super::telemetry::mode_of_custom;
+use crate::core::commander::{Command, Mode};
+use mavlink::dialects::common::{MavCmd, MavFrame, MavModeFlag, MavResult};
+
+/// MAVLink's code for "force" in COMPONENT_ARM_DISARM's param 2.
+const FORCE_CODE: f32 = 21196.0;
+
+/// What a command asks for.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Request {
+    /// A command for the commander, answered once it has taken or refused it.
+    Commander(Command),
+    /// Send this message id once.
+    Message(u32),
+    /// Send this message id every `interval_us` (0: its default rate; negative: never).
+    Interval { msg_id: u32, interval_us: f32 },
+}
+
+/// A refused command: the result to acknowledge with, and why.
+pub type Refusal = (MavResult, String);
+
+/// A command's parameters, whichever message carried them: params 1–4, then x, y, z
+/// (COMMAND_INT's integers already as numbers), and the frame (COMMAND_LONG has none).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Args {
+    pub p: [f32; 7],
+    pub frame: Option<MavFrame>,
+}
+
+// Older ground stations still send the superseded REQUEST_AUTOPILOT_CAPABILITIES and
+// MAV_FRAME_GLOBAL_INT: they are taken.
+#[allow(deprecated)]
+pub fn map(cmd: MavCmd, a: Args) -> Result<Request, Refusal> {
+    use Request::*;
+    let p = a.p;
+    match cmd {
+        MavCmd::MAV_CMD_COMPONENT_ARM_DISARM => arm_disarm(p[0], p[1]),
+        MavCmd::MAV_CMD_NAV_TAKEOFF => takeoff(a),
+        MavCmd::MAV_CMD_NAV_LAND => Ok(Commander(Command::Land)),
+        MavCmd::MAV_CMD_NAV_LOITER_UNLIM => Ok(Commander(Command::Hold(None))),
+        MavCmd::MAV_CMD_DO_FLIGHTTERMINATION if p[0] > 0.5 => Ok(Commander(Command::Kill)),
+        MavCmd::MAV_CMD_DO_SET_MODE => set_mode(p[0], p[1]),
+        MavCmd::MAV_CMD_REQUEST_MESSAGE => Ok(Message(whole(p[0])?)),
+        MavCmd::MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES => Ok(Message(AUTOPILOT_VERSION_ID)),
+        MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL => Ok(Interval {
+            msg_id: whole(p[0])?,
+            interval_us: p[1],
+        }),
+        other => Err((
+            MavResult::MAV_RESULT_UNSUPPORTED,
+            format!("{other:?} is not supported"),
+        )),
+    }
+}
+
+/// AUTOPILOT_VERSION's message id.
+pub const AUTOPILOT_VERSION_ID: u32 = 148;
+
+fn arm_disarm(arm: f32, force: f32) -> Result<Request, Refusal> {
+    let c = if arm == 1.0 {
+        Command::Arm
+    } else if arm != 0.0 {
+        return Err(denied(format!("arm/disarm: param 1 is {arm}, not 0 or 1")));
+    } else if force == FORCE_CODE {
+        Command::Kill
+    } else {
+        Command::Disarm
+    };
+    Ok(Request::Commander(c))
+}
+
+fn denied(why: String) -> Refusal {
+    (MavResult::MAV_RESULT_DENIED, why)
+}
+
+fn whole(v: f32) -> Result<u32, Refusal> {
+    if v >= 0.0 && v.fract() == 0.0 && v <= 16_777_215.0 {
+        Ok(v as u32)
+    } else {
+        Err(denied(format!("{v} is not a message id")))
+    }
+}
+
+#[allow(deprecated)]
+fn takeoff(a: Args) -> Result<Request, Refusal> {
+    if matches!(
+        a.frame,
+        Some(MavFrame::MAV_FRAME_GLOBAL | MavFrame::MAV_FRAME_GLOBAL_INT)
+    ) {
+        return Err((
+            MavResult::MAV_RESULT_COMMAND_UNSUPPORTED_MAV_FRAME,
+            "takeoff: altitudes above sea level are not taken; use a relative frame".into(),
+        ));
+    }
+    let z = a.p[6];
+    let height = if z.is_nan() { None } else { Some(f64::from(z)) };
+    Ok(Request::Commander(Command::Takeoff(height)))
+}
+
+fn set_mode(base: f32, custom: f32) -> Result<Request, Refusal> {
+    let custom_bit = f32::from(MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED.bits());
+    // The base mode is a bit field sent as a float.
+    if (base as u32) & (custom_bit as u32) == 0 {
+        return Err(denied(
+            "set mode: only custom modes (HEARTBEAT's numbering) are taken".into(),
+        ));
+    }
+    match mode_of_custom(custom as u32).filter(|_| custom.fract() == 0.0) {
+        Some(Mode::Hold) => Ok(Request::Commander(Command::Hold(None))),
+        Some(Mode::Land) => Ok(Request::Commander(Command::Land)),
+        Some(m) => Err(denied(format!(
+            "set mode {}: entered by its own command (arm, takeoff, disarm, kill)",
+            m.name()
+        ))),
+        None => Err(denied(format!("set mode: no custom mode {custom}"))),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn long(p: [f32; 7]) -> Args {
+        Args { p, frame: None }
+    }
+
+    #[test]
+    #[allow(deprecated)]
+    fn commands_map_onto_the_commanders() {
+        let arm = |p1, p2| {
+            map(
+                MavCmd::MAV_CMD_COMPONENT_ARM_DISARM,
+                long([p1, p2, 0., 0., 0., 0., 0.]),
+            )
+        };
+        assert_eq!(arm(1.0, 0.0), Ok(Request::Commander(Command::Arm)));
+        assert_eq!(arm(0.0, 0.0), Ok(Request::Commander(Command::Disarm)));
+        assert_eq!(arm(0.0, FORCE_CODE), Ok(Request::Commander(Command::Kill)));
+        assert!(arm(0.5, 0.0).is_err());
+        let takeoff = map(
+            MavCmd::MAV_CMD_NAV_TAKEOFF,
+            long([0., 0., 0., 0., 0., 0., 1.5]),
+        );
+        assert_eq!(takeoff, Ok(Request::Commander(Command::Takeoff(Some(1.5)))));
+        let nan = map(
+            MavCmd::MAV_CMD_NAV_TAKEOFF,
+            long([0., 0., 0., 0., 0., 0., f32::NAN]),
+        );
+        assert_eq!(nan, Ok(Request::Commander(Command::Takeoff(None))));
+        let amsl = Args {
+            p: [0., 0., 0., 0., 0., 0., 30.0],
+            frame: Some(MavFrame::MAV_FRAME_GLOBAL_INT),
+        };
+        assert!(map(MavCmd::MAV_CMD_NAV_TAKEOFF, amsl).is_err());
+        assert_eq!(
+            map(MavCmd::MAV_CMD_NAV_LAND, long([0.0; 7])),
+            Ok(Request::Commander(Command::Land))
+        );
+    }
+
+    #[test]
+    fn set_mode_takes_hold_and_land_by_custom_mode() {
+        let set = |custom| {
+            map(
+                MavCmd::MAV_CMD_DO_SET_MODE,
+                long([1.0, custom, 0., 0., 0., 0., 0.]),
+            )
+        };
+        assert_eq!(set(3.0), Ok(Request::Commander(Command::Hold(None))));
+        assert_eq!(set(4.0), Ok(Request::Commander(Command::Land)));
+        assert!(set(1.0).is_err());
+        assert!(set(99.0).is_err());
+        let no_custom = map(
+            MavCmd::MAV_CMD_DO_SET_MODE,
+            long([0.0, 3.0, 0., 0., 0., 0., 0.]),
+        );
+        assert!(no_custom.is_err());
+    }
+
+    #[test]
+    fn requests_and_intervals_are_the_links() {
+        assert_eq!(
+            map(
+                MavCmd::MAV_CMD_REQUEST_MESSAGE,
+                long([148.0, 0., 0., 0., 0., 0., 0.])
+            ),
+            Ok(Request::Message(148))
+        );
+        assert_eq!(
+            map(
+                MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL,
+                long([30.0, 50_000.0, 0., 0., 0., 0., 0.])
+            ),
+            Ok(Request::Interval {
+                msg_id: 30,
+                interval_us: 50_000.0
+            })
+        );
+        let (result, _) = map(MavCmd::MAV_CMD_DO_JUMP, long([0.0; 7])).unwrap_err();
+        assert_eq!(result, MavResult::MAV_RESULT_UNSUPPORTED);
+    }
+}

@@ -1,0 +1,143 @@
+//! The link's bytes: a UDP socket or a serial telemetry radio. Receiving is awaited by the
+//! link task; sending never waits — a datagram the socket cannot take now, or a frame the
+//! radio's bounded queue cannot, is dropped and counted.
+
+use crate::config::GcsConfig;
+use crate::gcs::wire::Decoder;
+use anyhow::Context;
+use std::net::SocketAddr;
+use tokio::io::{AsyncReadExt, AsyncWriteExt, ReadHalf};
+use tokio::net::UdpSocket;
+use tokio::sync::mpsc;
+use tokio_serial::{SerialPortBuilderExt, SerialStream};
+
+/// Frames queued for the radio: about a second of telemetry at 57600 baud.
+const SERIAL_QUEUE: usize = 64;
+
+pub enum Link {
+    Udp {
+        socket: UdpSocket,
+        remote: SocketAddr,
+        /// The last address a ground station wrote from (answered too).
+        peer: Option<SocketAddr>,
+    },
+    Serial {
+        reader: ReadHalf<SerialStream>,
+        writer: mpsc::Sender<Vec<u8>>,
+    },
+}
+
+/// Why a frame was not sent.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SendFail {
+    /// The socket or the radio's queue is full: try again later.
+    Full,
+    /// The link is gone or refused the frame.
+    Error,
+}
+
+impl Link {
+    /// The link `cfg` describes: the serial radio when `gcs.serial` is set, else UDP.
+    pub async fn open(cfg: &GcsConfig) -> anyhow::Result<Link> {
+        if !cfg.serial.as_os_str().is_empty() {
+            return open_serial(cfg);
+        }
+        let local: SocketAddr = cfg
+            .udp_local
+            .parse()
+            .with_context(|| format!("gcs.udp_local {:?}", cfg.udp_local))?;
+        let remote: SocketAddr = cfg
+            .udp_remote
+            .parse()
+            .with_context(|| format!("gcs.udp_remote {:?}", cfg.udp_remote))?;
+        let socket = UdpSocket::bind(local)
+            .await
+            .with_context(|| format!("cannot bind gcs.udp_local {local}"))?;
+        Ok(Link::Udp {
+            socket,
+            remote,
+            peer: None,
+        })
+    }
+
+    /// What the link is, for the run's log.
+    pub fn describe(&self) -> String {
+        match self {
+            Link::Udp { socket, remote, .. } => match socket.local_addr() {
+                Ok(l) => format!("UDP {l} -> {remote}"),
+                Err(_) => format!("UDP -> {remote}"),
+            },
+            Link::Serial { .. } => "serial radio".into(),
+        }
+    }
+
+    /// The decoder for this link's bytes: a datagram at a time, or a stream.
+    pub fn decoder(&self) -> Decoder {
+        match self {
+            Link::Udp { .. } => Decoder::for_datagrams(),
+            Link::Serial { .. } => Decoder::for_stream(),
+        }
+    }
+
+    /// The next bytes heard; 0 bytes: the radio closed.
+    pub async fn recv(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        match self {
+            Link::Udp { socket, peer, .. } => {
+                let (n, from) = socket.recv_from(buf).await?;
+                *peer = Some(from);
+                Ok(n)
+            }
+            Link::Serial { reader, .. } => reader.read(buf).await,
+        }
+    }
+
+    /// Sends `bytes` (whole frames) without waiting.
+    pub fn send(&mut self, bytes: &[u8]) -> Result<(), SendFail> {
+        match self {
+            Link::Udp {
+                socket,
+                remote,
+                peer,
+            } => {
+                let mut result = send_to(socket, bytes, *remote);
+                if let Some(p) = *peer
+                    && p != *remote
+                {
+                    result = result.and(send_to(socket, bytes, p));
+                }
+                result
+            }
+            Link::Serial { writer, .. } => writer.try_send(bytes.to_vec()).map_err(|e| match e {
+                mpsc::error::TrySendError::Full(_) => SendFail::Full,
+                mpsc::error::TrySendError::Closed(_) => SendFail::Error,
+            }),
+        }
+    }
+}
+
+fn send_to(socket: &UdpSocket, bytes: &[u8], to: SocketAddr) -> Result<(), SendFail> {
+    match socket.try_send_to(bytes, to) {
+        Ok(_) => Ok(()),
+        Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => Err(SendFail::Full),
+        Err(_) => Err(SendFail::Error),
+    }
+}
+
+/// The radio: 8N1 at `gcs.baud`; its writes go through a queue to a task of their own, so a
+/// slow radio never holds the link task.
+fn open_serial(cfg: &GcsConfig) -> anyhow::Result<Link> {
+    let name = cfg.serial.to_string_lossy();
+    let port = tokio_serial::new(name.as_ref(), cfg.baud)
+        .open_native_async()
+        .with_context(|| format!("cannot open gcs.serial {}", cfg.serial.display()))?;
+    let (reader, mut write_half) = tokio::io::split(port);
+    let (writer, mut frames) = mpsc::channel::<Vec<u8>>(SERIAL_QUEUE);
+    tokio::spawn(async move {
+        while let Some(f) = frames.recv().await {
+            if write_half.write_all(&f).await.is_err() {
+                return;
+            }
+        }
+    });
+    Ok(Link::Serial { reader, writer })
+}

@@ -1,0 +1,229 @@
+//! The ground-station link end to end, with a real client: pymavlink (installed by the test
+//! command, `tests/run.sh`, into a virtual environment; `UQUAD_PYTHON` names its python)
+//! against `uquad sim --realtime` over UDP loopback. The client's scenarios are in
+//! `tests/gcs_client.py`.
+
+mod common;
+use common::*;
+use serde_json::Value;
+use std::io::{BufRead, BufReader, Write};
+use std::process::{Child, Command, Stdio};
+
+/// The python that has pymavlink.
+fn python() -> String {
+    std::env::var("UQUAD_PYTHON").unwrap_or_else(|_| "python3".into())
+}
+
+/// Starts the client for `scenario`; returns it and the UDP port it listens on.
+fn start_client(scenario: &[&str]) -> (Child, u16) {
+    let script = root().join("tests/gcs_client.py");
+    let mut child = Command::new(python())
+        .arg(&script)
+        .args(scenario)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap_or_else(|e| panic!("cannot run {}: {e}", python()));
+    let mut first = String::new();
+    let stdout = child.stdout.as_mut().unwrap();
+    BufReader::new(stdout).read_line(&mut first).unwrap();
+    let Some(port) = first
+        .trim()
+        .strip_prefix("port ")
+        .and_then(|p| p.parse().ok())
+    else {
+        let out = child.wait_with_output().unwrap();
+        panic!(
+            "the client did not start (pymavlink missing? run tests/run.sh, or set \
+             UQUAD_PYTHON to a python that has it): {first}\n{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    };
+    (child, port)
+}
+
+/// What a scenario left: the client's JSON line, the run's report, its folder, and the
+/// temporary folder holding them.
+struct Flown {
+    measured: Value,
+    report: Value,
+    run: std::path::PathBuf,
+    _dir: tempfile::TempDir,
+}
+
+/// Runs `scenario` against a realtime simulation given `args`.
+fn fly_with_client(scenario: &[&str], args: &[&str]) -> Flown {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut client, port) = start_client(scenario);
+    let remote = format!("gcs.udp_remote=\"127.0.0.1:{port}\"");
+    let kept = format!(
+        "gcs.params_file=\"{}\"",
+        dir.path().join("params.toml").display()
+    );
+    let base = [
+        "--set",
+        "commander.start=disarmed",
+        "--script",
+        "none",
+        "--duration",
+        "150",
+        "--set",
+        &remote,
+        "--set",
+        &kept,
+    ];
+    let mut cmd = realtime_sim(&[&base[..], args].concat(), dir.path());
+    let mut sim = Uquad::spawn(&mut cmd);
+    let mut stdin = client.stdin.take().unwrap();
+    writeln!(stdin, "started").unwrap();
+    let run = run_dir(dir.path());
+    writeln!(stdin, "run {}", run.display()).unwrap();
+    let out = client.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout).to_string();
+    assert!(
+        out.status.success(),
+        "client: {stdout}\n{}\n--- uquad ---\n{}",
+        String::from_utf8_lossy(&out.stderr),
+        sim.stderr()
+    );
+    let status = sim.child.wait().unwrap();
+    let report_path = dir.path().join("report.json");
+    let text = std::fs::read_to_string(&report_path)
+        .unwrap_or_else(|_| panic!("{status}: no report\n{}", sim.stderr()));
+    let report: Value = serde_json::from_str(&text).unwrap();
+    assert!(status.success(), "{status}: {report}\n{}", sim.stderr());
+    let line = stdout.lines().last().unwrap_or("{}");
+    let measured: Value = serde_json::from_str(line).unwrap();
+    eprintln!("client measured: {measured}\ngcs report: {}", report["gcs"]);
+    Flown {
+        measured,
+        report,
+        run,
+        _dir: dir,
+    }
+}
+
+fn u(v: &Value) -> u64 {
+    v.as_u64().unwrap_or_else(|| panic!("not a count: {v}"))
+}
+
+#[test]
+fn a_ground_station_sets_a_parameter_arms_takes_off_and_lands() {
+    let count = uquad::gcs::params::TABLE.len().to_string();
+    let flown = fly_with_client(&["fly", &count], &[]);
+    let (measured, r, run) = (&flown.measured, &flown.report, &flown.run);
+    assert!(
+        measured["heartbeat_s"].as_f64().unwrap() <= 2.0,
+        "{measured}"
+    );
+    assert!(
+        measured["alt_err_max_m"].as_f64().unwrap() <= 0.2,
+        "{measured}"
+    );
+    let modes: Vec<&str> = r["modes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|m| m["mode"].as_str().unwrap())
+        .collect();
+    assert_eq!(
+        modes,
+        ["disarmed", "armed", "takeoff", "hold", "land", "disarmed"],
+        "{r}"
+    );
+    assert_eq!(r["takeoff"]["target_m"], 1.5, "{r}");
+    assert_eq!(r["deadline_misses"], 0, "{r}");
+    let g = &r["gcs"];
+    assert!(u(&g["commands"]) >= 4 && u(&g["param_sets"]) == 1, "{g}");
+    // The set is kept for the next start and noted in the run, which keeps its values.
+    let kept = std::fs::read_to_string(run.parent().unwrap().join("params.toml")).unwrap();
+    assert!(kept.contains("climb_m_s = 0.4"), "{kept}");
+    let run_config = std::fs::read_to_string(run.join("config.toml")).unwrap();
+    assert!(run_config.contains("climb_m_s = 0.5"), "{run_config}");
+    assert!(run_config.contains("# parameter CMD_CLIMB_M_S (commander.climb_m_s) set to 0.4"));
+    let err_log = std::fs::read_to_string(run.join("err.log")).unwrap();
+    assert!(err_log.contains("parameter CMD_CLIMB_M_S"), "{err_log}");
+    // The ground station's commands are the run's operator inputs, as a replay reads them.
+    let mode_log = std::fs::read_to_string(run.join("mode.log")).unwrap();
+    assert!(mode_log.contains(" in gcs takeoff 1.5\n"), "{mode_log}");
+    assert!(
+        mode_log.contains(" in gcs arm | log: cannot write in"),
+        "{mode_log}"
+    );
+    // The set parameter did not change the flight: its replay is the same, byte for byte.
+    let out = replay_run(run);
+    for name in ["mode.log", "w.log", "x_hat.log"] {
+        let a = std::fs::read(run.join(name)).unwrap();
+        assert_eq!(a, std::fs::read(out.path().join(name)).unwrap(), "{name}");
+    }
+}
+
+/// `uquad params` prints the mapping a ground station sees, with the kept values applied.
+#[test]
+fn uquad_params_lists_every_mapped_key() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("params.toml"), "[fence]\nradius_m = 30.0\n").unwrap();
+    let log_dir = dir.path().to_str().unwrap();
+    let o = uquad(&root(), &["params", "--log-dir", log_dir]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = String::from_utf8_lossy(&o.stdout);
+    let rows: Vec<Vec<&str>> = text
+        .lines()
+        .skip(1)
+        .map(|l| l.split_whitespace().collect())
+        .collect();
+    assert_eq!(rows.len(), uquad::gcs::params::TABLE.len(), "{text}");
+    assert!(
+        rows.contains(&vec!["FEN_RADIUS_M", "fence.radius_m", "30", "yes"]),
+        "{text}"
+    );
+    assert!(
+        rows.contains(&vec!["SIM_GUST_N", "sim.gust_n", "3", "no"]),
+        "{text}"
+    );
+}
+
+#[test]
+fn a_silent_ground_station_lands_the_vehicle_and_noise_is_counted() {
+    let flown = fly_with_client(&["link-loss"], &[]);
+    let (measured, r) = (&flown.measured, &flown.report);
+    let failsafes = r["failsafes"].as_array().unwrap();
+    assert!(
+        failsafes
+            .iter()
+            .any(|f| f["kind"] == "link-loss" && f["action"] == "land"),
+        "{r}"
+    );
+    assert!(r["touchdown"].is_object(), "{r}");
+    assert!(r["halt"].is_null(), "{r}");
+    assert_eq!(r["deadline_misses"], 0, "{r}");
+    let g = &r["gcs"];
+    assert!(u(&g["bad_crc"]) >= 50, "{g}");
+    assert!(u(&g["truncated"]) >= 50, "{g}");
+    assert!(u(&g["unknown"]) >= 50, "{g}");
+    assert!(u(&g["garbage_bytes"]) > 0, "{g}");
+    // The flood was 450 frames a second against a budget of 200.
+    assert!(u(&g["flood_drops"]) > 0, "{g} {measured}");
+}
+
+/// The parameters a ground station kept apply at the next start, under --set.
+#[test]
+fn kept_parameters_apply_at_the_next_start_and_are_named_when_wrong() {
+    let dir = tempfile::tempdir().unwrap();
+    let kept = dir.path().join("params.toml");
+    std::fs::write(&kept, "[commander]\nclimb_m_s = 0.4\n").unwrap();
+    let cfg = root().join("config/uquad.toml");
+    let path = Some(dir.path());
+    let (p, applied) = uquad::config::load_kept(&cfg, &[], path).unwrap();
+    assert_eq!(p.config.commander.climb_m_s, 0.4);
+    assert_eq!(applied, Some((kept.clone(), 1)));
+    let sets = [uquad::config::parse_set("commander.climb_m_s=0.3").unwrap()];
+    let (p, _) = uquad::config::load_kept(&cfg, &sets, path).unwrap();
+    assert_eq!(p.config.commander.climb_m_s, 0.3, "--set wins");
+    std::fs::write(&kept, "[commander]\nclimb_m_s = 99.0\n").unwrap();
+    let e = uquad::config::load_kept(&cfg, &[], path)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains(&format!("(from {})", kept.display())), "{e}");
+}

@@ -1,0 +1,322 @@
+"""A ground station for tests/gcs.rs: pymavlink against `uquad sim --realtime`.
+
+Protocol with the Rust test: this script binds a UDP port and prints `port N`; the test starts
+uquad sending there, then writes `started` (uquad was just spawned) and `run DIR` (its run
+folder) on stdin. The script flies a scenario, prints one JSON line of what it measured and
+exits 0; on a failed expectation it prints why and exits 1.
+
+Scenarios:
+  fly PARAM_COUNT  heartbeat, parameters, a refused arm, arm, takeoff to 1.5 m, land.
+  link-loss        arm, takeoff, noise and a flood, then silence: the vehicle must land.
+"""
+
+import json
+import os
+import random
+import socket
+import sys
+import time
+
+os.environ["MAVLINK20"] = "1"
+from pymavlink import mavutil  # noqa: E402
+
+mav = mavutil.mavlink
+LONG = 30.0
+
+
+def fail(why):
+    print(f"FAIL: {why}", flush=True)
+    sys.exit(1)
+
+
+class Station:
+    def __init__(self):
+        self.conn = mavutil.mavlink_connection(
+            "udpin:127.0.0.1:0", source_system=255, source_component=190
+        )
+        self.port = self.conn.port.getsockname()[1]
+        self.beating = True
+        self.last_beat = 0.0
+        self.texts = []
+        self.chunks = {}
+        self.last = {}
+
+    def pump(self, timeout=0.1):
+        """One message (or None), sending our heartbeat each second while beating."""
+        now = time.time()
+        if self.beating and now - self.last_beat >= 1.0:
+            self.last_beat = now
+            self.conn.mav.heartbeat_send(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        msg = self.conn.recv_match(blocking=True, timeout=timeout)
+        if msg is None:
+            return None
+        kind = msg.get_type()
+        self.last[kind] = msg
+        if kind == "STATUSTEXT":
+            self.statustext(msg)
+        return msg
+
+    def statustext(self, msg):
+        """Texts, long ones put together from their 50-byte chunks (same id)."""
+        if msg.id == 0:
+            self.texts.append(msg.text)
+            return
+        parts = self.chunks.setdefault(msg.id, {})
+        parts[msg.chunk_seq] = msg.text
+        if len(msg.text.encode()) < 50:
+            self.texts.append("".join(parts[i] for i in sorted(parts)))
+            del self.chunks[msg.id]
+
+    def wait(self, what, test, timeout=LONG):
+        end = time.time() + timeout
+        while time.time() < end:
+            msg = self.pump()
+            if msg is not None and test(msg):
+                return msg
+        fail(f"no {what} within {timeout} s; texts so far: {self.texts}")
+
+    def wait_text(self, part, timeout=LONG):
+        """Waits for a text containing `part` (one already received counts: a refusal's text
+        comes before its COMMAND_ACK)."""
+        end = time.time() + timeout
+        while time.time() < end:
+            if any(part in t for t in self.texts):
+                return
+            self.pump()
+        fail(f"no STATUSTEXT containing {part!r}; texts: {self.texts}")
+
+    def command(self, cmd, p, result=mav.MAV_RESULT_ACCEPTED):
+        self.conn.mav.command_long_send(1, 1, cmd, 0, *p)
+        ack = self.wait(
+            f"COMMAND_ACK of {cmd}",
+            lambda m: m.get_type() == "COMMAND_ACK" and m.command == cmd,
+        )
+        if ack.result != result:
+            fail(f"command {cmd}: result {ack.result}, expected {result}; texts: {self.texts}")
+
+    def param(self, pid, timeout=LONG):
+        return self.wait(
+            f"PARAM_VALUE {pid}",
+            lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == pid,
+            timeout,
+        )
+
+
+def mode_is(custom):
+    return lambda m: m.get_type() == "HEARTBEAT" and m.custom_mode == custom
+
+
+DISARMED, HOLD = 0, 3
+
+
+def arm(s):
+    """Arms, trying again while the IMU has not settled (as an operator would)."""
+    end = time.time() + LONG
+    while time.time() < end:
+        s.conn.mav.command_long_send(1, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+        ack = s.wait(
+            "COMMAND_ACK of arm",
+            lambda m: m.get_type() == "COMMAND_ACK"
+            and m.command == mav.MAV_CMD_COMPONENT_ARM_DISARM,
+        )
+        if ack.result == mav.MAV_RESULT_ACCEPTED:
+            return
+        refusals = [t for t in s.texts if t.startswith("arm refused")]
+        if not refusals or not refusals[-1].startswith("arm refused: imu:"):
+            fail(f"arm refused: {s.texts}")
+        time.sleep(0.5)
+    fail("never armed")
+
+
+def arm_and_take_off(s, height_m):
+    arm(s)
+    # The estimate exists once the IMU calibration after arming is done.
+    s.wait("ATTITUDE", lambda m: m.get_type() == "ATTITUDE")
+    s.command(mav.MAV_CMD_NAV_TAKEOFF, [0, 0, 0, 0, 0, 0, height_m])
+    s.wait("hold after the takeoff", mode_is(HOLD))
+
+
+def altitude_errors(s, height_m, seconds):
+    """Largest |relative altitude − height| over `seconds` of GLOBAL_POSITION_INT."""
+    worst, n, end = 0.0, 0, time.time() + seconds
+    while time.time() < end:
+        m = s.pump()
+        if m is not None and m.get_type() == "GLOBAL_POSITION_INT":
+            worst = max(worst, abs(m.relative_alt / 1000.0 - height_m))
+            n += 1
+    if n == 0:
+        fail("no GLOBAL_POSITION_INT while hovering")
+    return worst, n
+
+
+def landed_and_disarmed(s):
+    """Both reported: the landed state on the ground, and a heartbeat disarmed."""
+    def both(_):
+        hb, ext = s.last.get("HEARTBEAT"), s.last.get("EXTENDED_SYS_STATE")
+        return (
+            hb is not None
+            and ext is not None
+            and hb.custom_mode == DISARMED
+            and not hb.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED
+            and ext.landed_state == mav.MAV_LANDED_STATE_ON_GROUND
+        )
+
+    s.wait("the landed state and a disarmed heartbeat", both)
+
+
+def land(s):
+    s.command(mav.MAV_CMD_NAV_LAND, [0] * 7)
+    landed_and_disarmed(s)
+
+
+def parameters(s, expected):
+    s.conn.mav.param_request_list_send(1, 1)
+    ids, count = set(), None
+    end = time.time() + LONG
+    while time.time() < end and (count is None or len(ids) < count):
+        m = s.pump()
+        if m is not None and m.get_type() == "PARAM_VALUE":
+            ids.add(m.param_id)
+            count = m.param_count
+    if count != expected or len(ids) != expected:
+        fail(f"{len(ids)} parameters of {count} listed, {expected} mapped")
+    s.conn.mav.param_set_send(1, 1, b"CMD_CLIMB_M_S", 0.4, mav.MAV_PARAM_TYPE_REAL32)
+    if abs(s.param("CMD_CLIMB_M_S").param_value - 0.4) > 1e-6:
+        fail("the set value did not come back")
+    s.conn.mav.param_request_read_send(1, 1, b"CMD_CLIMB_M_S", -1)
+    if abs(s.param("CMD_CLIMB_M_S").param_value - 0.4) > 1e-6:
+        fail("the set value did not read back")
+    # A value the configuration's rules refuse: the old one comes back, and why.
+    s.conn.mav.param_set_send(1, 1, b"WD_MISSED_ACKS", 50, mav.MAV_PARAM_TYPE_INT32)
+    if s.param("WD_MISSED_ACKS").param_value != 3:
+        fail("a refused set changed the value")
+    s.wait_text("WD_MISSED_ACKS not set: watchdog.max_missed_acks: 50 is out of range")
+    return len(ids)
+
+
+def refused_arm(s, run_dir):
+    """The run folder replaced by a file (a card pulled): arming is refused, and says why."""
+    moved = run_dir + ".moved"
+    os.rename(run_dir, moved)
+    with open(run_dir, "w") as f:
+        f.write("not a folder")
+    time.sleep(2.5)  # the folder is probed once a second
+    s.command(
+        mav.MAV_CMD_COMPONENT_ARM_DISARM, [1, 0, 0, 0, 0, 0, 0], mav.MAV_RESULT_DENIED
+    )
+    s.wait_text("arm refused: log: cannot write in")
+    os.remove(run_dir)
+    os.rename(moved, run_dir)
+    time.sleep(2.5)
+
+
+def attitude_interval_ms(s, seconds):
+    """The median interval between ATTITUDE messages on the vehicle's own clock (what a
+    stall of this machine cannot shift), ms."""
+    stamps, end = [], time.time() + seconds
+    while time.time() < end:
+        m = s.pump()
+        if m is not None and m.get_type() == "ATTITUDE":
+            stamps.append(m.time_boot_ms)
+    gaps = sorted(b - a for a, b in zip(stamps, stamps[1:]))
+    if not gaps:
+        fail("no ATTITUDE to time")
+    return gaps[len(gaps) // 2]
+
+
+def requests(s):
+    """AUTOPILOT_VERSION on request; ATTITUDE's interval changed from 100 ms to 40 ms."""
+    s.last.pop("AUTOPILOT_VERSION", None)
+    # The message comes before the command's COMMAND_ACK.
+    s.command(mav.MAV_CMD_REQUEST_MESSAGE, [148, 0, 0, 0, 0, 0, 0])
+    s.wait("AUTOPILOT_VERSION", lambda _: "AUTOPILOT_VERSION" in s.last)
+    default_ms = attitude_interval_ms(s, 1.0)
+    s.command(mav.MAV_CMD_SET_MESSAGE_INTERVAL, [30, 40_000, 0, 0, 0, 0, 0])
+    s.pump()
+    asked_ms = attitude_interval_ms(s, 2.0)
+    s.command(mav.MAV_CMD_SET_MESSAGE_INTERVAL, [30, 0, 0, 0, 0, 0, 0])
+    if not (90 <= default_ms <= 110 and 30 <= asked_ms <= 50):
+        fail(f"ATTITUDE every {default_ms} ms, then {asked_ms} ms after asking for 40 ms")
+    return default_ms, asked_ms
+
+
+def fly(s, run_dir, started, expected):
+    hb = s.wait("a heartbeat", lambda m: m.get_type() == "HEARTBEAT", 5.0)
+    heartbeat_s = time.time() - started
+    if hb.type != mav.MAV_TYPE_QUADROTOR or hb.custom_mode != DISARMED:
+        fail(f"first heartbeat {hb}")
+    n = parameters(s, expected)
+    refused_arm(s, run_dir)
+    arm_and_take_off(s, 1.5)
+    alt_err, samples = altitude_errors(s, 1.5, 5.0)
+    if alt_err > 0.2:
+        fail(f"altitude {alt_err:.3f} m from 1.5 m while holding")
+    attitude_ms = requests(s)
+    load = s.last["SYS_STATUS"].load
+    s.conn.mav.param_set_send(1, 1, b"CMD_LAND_M_S", 0.3, mav.MAV_PARAM_TYPE_REAL32)
+    s.wait_text("CMD_LAND_M_S not set: commander.land_m_s: flight-critical, refused while hold")
+    land(s)
+    return {
+        "heartbeat_s": round(heartbeat_s, 3),
+        "params": n,
+        "alt_err_max_m": round(alt_err, 3),
+        "alt_samples": samples,
+        "attitude_interval_ms_default_then_asked_40": attitude_ms,
+        "control_load_permille": load,
+    }
+
+
+def noise(s):
+    """Garbage, cut and wrong-CRC frames, unknown ids, and a flood of valid ones."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    to = next(iter(s.conn.clients))  # the vehicle's address, as pymavlink learnt it
+    hb = s.conn.mav.heartbeat_encode(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+    good = hb.pack(s.conn.mav)
+    rng = random.Random(7)
+    for _ in range(50):
+        sock.sendto(bytes(rng.randrange(256) for _ in range(64)), to)
+        sock.sendto(good[:7], to)
+        sock.sendto(good[:-1] + bytes([good[-1] ^ 0xFF]), to)
+        sock.sendto(b"\xfd\x01\x00\x00\x00\xff\xbe\x77\x77\x77\x00\x00\x00", to)
+    # Ten times the vehicle's own telemetry (~45 frames/s): 450 frames a second for 3 s.
+    flood = 0
+    end = time.time() + 3.0
+    while time.time() < end:
+        for _ in range(45):
+            sock.sendto(good, to)
+            flood += 1
+        s.pump(0.09)
+    return flood
+
+
+def link_loss(s, started):
+    s.wait("a heartbeat", lambda m: m.get_type() == "HEARTBEAT", 5.0)
+    arm_and_take_off(s, 1.0)
+    flood = noise(s)
+    s.beating = False
+    silent_at = time.time()
+    s.wait_text("failsafe link-loss: land")
+    landing_s = time.time() - silent_at
+    landed_and_disarmed(s)
+    return {"flood_frames": flood, "failsafe_after_s": round(landing_s, 2)}
+
+
+def main():
+    s = Station()
+    print(f"port {s.port}", flush=True)
+    if sys.stdin.readline().strip() != "started":
+        fail("expected `started`")
+    started = time.time()
+    line = sys.stdin.readline().strip()
+    if not line.startswith("run "):
+        fail("expected `run DIR`")
+    run_dir = line[4:]
+    if sys.argv[1] == "fly":
+        out = fly(s, run_dir, started, int(sys.argv[2]))
+    else:
+        out = link_loss(s, started)
+    print(json.dumps(out), flush=True)
+
+
+if __name__ == "__main__":
+    main()
