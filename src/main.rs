@@ -63,7 +63,11 @@ physics on a simulated clock: 40 simulated seconds take well under a second. --m
 (also --realtime) runs fly's own tasks and threads against the simulated edges, paced by the \
 wall clock. Both follow the same flight sequence and report the hover window the same way: \
 from sim.settle_s after the flight ramp, against the set point.\n\n\
-With no arguments: config/uquad.toml, sim.duration_s (40 s), a summary at the end."
+With no arguments: config/uquad.toml and its operator's cycle (--script: arm at 2 s, take off \
+at 10 s to 1 m, land at 45 s); the run ends once the vehicle has landed and disarmed, at most \
+sim.duration_s; a summary at the end.\n\n\
+In --realtime a ground station can watch and fly it over MAVLink 2 (gcs.*): telemetry goes to \
+UDP 127.0.0.1:14550, where QGroundControl and MAVProxy listen."
     )]
     Sim(SimArgs),
     /// Plot a run's altitude, attitude and motor speeds over time (SVG).

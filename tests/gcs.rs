@@ -74,6 +74,7 @@ fn fly_with_client(scenario: &[&str], args: &[&str]) -> Flown {
         &kept,
     ];
     let mut cmd = realtime_sim(&[&base[..], args].concat(), dir.path());
+    cmd.args(["--set", "gcs.enabled=sim-realtime"]);
     let mut sim = Uquad::spawn(&mut cmd);
     let mut stdin = client.stdin.take().unwrap();
     writeln!(stdin, "started").unwrap();

@@ -7,8 +7,8 @@
 //! - NAV_LAND → `land`; NAV_LOITER_UNLIM → `hold` where it is; DO_FLIGHTTERMINATION → `kill`.
 //! - DO_SET_MODE with a custom mode (HEARTBEAT's numbering): hold → `hold`, land → `land`;
 //!   the others are entered by their own commands.
-//! - REQUEST_MESSAGE, SET_MESSAGE_INTERVAL, REQUEST_AUTOPILOT_CAPABILITIES: answered by the
-//!   link.
+//! - REQUEST_MESSAGE, SET_MESSAGE_INTERVAL, REQUEST_AUTOPILOT_CAPABILITIES,
+//!   GET_HOME_POSITION: answered by the link.
 
 use super::telemetry::mode_of_custom;
 use crate::core::commander::{Command, Mode};
@@ -39,8 +39,8 @@ pub struct Args {
     pub frame: Option<MavFrame>,
 }
 
-// Older ground stations still send the superseded REQUEST_AUTOPILOT_CAPABILITIES and
-// MAV_FRAME_GLOBAL_INT: they are taken.
+// Older ground stations still send the superseded REQUEST_AUTOPILOT_CAPABILITIES,
+// GET_HOME_POSITION and MAV_FRAME_GLOBAL_INT: they are taken.
 #[allow(deprecated)]
 pub fn map(cmd: MavCmd, a: Args) -> Result<Request, Refusal> {
     use Request::*;
@@ -54,6 +54,7 @@ pub fn map(cmd: MavCmd, a: Args) -> Result<Request, Refusal> {
         MavCmd::MAV_CMD_DO_SET_MODE => set_mode(p[0], p[1]),
         MavCmd::MAV_CMD_REQUEST_MESSAGE => Ok(Message(whole(p[0])?)),
         MavCmd::MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES => Ok(Message(AUTOPILOT_VERSION_ID)),
+        MavCmd::MAV_CMD_GET_HOME_POSITION => Ok(Message(HOME_POSITION_ID)),
         MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL => Ok(Interval {
             msg_id: whole(p[0])?,
             interval_us: p[1],
@@ -65,8 +66,9 @@ pub fn map(cmd: MavCmd, a: Args) -> Result<Request, Refusal> {
     }
 }
 
-/// AUTOPILOT_VERSION's message id.
+/// AUTOPILOT_VERSION's and HOME_POSITION's message ids.
 pub const AUTOPILOT_VERSION_ID: u32 = 148;
+pub const HOME_POSITION_ID: u32 = 242;
 
 fn arm_disarm(arm: f32, force: f32) -> Result<Request, Refusal> {
     let c = if arm == 1.0 {

@@ -51,6 +51,8 @@ pub struct Health {
     pub motors: bool,
     /// The estimator's test ratios inside their gates.
     pub estimator: bool,
+    /// No geofence breach so far.
+    pub fence: bool,
 }
 
 fn custom_mode(mode: Mode) -> u32 {
@@ -103,7 +105,8 @@ pub fn sys_status(s: &Snapshot) -> MavMessage {
     let h = s.health;
     let gps = S::MAV_SYS_STATUS_SENSOR_GPS;
     let motors = S::MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS;
-    let mut present = imu | control | motors;
+    let fence = S::MAV_SYS_STATUS_GEOFENCE;
+    let mut present = imu | control | motors | fence;
     if h.gps_used {
         present |= gps;
     }
@@ -117,6 +120,7 @@ pub fn sys_status(s: &Snapshot) -> MavMessage {
     set(h.gps_used && s.fix_fresh, gps);
     set(h.motors, motors);
     set(h.estimator && h.imu, control);
+    set(h.fence, fence);
     MavMessage::SYS_STATUS(SYS_STATUS_DATA {
         onboard_control_sensors_present: present,
         onboard_control_sensors_enabled: present,

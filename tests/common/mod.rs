@@ -33,8 +33,12 @@ pub fn uquad(cwd: &Path, args: &[&str]) -> Output {
 
 /// `--set`s that let a `sim --realtime` run ride out this shared machine's scheduling stalls
 /// (tens of ms at times) where the subject of a test is not timing: a wide accepted IMU period
-/// and frames to settle in, and deadline, IMU and command timeouts above the stalls.
-pub const REALTIME_TOLERANT: [&str; 12] = [
+/// and frames to settle in, and deadline, IMU and command timeouts above the stalls. Also no
+/// ground-station link: a ground station open on this machine (UDP 14550) would see, and
+/// could command, the tests' vehicles (tests/gcs.rs turns it back on).
+pub const REALTIME_TOLERANT: [&str; 14] = [
+    "--set",
+    "gcs.enabled=never",
     "--set",
     "imu.settle_max_frames=1000",
     "--set",

@@ -206,7 +206,10 @@ impl Gcs {
             last_beat: None,
             text_id: 0,
             halt_told: false,
-            health: Health::default(),
+            health: Health {
+                fence: true,
+                ..Health::default()
+            },
             health_at: now,
             frames_seen: 0,
             load_permille: 0,
@@ -346,6 +349,15 @@ impl Gcs {
                 let result = self.set_interval(msg_id, interval_us);
                 self.ack(cmd, result, from, link);
             }
+            // An unsupported command is only acknowledged so: ground stations probe with
+            // them, and a text for each would drown the ones that matter.
+            Err((MavResult::MAV_RESULT_UNSUPPORTED, _)) => {
+                self.ctx
+                    .stats
+                    .commands_refused
+                    .fetch_add(1, Ordering::Relaxed);
+                self.ack(cmd, MavResult::MAV_RESULT_UNSUPPORTED, from, link);
+            }
             Err((result, why)) => self.refuse(cmd, result, &why, from, link),
         }
     }
@@ -452,7 +464,12 @@ impl Gcs {
                 self.send(&tm::extended_sys_state(&snap), link);
                 MavSeverity::MAV_SEVERITY_INFO
             }
-            Event::Failsafe { .. } => MavSeverity::MAV_SEVERITY_CRITICAL,
+            Event::Failsafe { kind, .. } => {
+                if kind == crate::core::commander::Failsafe::Geofence {
+                    self.health.fence = false;
+                }
+                MavSeverity::MAV_SEVERITY_CRITICAL
+            }
             Event::Refusal { .. } => MavSeverity::MAV_SEVERITY_WARNING,
         };
         self.text(severity, &text, link);
@@ -511,6 +528,8 @@ impl Gcs {
             gps_used: self.ctx.gps.is_some(),
             motors: silent.is_empty() && halt.is_none(),
             estimator: ratios_ok,
+            // A breach stays told for the rest of the run.
+            fence: self.health.fence,
         };
         self.frames_seen = frames;
         if let Some(clock) = self.ctx.control_cpu {
