@@ -130,13 +130,17 @@ fn a_ground_station_sets_a_parameter_arms_takes_off_and_lands() {
         .collect();
     assert_eq!(
         modes,
-        ["disarmed", "armed", "takeoff", "hold", "land", "disarmed"],
+        // The second hold is DO_SET_MODE's.
+        [
+            "disarmed", "armed", "takeoff", "hold", "hold", "land", "disarmed"
+        ],
         "{r}"
     );
     assert_eq!(r["takeoff"]["target_m"], 1.5, "{r}");
     assert_eq!(r["deadline_misses"], 0, "{r}");
     let g = &r["gcs"];
-    assert!(u(&g["commands"]) >= 4 && u(&g["param_sets"]) == 1, "{g}");
+    // arm (refused), arm, takeoff, REQUEST_MESSAGE, SET_MESSAGE_INTERVAL twice, land.
+    assert!(u(&g["commands"]) >= 7 && u(&g["param_sets"]) == 1, "{g}");
     // The set is kept for the next start and noted in the run, which keeps its values.
     let kept = std::fs::read_to_string(run.parent().unwrap().join("params.toml")).unwrap();
     assert!(kept.contains("climb_m_s = 0.4"), "{kept}");

@@ -205,7 +205,7 @@ impl FlySummary {
             log_io_errors_by_stream: self.log_io_errors,
             console_drops: self.console_drops,
             stderr_drops: self.stderr_drops,
-            gcs: self.gcs.clone(),
+            gcs: self.gcs,
             esc: EscReport {
                 commands: self.esc_commands,
                 writes: self.esc_writes,
@@ -266,21 +266,7 @@ impl FlySummary {
             )));
         }
         if let Some(g) = &self.gcs {
-            lines.push(Record::note(format!(
-                "ground-station link: {} frames in, {} out; {} commands ({} refused); dropped: \
-                 {} over the rate, {} out; noise: {} bad CRC, {} cut short, {} unknown, {} \
-                 bytes outside frames",
-                g.rx.frames,
-                g.tx_frames,
-                g.commands,
-                g.commands_refused,
-                g.flood_drops,
-                g.tx_drops,
-                g.rx.bad_crc,
-                g.rx.truncated,
-                g.rx.unknown,
-                g.rx.garbage_bytes
-            )));
+            lines.push(Record::note(gcs_line(g)));
         }
         lines.push(Record::note(format!(
             "run ended: {} frames, {} steps, ESCs stopped: {}",
@@ -393,4 +379,32 @@ impl SimSummary {
             self.simulated_s
         )
     }
+}
+
+/// err.log's line of the ground-station link's counts.
+fn gcs_line(g: &crate::tasks::gcs::GcsReport) -> String {
+    format!(
+        "ground-station link: {} frames in, {} out ({} dropped); {} commands ({} refused); \
+         {} GCS heartbeats; {} parameter sets; dropped over the rate {}; noise: {} bad CRC, {} \
+         cut short, {} unknown, {} malformed, {} bytes outside frames; {} receive errors, {} \
+         inputs the flight's queue refused, {} notices missed; CPU {:.1} ms ({:.3} % of a core)",
+        g.rx.frames,
+        g.tx_frames,
+        g.tx_drops,
+        g.commands,
+        g.commands_refused,
+        g.gcs_heartbeats,
+        g.param_sets,
+        g.flood_drops,
+        g.rx.bad_crc,
+        g.rx.truncated,
+        g.rx.unknown,
+        g.rx.malformed,
+        g.rx.garbage_bytes,
+        g.rx_errors,
+        g.input_drops,
+        g.notices_missed,
+        g.cpu_ms,
+        g.cpu_pct
+    )
 }

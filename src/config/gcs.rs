@@ -30,11 +30,11 @@ pub struct GcsConfig {
     pub baud: u32,
     /// MAVLink system id of the vehicle.
     pub system_id: u8,
-    /// Default rate of ATTITUDE and LOCAL_POSITION_NED (MAV_CMD_SET_MESSAGE_INTERVAL changes
-    /// it while the link runs), Hz.
+    /// Default rate of ATTITUDE, LOCAL_POSITION_NED and GLOBAL_POSITION_INT
+    /// (MAV_CMD_SET_MESSAGE_INTERVAL changes each while the link runs), Hz.
     pub telemetry_hz: f64,
-    /// Frames taken from the link each second; beyond, they are dropped and counted (a flood
-    /// never costs more than this).
+    /// Frames taken from the link each second, and as many of the largest frame's bytes (280);
+    /// beyond, they are dropped and counted.
     pub max_rx_per_s: u32,
     /// Where parameters set by a ground station are kept for the next start (empty: the
     /// file `params.toml` in the log folder).

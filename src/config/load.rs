@@ -116,9 +116,39 @@ fn flatten(prefix: &str, t: &toml::Table, out: &mut Vec<(String, toml::Value)>) 
     }
 }
 
-/// Sets `key` to `value` in the kept-parameters file (created when missing), written whole
-/// under a temporary name and renamed into place, so a power cut leaves the old file or the
-/// new one.
+/// Whether the profile at `profile` with the kept parameters and `key = value` among them (what
+/// the next start applies) is valid; the first problem otherwise, as "key: message".
+pub fn check_kept(
+    profile: &Path,
+    file: &Path,
+    key: &str,
+    value: toml::Value,
+) -> Result<(), String> {
+    let mut kept = read_kept(file)
+        .map_err(|e| e.to_string())?
+        .unwrap_or_default();
+    kept.retain(|(k, _)| k != key);
+    kept.push((key.to_string(), value));
+    load_layers(profile, Some((file, &kept)), &[])
+        .map(|_| ())
+        .map_err(|e| first_problem(&e, &format!(" (from {})", file.display())))
+}
+
+/// The first problem of a failed load, as "key: message", without the origin `origin` (the
+/// caller says where the change came from).
+fn first_problem(e: &ConfigError, origin: &str) -> String {
+    e.problems.first().map_or_else(String::new, |p| {
+        let message = p.message.replace(origin, "");
+        match &p.key {
+            Some(k) => format!("{k}: {message}"),
+            None => message,
+        }
+    })
+}
+
+/// Sets `key` to `value` in the kept-parameters file (created when missing): written whole
+/// under a temporary name, flushed to the disk and renamed into place, so a power cut leaves
+/// the old file or the new one.
 pub fn write_kept(file: &Path, key: &str, value: toml::Value) -> Result<(), String> {
     let mut table = if file.exists() {
         read_table(file).map_err(|e| e.to_string())?
@@ -129,26 +159,27 @@ pub fn write_kept(file: &Path, key: &str, value: toml::Value) -> Result<(), Stri
     let text = toml::to_string(&table).map_err(|e| e.to_string())?;
     let header = "# Parameters set by a ground station (uquad writes this file). `uquad fly` and \
                   `uquad sim` apply them at start, under --set.\n";
-    let tmp = file.with_extension("toml.tmp");
-    std::fs::write(&tmp, format!("{header}{text}"))
-        .and_then(|()| std::fs::rename(&tmp, file))
-        .map_err(|e| format!("cannot write {}: {e}", file.display()))
+    let tmp = file.with_extension(format!("toml.{}.tmp", std::process::id()));
+    let written = (|| {
+        let mut f = std::fs::File::create(&tmp)?;
+        std::io::Write::write_all(&mut f, format!("{header}{text}").as_bytes())?;
+        f.sync_all()?;
+        std::fs::rename(&tmp, file)?;
+        if let Some(dir) = file.parent() {
+            std::fs::File::open(dir)?.sync_all()?;
+        }
+        Ok::<(), std::io::Error>(())
+    })();
+    written.map_err(|e| format!("cannot write {}: {e}", file.display()))
 }
 
 /// Whether `key = value` is a valid change of the configuration at `path`, checked as `--set`
 /// is; the first problem otherwise, as "key: message".
 pub fn check_set(path: &Path, key: &str, value: toml::Value) -> Result<(), String> {
     let sets = [(key.to_string(), value)];
-    load(path, &sets).map(|_| ()).map_err(|e| {
-        e.problems.first().map_or_else(String::new, |p| {
-            // The change's origin is the caller's to say.
-            let message = p.message.replace(" (from --set)", "");
-            match &p.key {
-                Some(k) => format!("{k}: {message}"),
-                None => message,
-            }
-        })
-    })
+    load(path, &sets)
+        .map(|_| ())
+        .map_err(|e| first_problem(&e, " (from --set)"))
 }
 
 /// Loads with the kept parameters (when any) and then the `--set` overrides applied.

@@ -22,7 +22,7 @@ mod validate;
 pub use commander::{CommanderConfig, FailsafeConfig, Fence};
 pub use gcs::{GcsConfig, GcsEnabled};
 pub use load::{
-    ConfigError, DEFAULT_CONFIG, Problem, check_set, kept_params_path, load, load_kept,
+    ConfigError, DEFAULT_CONFIG, Problem, check_kept, check_set, kept_params_path, load, load_kept,
     resolve_path, write_kept,
 };
 pub use overrides::parse_set;

@@ -12,7 +12,10 @@
 
 use super::telemetry::mode_of_custom;
 use crate::core::commander::{Command, Mode};
-use mavlink::dialects::common::{MavCmd, MavFrame, MavModeFlag, MavResult};
+use mavlink::MessageData;
+use mavlink::dialects::common::{
+    AUTOPILOT_VERSION_DATA, HOME_POSITION_DATA, MavCmd, MavFrame, MavModeFlag, MavResult,
+};
 
 /// MAVLink's code for "force" in COMPONENT_ARM_DISARM's param 2.
 const FORCE_CODE: f32 = 21196.0;
@@ -53,8 +56,8 @@ pub fn map(cmd: MavCmd, a: Args) -> Result<Request, Refusal> {
         MavCmd::MAV_CMD_DO_FLIGHTTERMINATION if p[0] > 0.5 => Ok(Commander(Command::Kill)),
         MavCmd::MAV_CMD_DO_SET_MODE => set_mode(p[0], p[1]),
         MavCmd::MAV_CMD_REQUEST_MESSAGE => Ok(Message(whole(p[0])?)),
-        MavCmd::MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES => Ok(Message(AUTOPILOT_VERSION_ID)),
-        MavCmd::MAV_CMD_GET_HOME_POSITION => Ok(Message(HOME_POSITION_ID)),
+        MavCmd::MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES => Ok(Message(AUTOPILOT_VERSION_DATA::ID)),
+        MavCmd::MAV_CMD_GET_HOME_POSITION => Ok(Message(HOME_POSITION_DATA::ID)),
         MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL => Ok(Interval {
             msg_id: whole(p[0])?,
             interval_us: p[1],
@@ -65,10 +68,6 @@ pub fn map(cmd: MavCmd, a: Args) -> Result<Request, Refusal> {
         )),
     }
 }
-
-/// AUTOPILOT_VERSION's and HOME_POSITION's message ids.
-pub const AUTOPILOT_VERSION_ID: u32 = 148;
-pub const HOME_POSITION_ID: u32 = 242;
 
 fn arm_disarm(arm: f32, force: f32) -> Result<Request, Refusal> {
     let c = if arm == 1.0 {
@@ -95,19 +94,24 @@ fn whole(v: f32) -> Result<u32, Refusal> {
     }
 }
 
+/// NAV_TAKEOFF's height above the takeoff point: param 7 of COMMAND_LONG, or COMMAND_INT's z
+/// in a relative frame (up) or a local one (down: its height is −z); altitudes above sea
+/// level are refused.
 #[allow(deprecated)]
 fn takeoff(a: Args) -> Result<Request, Refusal> {
-    if matches!(
-        a.frame,
-        Some(MavFrame::MAV_FRAME_GLOBAL | MavFrame::MAV_FRAME_GLOBAL_INT)
-    ) {
-        return Err((
-            MavResult::MAV_RESULT_COMMAND_UNSUPPORTED_MAV_FRAME,
-            "takeoff: altitudes above sea level are not taken; use a relative frame".into(),
-        ));
-    }
+    use MavFrame::*;
     let z = a.p[6];
-    let height = if z.is_nan() { None } else { Some(f64::from(z)) };
+    let up = match a.frame {
+        None | Some(MAV_FRAME_GLOBAL_RELATIVE_ALT | MAV_FRAME_GLOBAL_RELATIVE_ALT_INT) => z,
+        Some(MAV_FRAME_LOCAL_NED | MAV_FRAME_LOCAL_OFFSET_NED) => -z,
+        Some(f) => {
+            return Err((
+                MavResult::MAV_RESULT_COMMAND_UNSUPPORTED_MAV_FRAME,
+                format!("takeoff: frame {f:?} not taken; use a relative or local frame"),
+            ));
+        }
+    };
+    let height = (!up.is_nan()).then_some(f64::from(up));
     Ok(Request::Commander(Command::Takeoff(height)))
 }
 
@@ -119,7 +123,8 @@ fn set_mode(base: f32, custom: f32) -> Result<Request, Refusal> {
             "set mode: only custom modes (HEARTBEAT's numbering) are taken".into(),
         ));
     }
-    match mode_of_custom(custom as u32).filter(|_| custom.fract() == 0.0) {
+    let whole = custom >= 0.0 && custom.fract() == 0.0;
+    match mode_of_custom(custom as u32).filter(|_| whole) {
         Some(Mode::Hold) => Ok(Request::Commander(Command::Hold(None))),
         Some(Mode::Land) => Ok(Request::Commander(Command::Land)),
         Some(m) => Err(denied(format!(

@@ -53,6 +53,8 @@ pub struct Health {
     pub estimator: bool,
     /// No geofence breach so far.
     pub fence: bool,
+    /// The run folder can be written (the pre-arm probe).
+    pub logging: bool,
 }
 
 fn custom_mode(mode: Mode) -> u32 {
@@ -106,7 +108,8 @@ pub fn sys_status(s: &Snapshot) -> MavMessage {
     let gps = S::MAV_SYS_STATUS_SENSOR_GPS;
     let motors = S::MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS;
     let fence = S::MAV_SYS_STATUS_GEOFENCE;
-    let mut present = imu | control | motors | fence;
+    let logging = S::MAV_SYS_STATUS_LOGGING;
+    let mut present = imu | control | motors | fence | logging;
     if h.gps_used {
         present |= gps;
     }
@@ -121,6 +124,7 @@ pub fn sys_status(s: &Snapshot) -> MavMessage {
     set(h.motors, motors);
     set(h.estimator && h.imu, control);
     set(h.fence, fence);
+    set(h.logging, logging);
     MavMessage::SYS_STATUS(SYS_STATUS_DATA {
         onboard_control_sensors_present: present,
         onboard_control_sensors_enabled: present,
@@ -239,12 +243,11 @@ pub fn gps_raw(s: &Snapshot) -> Option<MavMessage> {
     }))
 }
 
+/// The takeoff point, once it and a fix are known (a home without a place on the Earth
+/// would be drawn at 0° 0°).
 pub fn home_position(s: &Snapshot) -> Option<MavMessage> {
     let h = s.home_m?;
-    let (deg, alt) = match s.fix {
-        Some(fix) => global_of(&fix, h),
-        None => ([0.0, 0.0], None),
-    };
+    let (deg, alt) = global_of(&s.fix?, h);
     Some(MavMessage::HOME_POSITION(HOME_POSITION_DATA {
         latitude: e7(deg[0]),
         longitude: e7(deg[1]),

@@ -48,13 +48,19 @@ pub struct Received {
 }
 
 /// Splits bytes into messages: feed it with [`Decoder::push`], take messages with
-/// [`Decoder::next_message`] until it has none.
+/// [`Decoder::next_message`] until it has none. Each byte is looked at as a frame's start at
+/// most once (a cursor, not a shifting buffer), so noise costs at most one checksum per
+/// byte that looks like a start.
 #[derive(Debug, Default)]
 pub struct Decoder {
     buf: Vec<u8>,
+    /// Where the bytes not yet looked at begin.
+    at: usize,
     /// Each push is a whole datagram (UDP): a frame it ends inside is cut short, never
     /// continued by the next. Otherwise a byte stream (a serial radio).
     datagrams: bool,
+    /// This datagram's cut frame is counted (its later bytes are noise).
+    cut_counted: bool,
     pub counts: RxCounts,
 }
 
@@ -81,10 +87,13 @@ impl Decoder {
     }
 
     pub fn push(&mut self, bytes: &[u8]) {
+        self.buf.drain(..self.at);
+        self.at = 0;
         if self.datagrams {
             // What the previous datagram left was not taken: it is lost.
             self.counts.garbage_bytes += self.buf.len() as u64;
             self.buf.clear();
+            self.cut_counted = false;
         }
         self.buf.extend_from_slice(bytes);
         if self.buf.len() > MAX_PENDING {
@@ -100,7 +109,7 @@ impl Decoder {
             match self.step() {
                 Step::Wait => return None,
                 Step::Skip(n, found) => {
-                    self.buf.drain(..n);
+                    self.at += n;
                     if found.is_some() {
                         return found;
                     }
@@ -110,53 +119,66 @@ impl Decoder {
     }
 
     fn step(&mut self) -> Step {
-        if self.buf.is_empty() {
+        let rest = &self.buf[self.at..];
+        if rest.is_empty() {
             return Step::Wait;
         }
-        let Some(start) = self.buf.iter().position(|&b| b == STX_V1 || b == STX_V2) else {
-            self.counts.garbage_bytes += self.buf.len() as u64;
-            return Step::Skip(self.buf.len(), None);
+        let Some(start) = rest.iter().position(|&b| b == STX_V1 || b == STX_V2) else {
+            self.counts.garbage_bytes += rest.len() as u64;
+            return Step::Skip(rest.len(), None);
         };
         if start > 0 {
             self.counts.garbage_bytes += start as u64;
             return Step::Skip(start, None);
         }
-        let v2 = self.buf[0] == STX_V2;
+        let v2 = rest[0] == STX_V2;
         let head = if v2 { HEAD_V2 } else { HEAD_V1 };
-        if self.buf.len() < head {
+        if rest.len() < head {
             return self.incomplete();
         }
-        let payload_len = usize::from(self.buf[1]);
-        let signed = v2 && self.buf[2] & IFLAG_SIGNED != 0;
+        let payload_len = usize::from(rest[1]);
+        let signed = v2 && rest[2] & IFLAG_SIGNED != 0;
         let len = head + payload_len + CRC_LEN + if signed { SIGNATURE_LEN } else { 0 };
-        if self.buf.len() < len {
+        if rest.len() < len {
             return self.incomplete();
         }
         self.check(v2, head, payload_len, len)
     }
 
-    /// A frame begun at the buffer's start is not all there: more bytes will come on a
-    /// stream; in a datagram it was cut short (or its start was noise: look further in).
+    /// A frame begun at the cursor is not all there: more bytes will come on a stream; in a
+    /// datagram it was cut short (counted once; or its start was noise: look further in).
     fn incomplete(&mut self) -> Step {
-        if self.datagrams {
-            self.counts.truncated += 1;
-            Step::Skip(1, None)
-        } else {
-            Step::Wait
+        if !self.datagrams {
+            return Step::Wait;
         }
+        if self.cut_counted {
+            self.counts.garbage_bytes += 1;
+        } else {
+            self.counts.truncated += 1;
+            self.cut_counted = true;
+        }
+        Step::Skip(1, None)
     }
 
-    /// A whole frame at the buffer's start: its checksum, then its message.
+    /// A whole frame at the cursor: its flags, its checksum, then its message.
     fn check(&mut self, v2: bool, head: usize, payload_len: usize, len: usize) -> Step {
-        let b = &self.buf;
+        let b = &self.buf[self.at..];
         let msg_id = if v2 {
             u32::from_le_bytes([b[7], b[8], b[9], 0])
         } else {
             u32::from(b[5])
         };
-        if MavMessage::default_message_from_id(msg_id).is_none() {
-            self.counts.unknown += 1;
-            return Step::Skip(len, None);
+        // A flag this decoder does not know changes the frame's layout (MAVLink 2 says to
+        // drop it); an unknown id cannot have its checksum checked. Either is a frame only
+        // when another frame (or the end) follows it; otherwise its start was noise.
+        let unknown_flags = v2 && b[2] & !IFLAG_SIGNED != 0;
+        if unknown_flags || MavMessage::default_message_from_id(msg_id).is_none() {
+            if b.len() == len || matches!(b[len], STX_V1 | STX_V2) {
+                self.counts.unknown += 1;
+                return Step::Skip(len, None);
+            }
+            self.counts.garbage_bytes += 1;
+            return Step::Skip(1, None);
         }
         let end = head + payload_len;
         let crc = u16::from_le_bytes([b[end], b[end + 1]]);
@@ -165,33 +187,41 @@ impl Decoder {
             self.counts.bad_crc += 1;
             return Step::Skip(1, None);
         }
-        let version = if v2 {
-            MavlinkVersion::V2
-        } else {
-            MavlinkVersion::V1
-        };
-        let header = MavHeader {
-            system_id: u32::from(if v2 { b[5] } else { b[3] }),
-            component_id: if v2 { b[6] } else { b[4] },
-            sequence: if v2 { b[4] } else { b[2] },
-        };
+        let (version, header) = header_of(v2, b);
         match MavMessage::parse(version, msg_id, &b[head..end]) {
             Ok(msg) => {
                 self.counts.frames += 1;
-                Step::Skip(
-                    len,
-                    Some(Received {
-                        header,
-                        version,
-                        msg,
-                    }),
-                )
+                let r = Received {
+                    header,
+                    version,
+                    msg,
+                };
+                Step::Skip(len, Some(r))
             }
             Err(_) => {
                 self.counts.malformed += 1;
                 Step::Skip(len, None)
             }
         }
+    }
+}
+
+/// A checked frame's version and sender.
+fn header_of(v2: bool, b: &[u8]) -> (MavlinkVersion, MavHeader) {
+    if v2 {
+        let h = MavHeader {
+            system_id: u32::from(b[5]),
+            component_id: b[6],
+            sequence: b[4],
+        };
+        (MavlinkVersion::V2, h)
+    } else {
+        let h = MavHeader {
+            system_id: u32::from(b[3]),
+            component_id: b[4],
+            sequence: b[2],
+        };
+        (MavlinkVersion::V1, h)
     }
 }
 
@@ -292,13 +322,32 @@ mod tests {
         d.push(&frame);
         assert!(d.next_message().is_none());
         assert_eq!(d.counts.unknown, 1);
-        // A claimed frame that never ends does not grow the buffer.
+        // A claimed frame that never ends holds at most MAX_PENDING bytes; good frames after
+        // the noise come through once the last claim is complete and fails its checksum.
         for _ in 0..100 {
             d.push(&[STX_V2, 255, 0, 0, 0, 0, 0, 0, 0, 0]);
             d.push(&[0u8; 100]);
-            let _ = d.next_message();
+            assert!(d.next_message().is_none());
         }
-        assert!(d.buf.len() <= MAX_PENDING);
+        assert!(d.counts.garbage_bytes > 5000, "{:?}", d.counts);
+        let good = heartbeat_frame(&mut Encoder::new(1, 1));
+        for _ in 0..20 {
+            d.push(&good);
+        }
+        assert!(d.next_message().is_some(), "{:?}", d.counts);
+    }
+
+    #[test]
+    fn a_stray_start_with_an_unknown_id_does_not_swallow_the_frames_after_it() {
+        let good = heartbeat_frame(&mut Encoder::new(1, 1));
+        // A start byte, then a header claiming an unknown id and 20 bytes, then a real frame.
+        let mut bytes = vec![STX_V2, 20, 0, 0, 0, 0, 0, 0xEE, 0xEE, 0xEE];
+        bytes.extend_from_slice(&good);
+        bytes.extend_from_slice(&[0u8; 30]);
+        let mut d = Decoder::for_stream();
+        d.push(&bytes);
+        assert!(d.next_message().is_some(), "{:?}", d.counts);
+        assert_eq!(d.counts.unknown, 0);
     }
 
     #[test]

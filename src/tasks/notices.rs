@@ -1,12 +1,14 @@
-//! Notices: what the flight tells its operators' links beside the logs — the commander's
-//! events (mode changes, failsafes, refusals) and what became of each command. A broadcast:
-//! the control path never waits on it, and a link that falls behind misses the oldest and
-//! is told how many.
+//! Notices: what the flight tells the ground-station link beside the logs — the commander's
+//! events (mode changes, failsafes, refusals) and what became of each command. A bounded
+//! queue the control path only ever `try_send`s into (no lock a reader holds can stall it);
+//! what a full queue cannot take is dropped and counted.
 
 use crate::core::commander::{Command, Event, LinkSource};
-use tokio::sync::broadcast;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use tokio::sync::mpsc;
 
-/// Notices held for the slowest link.
+/// Notices held for the link: a burst of refusals from a flood of commands fits.
 const QUEUE: usize = 256;
 
 #[derive(Debug, Clone, PartialEq)]
@@ -22,24 +24,33 @@ pub enum Notice {
 
 /// The sending side; cheap to clone. `Notices::default()` sends nowhere.
 #[derive(Debug, Clone, Default)]
-pub struct Notices(Option<broadcast::Sender<Notice>>);
+pub struct Notices {
+    tx: Option<mpsc::Sender<Notice>>,
+    dropped: Arc<AtomicU64>,
+}
 
 impl Notices {
-    pub fn new() -> Self {
-        Notices(Some(broadcast::channel(QUEUE).0))
+    /// A queue and its one reader (the link).
+    pub fn channel() -> (Self, mpsc::Receiver<Notice>) {
+        let (tx, rx) = mpsc::channel(QUEUE);
+        let notices = Notices {
+            tx: Some(tx),
+            dropped: Arc::default(),
+        };
+        (notices, rx)
     }
 
-    /// Never waits; without a listener the notice is dropped.
+    /// Never waits: a full queue drops the notice (counted), a closed one ignores it.
     pub fn send(&self, n: Notice) {
-        if let Some(tx) = &self.0
-            && tx.receiver_count() > 0
+        if let Some(tx) = &self.tx
+            && let Err(mpsc::error::TrySendError::Full(_)) = tx.try_send(n)
         {
-            let _ = tx.send(n);
+            self.dropped.fetch_add(1, Ordering::Relaxed);
         }
     }
 
-    /// A listener that sees every notice from now on.
-    pub fn subscribe(&self) -> Option<broadcast::Receiver<Notice>> {
-        self.0.as_ref().map(broadcast::Sender::subscribe)
+    /// Notices a full queue dropped.
+    pub fn dropped(&self) -> u64 {
+        self.dropped.load(Ordering::Relaxed)
     }
 }

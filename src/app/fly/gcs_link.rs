@@ -6,34 +6,41 @@ use crate::config::Profile;
 use crate::core::commander::OperatorInput;
 use crate::core::gps::LiveFix;
 use crate::gcs::params::Params;
-use crate::tasks::gcs::{self, GcsContext, GcsStats, Link, ParamStore};
+use crate::tasks::gcs::{self, GcsContext, Link, ParamStore};
 use crate::tasks::notices::Notice;
-use std::sync::Arc;
-use tokio::sync::{broadcast, mpsc, watch};
+use tokio::sync::{mpsc, watch};
 
 /// What the link takes from the run beyond the shared handles.
 pub(super) struct Inputs {
     pub operator: mpsc::Sender<OperatorInput>,
-    pub notices: broadcast::Receiver<Notice>,
+    pub notices: mpsc::Receiver<Notice>,
     pub gps_live: Option<watch::Receiver<Option<LiveFix>>>,
+    pub log_problem: watch::Receiver<Option<String>>,
     pub control_cpu: Option<libc::clockid_t>,
-    pub stats: Arc<GcsStats>,
 }
 
-pub(super) fn spawn(profile: &Profile, opts: &FlyOptions, h: &RunHandles, i: Inputs) {
+pub(super) fn spawn(
+    profile: &Profile,
+    opts: &FlyOptions,
+    h: &RunHandles,
+    i: Inputs,
+) -> tokio::task::JoinHandle<()> {
     let cfg = &profile.config;
     let ctx = GcsContext {
         cfg: cfg.gcs.clone(),
         params: Params::of(cfg),
         store: ParamStore {
             run_config: h.run_dir.join("config.toml"),
+            profile: profile.path.clone(),
             kept_file: crate::config::kept_params_path(cfg, opts.log_dir.as_deref()),
             logs: h.logs.clone(),
         },
         operator: i.operator,
-        notices: i.notices,
+        notices: Some(i.notices),
+        notices_tx: h.notices.clone(),
         live: h.live.clone(),
         gps: i.gps_live,
+        log_problem: i.log_problem,
         gps_timeout_us: (cfg.control.gps_hold_timeout_s * 1e6).round() as i64,
         watchdog: h.wd_status.clone(),
         imu: h.imu_stats.clone(),
@@ -41,7 +48,7 @@ pub(super) fn spawn(profile: &Profile, opts: &FlyOptions, h: &RunHandles, i: Inp
         esc_addresses: profile.motor_map().addresses,
         beats: h.beats.clone(),
         control_cpu: i.control_cpu,
-        stats: i.stats,
+        stats: h.gcs_stats.clone().unwrap_or_default(),
         cancel: h.cancel.clone(),
     };
     let logs = h.logs.clone();
@@ -58,5 +65,5 @@ pub(super) fn spawn(profile: &Profile, opts: &FlyOptions, h: &RunHandles, i: Inp
                 logs.err(format!("ground-station link: {e:#}; flying without it"));
             }
         }
-    });
+    })
 }

@@ -105,17 +105,18 @@ struct RunHandles {
     console_drops: Arc<std::sync::atomic::AtomicU64>,
     /// The commander's events and commands' outcomes, for the ground-station link.
     notices: Notices,
-    gcs_stats: Option<Arc<GcsStats>>,
+    gcs_stats: Option<GcsStats>,
     /// systemd's notification socket, when run as a `Type=notify` service.
     notifier: Option<Arc<crate::hw::notify::Notifier>>,
     cancel: CancellationToken,
 }
 
-/// The threads to join at shutdown, motors first.
+/// The threads to join at shutdown, motors first, and the ground-station link's task.
 struct Threads {
     esc: JoinHandle<()>,
     watchdog: JoinHandle<()>,
     control: JoinHandle<anyhow::Result<control::Reports>>,
+    gcs: Option<tokio::task::JoinHandle<()>>,
 }
 
 /// Runs a flight until `cancel` fires (a signal, a quit key, the IMU stream ending, a start-up
@@ -128,6 +129,15 @@ pub async fn run(
 ) -> anyhow::Result<FlySummary> {
     let (run_dir, logs, loggers) = open_run_folder(profile, &opts).await?;
     let live_tx = edges.live.take().unwrap_or_else(|| watch::channel(None).0);
+    // The link's queue exists before the flight starts: it hears the commander's first
+    // events.
+    let (notices, notices_rx) = match opts.gcs {
+        true => {
+            let (tx, rx) = Notices::channel();
+            (tx, Some(rx))
+        }
+        false => (Notices::default(), None),
+    };
     let h = RunHandles {
         run_dir,
         logs,
@@ -139,8 +149,8 @@ pub async fn run(
         gps_stats: Arc::new(GpsStats::default()),
         live: live_tx.subscribe(),
         console_drops: Arc::default(),
-        notices: Notices::new(),
-        gcs_stats: opts.gcs.then(Arc::default),
+        notices,
+        gcs_stats: opts.gcs.then(GcsStats::default),
         notifier: crate::hw::notify::Notifier::from_env().map(Arc::new),
         cancel,
     };
@@ -151,8 +161,7 @@ pub async fn run(
     let watchdog = start_watchdog(profile, &h, opts.realtime)?;
     let (operator_tx, operator_rx) = mpsc::channel::<OperatorInput>(OPERATOR_QUEUE);
     let gps_live = control::live_fixes(profile, edges.gps_fixes, &h);
-    // Subscribed before the flight starts: the link hears the commander's first events.
-    let notices = h.notices.subscribe();
+    let log_problem = watch_log_folder(&h);
     let control = control::spawn(
         profile,
         control::Inputs {
@@ -160,22 +169,22 @@ pub async fn run(
             gps_live: gps_live.clone(),
             operator: operator_rx,
             live: live_tx,
-            log_problem: watch_log_folder(&h),
+            log_problem: log_problem.clone(),
         },
         &opts,
         &h,
     )?;
     serve_operator(profile, &opts, &h, &operator_tx);
-    if let (Some(notices), Some(stats)) = (notices, h.gcs_stats.clone()) {
+    let gcs = notices_rx.map(|notices| {
         let link = gcs_link::Inputs {
             operator: operator_tx.clone(),
             notices,
             gps_live,
+            log_problem,
             control_cpu: crate::tasks::gcs::thread_clock(&control),
-            stats,
         };
-        gcs_link::spawn(profile, &opts, &h, link);
-    }
+        gcs_link::spawn(profile, &opts, &h, link)
+    });
     if let Some(extra) = edges.operator {
         tokio::spawn(operators::forward(
             extra,
@@ -189,6 +198,7 @@ pub async fn run(
         esc,
         watchdog,
         control,
+        gcs,
     };
     Ok(shut_down(h, threads, loggers).await)
 }
@@ -357,6 +367,15 @@ async fn shut_down(h: RunHandles, threads: Threads, loggers: Loggers) -> FlySumm
         Ok(Err(e)) => (control::Reports::default(), Some(format!("{e:#}"))),
         Err(e) => (control::Reports::default(), Some(e)),
     };
+    // The link ends at cancel; joined so that its report is final (and no parameter is
+    // written) before the summary.
+    if let Some(gcs) = threads.gcs
+        && tokio::time::timeout(Duration::from_secs(1), gcs)
+            .await
+            .is_err()
+    {
+        tracing::warn!("the ground-station link did not end within 1 s");
+    }
     let errors: Vec<String> = [control, esc, watchdog].into_iter().flatten().collect();
     let error = (!errors.is_empty()).then(|| errors.join("; "));
     if let Some(e) = &error {
@@ -420,7 +439,10 @@ fn summarise(h: &RunHandles, r: control::Reports, error: Option<String>) -> FlyS
         log_drops: h.logs.dropped(),
         log_io_errors: h.logs.io_errors(),
         console_drops: load(&h.console_drops),
-        gcs: h.gcs_stats.as_ref().map(|s| s.report()),
+        gcs: h
+            .gcs_stats
+            .as_ref()
+            .map(|s| s.lock().map(|r| *r).unwrap_or_default()),
         stderr_drops: crate::console::stderr_drops(),
         log_records: Default::default(),
         latencies_us,

@@ -79,15 +79,39 @@ impl Link {
         }
     }
 
-    /// The next bytes heard; 0 bytes: the radio closed.
-    pub async fn recv(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+    /// The next bytes heard, and from where (UDP). A radio that reads 0 bytes is gone: an
+    /// error.
+    pub async fn recv(&mut self, buf: &mut [u8]) -> std::io::Result<(usize, Option<SocketAddr>)> {
         match self {
-            Link::Udp { socket, peer, .. } => {
+            Link::Udp { socket, .. } => {
                 let (n, from) = socket.recv_from(buf).await?;
-                *peer = Some(from);
-                Ok(n)
+                Ok((n, Some(from)))
             }
-            Link::Serial { reader, .. } => reader.read(buf).await,
+            Link::Serial { reader, .. } => match reader.read(buf).await? {
+                0 => Err(std::io::ErrorKind::UnexpectedEof.into()),
+                n => Ok((n, None)),
+            },
+        }
+    }
+
+    /// A ground station wrote from `from` (frames that passed their checksum): it is
+    /// answered there too. Noise from elsewhere never redirects the telemetry.
+    pub fn heard_from(&mut self, from: SocketAddr) {
+        if let Link::Udp { peer, .. } = self {
+            *peer = Some(from);
+        }
+    }
+
+    pub fn is_serial(&self) -> bool {
+        matches!(self, Link::Serial { .. })
+    }
+
+    /// PARAM_VALUEs per 20 ms tick while a list streams: 500 a second over UDP; over a
+    /// 57600-baud radio 50 (1.9 kB/s), which leave room for the telemetry in its queue.
+    pub fn params_per_tick(&self) -> usize {
+        match self {
+            Link::Udp { .. } => 10,
+            Link::Serial { .. } => 1,
         }
     }
 

@@ -1,12 +1,15 @@
-//! The link task's state and its handlers: bytes heard, notices, ticks. Every handler runs
-//! to its end without waiting (sends never wait), so one can be timed on its thread's clock.
+//! The link task's state and what it does with the bytes heard, the flight's notices and the
+//! tick. Every handler runs to its end without waiting (sends never wait), so each is timed on
+//! its thread's CPU clock.
 
 use super::link::{Link, SendFail};
-use super::store::ParamStore;
+use super::params::ParamStore;
+use super::streams::{Stream, default_streams};
+use super::{GcsReport, GcsStats};
 use crate::config::GcsConfig;
-use crate::core::commander::{Command, Event, LinkSource, Mode, OperatorInput};
+use crate::core::commander::{Event, Failsafe, LinkSource, Mode, OperatorInput};
 use crate::core::gps::LiveFix;
-use crate::gcs::commands::{self, Args, Request};
+use crate::gcs::commands::Args;
 use crate::gcs::params::Params;
 use crate::gcs::telemetry::{self as tm, Health, Snapshot};
 use crate::gcs::wire::{Decoder, Encoder, Received};
@@ -14,15 +17,15 @@ use crate::tasks::controller::Live;
 use crate::tasks::esc_writer::EscStatus;
 use crate::tasks::heartbeats::Heartbeats;
 use crate::tasks::imu_reader::ImuStats;
-use crate::tasks::notices::Notice;
+use crate::tasks::notices::{Notice, Notices};
 use crate::tasks::watchdog::WatchdogStatus;
-use mavlink::MessageData;
 use mavlink::dialects::common::*;
 use std::collections::VecDeque;
+use std::net::SocketAddr;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
-use tokio::sync::{broadcast, mpsc, watch};
+use tokio::sync::{mpsc, watch};
 use tokio_util::sync::CancellationToken;
 
 /// What the task is given: the link's settings, the flight's shared state, its queues.
@@ -31,11 +34,16 @@ pub struct GcsContext {
     pub params: Params,
     pub store: ParamStore,
     pub operator: mpsc::Sender<OperatorInput>,
-    pub notices: broadcast::Receiver<Notice>,
+    /// The flight's notices (taken by the task's loop), and their sending side's count of
+    /// what a full queue dropped.
+    pub notices: Option<mpsc::Receiver<Notice>>,
+    pub notices_tx: Notices,
     pub live: watch::Receiver<Option<Live>>,
     pub gps: Option<watch::Receiver<Option<LiveFix>>>,
     /// A fix older than this does not hold position, µs.
     pub gps_timeout_us: i64,
+    /// Why the run folder cannot be written, as last probed.
+    pub log_problem: watch::Receiver<Option<String>>,
     pub watchdog: Arc<WatchdogStatus>,
     pub imu: Arc<ImuStats>,
     pub esc: Arc<EscStatus>,
@@ -44,138 +52,56 @@ pub struct GcsContext {
     pub beats: Arc<Heartbeats>,
     /// The control thread's CPU clock, for SYS_STATUS's load.
     pub control_cpu: Option<libc::clockid_t>,
-    pub stats: Arc<GcsStats>,
+    pub stats: GcsStats,
     pub cancel: CancellationToken,
 }
 
-/// The link's counters, shared with the run's report.
-#[derive(Debug, Default)]
-pub struct GcsStats {
-    pub rx: std::sync::Mutex<crate::gcs::wire::RxCounts>,
-    pub flood_drops: AtomicU64,
-    pub rx_errors: AtomicU64,
-    pub tx_frames: AtomicU64,
-    pub tx_drops: AtomicU64,
-    pub commands: AtomicU64,
-    pub commands_refused: AtomicU64,
-    pub input_drops: AtomicU64,
-    pub param_sets: AtomicU64,
-    pub notices_missed: AtomicU64,
-    pub gcs_heartbeats: AtomicU64,
-    /// The task's own CPU time and how long it ran, ns.
-    pub cpu_ns: AtomicU64,
-    pub wall_ns: AtomicU64,
-}
-
-/// The link's part of the run's report.
-#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
-pub struct GcsReport {
-    #[serde(flatten)]
-    pub rx: crate::gcs::wire::RxCounts,
-    pub flood_drops: u64,
-    pub rx_errors: u64,
-    pub tx_frames: u64,
-    pub tx_drops: u64,
-    pub commands: u64,
-    pub commands_refused: u64,
-    pub input_drops: u64,
-    pub param_sets: u64,
-    pub notices_missed: u64,
-    pub gcs_heartbeats: u64,
-    pub cpu_ms: f64,
-    /// The task's CPU time over its run time, % of one core.
-    pub cpu_pct: f64,
-}
-
-impl GcsStats {
-    pub fn report(&self) -> GcsReport {
-        let get = |a: &AtomicU64| a.load(Ordering::Relaxed);
-        let (cpu, wall) = (get(&self.cpu_ns), get(&self.wall_ns));
-        GcsReport {
-            rx: self.rx.lock().map(|r| *r).unwrap_or_default(),
-            flood_drops: get(&self.flood_drops),
-            rx_errors: get(&self.rx_errors),
-            tx_frames: get(&self.tx_frames),
-            tx_drops: get(&self.tx_drops),
-            commands: get(&self.commands),
-            commands_refused: get(&self.commands_refused),
-            input_drops: get(&self.input_drops),
-            param_sets: get(&self.param_sets),
-            notices_missed: get(&self.notices_missed),
-            gcs_heartbeats: get(&self.gcs_heartbeats),
-            cpu_ms: cpu as f64 / 1e6,
-            cpu_pct: if wall > 0 {
-                100.0 * cpu as f64 / wall as f64
-            } else {
-                0.0
-            },
-        }
-    }
-}
-
 /// Counts what arrives in the current second.
-struct Window {
+pub(super) struct Window {
     start: Instant,
-    count: u32,
+    count: u64,
 }
 
 impl Window {
-    fn new(now: Instant) -> Self {
+    pub(super) fn new(now: Instant) -> Self {
         Window {
             start: now,
             count: 0,
         }
     }
 
-    /// Whether one more arriving `now` is within `max` a second.
-    fn allows(&mut self, now: Instant, max: u32) -> bool {
+    /// Whether `amount` more arriving `now` stay within `max` a second.
+    pub(super) fn allows(&mut self, now: Instant, amount: u64, max: u64) -> bool {
         if now.duration_since(self.start) >= Duration::from_secs(1) {
             *self = Window::new(now);
         }
-        self.count += 1;
+        self.count += amount;
         self.count <= max
     }
 }
 
-/// Commands taken from the link each second, as from the console and stdin.
-const COMMANDS_PER_S: u32 = 20;
-
-/// A command sent on to the commander, waiting for its outcome.
-struct Pending {
-    command: Command,
-    mav_cmd: MavCmd,
-    from: (u8, u8),
-    at: Instant,
-}
-
-/// A message sent every `interval`, or never (`None`).
-struct Stream {
-    id: u32,
-    default: Option<Duration>,
-    interval: Option<Duration>,
-    next: Instant,
-}
-
-/// An outcome that does not come within this is acknowledged as failed.
-const OUTCOME_TIMEOUT: Duration = Duration::from_secs(2);
 /// A ground station's heartbeats reach the commander at most this often.
 const BEAT_EVERY: Duration = Duration::from_millis(500);
-/// PARAM_VALUEs sent per tick while a list is requested.
-const PARAMS_PER_TICK: usize = 10;
-/// The ground station's own component id, for the vehicle's frames: the autopilot.
-const COMPONENT_ID: u8 = 1;
+/// The vehicle's component id: the autopilot's.
+pub(super) const COMPONENT_ID: u8 = 1;
+/// The largest MAVLink frame, bytes: `gcs.max_rx_per_s` of them is the byte budget too.
+const LARGEST_FRAME: u64 = 280;
 
 pub struct Gcs {
-    ctx: GcsContext,
+    pub(super) ctx: GcsContext,
     decoder: Decoder,
     encoder: Encoder,
     frame: Vec<u8>,
-    mode: Mode,
-    streams: Vec<Stream>,
-    pending: VecDeque<Pending>,
-    param_cursor: Option<usize>,
-    rx_window: Window,
-    commands: Window,
+    /// The mode as the commander's events tell it.
+    pub(super) mode: Mode,
+    pub(super) streams: Vec<Stream>,
+    pub(super) pending: VecDeque<super::commands::Pending>,
+    pub(super) param_cursor: Option<usize>,
+    pub(super) params_per_tick: usize,
+    rx_frames: Window,
+    rx_bytes: Window,
+    pub(super) commands: Window,
+    pub(super) param_sets: Window,
     last_beat: Option<Instant>,
     text_id: u16,
     halt_told: bool,
@@ -185,13 +111,16 @@ pub struct Gcs {
     load_permille: u16,
     control_cpu_ns: u64,
     started: Instant,
+    cpu_ns: u64,
+    pub(super) report: GcsReport,
 }
 
 impl Gcs {
-    pub fn new(ctx: GcsContext, decoder: Decoder) -> Self {
+    pub fn new(ctx: GcsContext, decoder: Decoder, params_per_tick: usize) -> Self {
         let now = Instant::now();
         let encoder = Encoder::new(ctx.cfg.system_id, COMPONENT_ID);
         let streams = default_streams(&ctx.cfg, now);
+        let control_cpu_ns = ctx.control_cpu.map_or(0, super::clock_ns);
         Gcs {
             ctx,
             decoder,
@@ -201,8 +130,11 @@ impl Gcs {
             streams,
             pending: VecDeque::new(),
             param_cursor: None,
-            rx_window: Window::new(now),
+            params_per_tick,
+            rx_frames: Window::new(now),
+            rx_bytes: Window::new(now),
             commands: Window::new(now),
+            param_sets: Window::new(now),
             last_beat: None,
             text_id: 0,
             halt_told: false,
@@ -213,8 +145,10 @@ impl Gcs {
             health_at: now,
             frames_seen: 0,
             load_permille: 0,
-            control_cpu_ns: 0,
+            control_cpu_ns,
             started: now,
+            cpu_ns: 0,
+            report: GcsReport::default(),
         }
     }
 
@@ -222,71 +156,94 @@ impl Gcs {
         self.ctx.cancel.clone()
     }
 
-    /// Runs a handler, adding its CPU time (on this thread's clock) to the link's.
+    /// The flight's notices, for the task's loop (a closed queue when there are none).
+    pub fn take_notices(&mut self) -> mpsc::Receiver<Notice> {
+        self.ctx
+            .notices
+            .take()
+            .unwrap_or_else(|| mpsc::channel(1).1)
+    }
+
+    /// Runs a handler, adds its CPU time (on this thread's clock) to the link's, and
+    /// publishes the report.
     pub fn timed(&mut self, f: impl FnOnce(&mut Self)) {
-        let t0 = thread_cpu_ns();
+        let t0 = super::thread_cpu_ns();
         f(self);
-        let spent = thread_cpu_ns().saturating_sub(t0);
-        let s = &self.ctx.stats;
-        s.cpu_ns.fetch_add(spent, Ordering::Relaxed);
-        let wall = self.started.elapsed().as_nanos() as u64;
-        s.wall_ns.store(wall, Ordering::Relaxed);
+        self.cpu_ns += super::thread_cpu_ns().saturating_sub(t0);
+        let wall_ns = self.started.elapsed().as_nanos().max(1) as f64;
+        let r = &mut self.report;
+        r.cpu_ms = self.cpu_ns as f64 / 1e6;
+        r.cpu_pct = 100.0 * self.cpu_ns as f64 / wall_ns;
+        r.notices_missed = self.ctx.notices_tx.dropped();
+        if let Ok(mut shared) = self.ctx.stats.lock() {
+            *shared = *r;
+        }
     }
 
     pub fn count_rx_error(&mut self) {
-        self.ctx.stats.rx_errors.fetch_add(1, Ordering::Relaxed);
+        self.report.rx_errors += 1;
     }
 
-    fn send(&mut self, msg: &MavMessage, link: &mut Link) {
+    pub(super) fn send(&mut self, msg: &MavMessage, link: &mut Link) {
         self.frame.clear();
         self.encoder.encode(msg, &mut self.frame);
-        let s = &self.ctx.stats;
         match link.send(&self.frame) {
-            Ok(()) => s.tx_frames.fetch_add(1, Ordering::Relaxed),
-            Err(SendFail::Full | SendFail::Error) => s.tx_drops.fetch_add(1, Ordering::Relaxed),
-        };
+            Ok(()) => self.report.tx_frames += 1,
+            Err(SendFail::Full | SendFail::Error) => self.report.tx_drops += 1,
+        }
     }
 
-    fn text(&mut self, severity: MavSeverity, text: &str, link: &mut Link) {
+    pub(super) fn text(&mut self, severity: MavSeverity, text: &str, link: &mut Link) {
         self.text_id = self.text_id.wrapping_add(1).max(1);
         for m in tm::statustext(severity, text, self.text_id) {
             self.send(&m, link);
         }
     }
 
-    /// Bytes heard: each whole message within the second's budget is handled.
-    pub fn on_bytes(&mut self, bytes: &[u8], link: &mut Link) {
+    /// Bytes heard (a datagram, or what the radio had): within the second's budgets, each
+    /// whole message is handled; a ground station whose frames pass is answered where it
+    /// wrote from.
+    pub fn on_bytes(&mut self, bytes: &[u8], from: Option<SocketAddr>, link: &mut Link) {
+        let now = Instant::now();
+        let max_bytes = u64::from(self.ctx.cfg.max_rx_per_s) * LARGEST_FRAME;
+        if !self.rx_bytes.allows(now, bytes.len() as u64, max_bytes) {
+            self.report.flood_drops += 1;
+            return;
+        }
         self.decoder.push(bytes);
+        let mut answered = false;
         while let Some(m) = self.decoder.next_message() {
-            if self
-                .rx_window
-                .allows(Instant::now(), self.ctx.cfg.max_rx_per_s)
-            {
+            if let (Some(f), false) = (from, answered) {
+                link.heard_from(f);
+                answered = true;
+            }
+            let max = u64::from(self.ctx.cfg.max_rx_per_s);
+            if self.rx_frames.allows(now, 1, max) {
                 self.on_message(m, link);
             } else {
-                self.ctx.stats.flood_drops.fetch_add(1, Ordering::Relaxed);
+                self.report.flood_drops += 1;
             }
         }
-        if let Ok(mut rx) = self.ctx.stats.rx.lock() {
-            *rx = self.decoder.counts;
-        }
+        self.report.rx = self.decoder.counts;
     }
 
-    fn for_us(&self, system: u8) -> bool {
-        system == 0 || system == self.ctx.cfg.system_id
+    /// Addressed to this vehicle: its system (or all, 0) and the autopilot (or all, 0).
+    fn for_us(&self, system: u8, component: u8) -> bool {
+        (system == 0 || system == self.ctx.cfg.system_id)
+            && (component == 0 || component == COMPONENT_ID)
     }
 
     fn on_message(&mut self, r: Received, link: &mut Link) {
         let from = (r.header.system_id as u8, r.header.component_id);
         match r.msg {
             MavMessage::HEARTBEAT(h) if h.mavtype == MavType::MAV_TYPE_GCS => self.on_gcs_beat(),
-            MavMessage::COMMAND_LONG(c) if self.for_us(c.target_system) => {
+            MavMessage::COMMAND_LONG(c) if self.for_us(c.target_system, c.target_component) => {
                 let p = [
                     c.param1, c.param2, c.param3, c.param4, c.param5, c.param6, c.param7,
                 ];
                 self.on_command(c.command, Args { p, frame: None }, from, link);
             }
-            MavMessage::COMMAND_INT(c) if self.for_us(c.target_system) => {
+            MavMessage::COMMAND_INT(c) if self.for_us(c.target_system, c.target_component) => {
                 let p = [
                     c.param1, c.param2, c.param3, c.param4, c.x as f32, c.y as f32, c.z,
                 ];
@@ -296,13 +253,17 @@ impl Gcs {
                 };
                 self.on_command(c.command, args, from, link);
             }
-            MavMessage::PARAM_REQUEST_LIST(p) if self.for_us(p.target_system) => {
+            MavMessage::PARAM_REQUEST_LIST(p)
+                if self.for_us(p.target_system, p.target_component) =>
+            {
                 self.param_cursor = Some(0);
             }
-            MavMessage::PARAM_REQUEST_READ(p) if self.for_us(p.target_system) => {
+            MavMessage::PARAM_REQUEST_READ(p)
+                if self.for_us(p.target_system, p.target_component) =>
+            {
                 self.on_param_read(p.param_index, p.param_id.to_str().unwrap_or(""), link);
             }
-            MavMessage::PARAM_SET(p) if self.for_us(p.target_system) => {
+            MavMessage::PARAM_SET(p) if self.for_us(p.target_system, p.target_component) => {
                 let id = p.param_id.to_str().unwrap_or("").to_string();
                 self.on_param_set(&id, p.param_value, link);
             }
@@ -312,10 +273,7 @@ impl Gcs {
 
     /// A ground station's heartbeat: a beat of its operator link, at most twice a second.
     fn on_gcs_beat(&mut self) {
-        self.ctx
-            .stats
-            .gcs_heartbeats
-            .fetch_add(1, Ordering::Relaxed);
+        self.report.gcs_heartbeats += 1;
         let now = Instant::now();
         if self
             .last_beat
@@ -330,98 +288,11 @@ impl Gcs {
             .try_send(OperatorInput::Beat(LinkSource::Gcs))
             .is_err()
         {
-            self.ctx.stats.input_drops.fetch_add(1, Ordering::Relaxed);
+            self.report.input_drops += 1;
         }
     }
 
-    fn on_command(&mut self, cmd: MavCmd, args: Args, from: (u8, u8), link: &mut Link) {
-        self.ctx.stats.commands.fetch_add(1, Ordering::Relaxed);
-        match commands::map(cmd, args) {
-            Ok(Request::Commander(c)) => self.forward_command(c, cmd, from, link),
-            Ok(Request::Message(id)) => {
-                let result = self.send_by_id(id, link);
-                self.ack(cmd, result, from, link);
-            }
-            Ok(Request::Interval {
-                msg_id,
-                interval_us,
-            }) => {
-                let result = self.set_interval(msg_id, interval_us);
-                self.ack(cmd, result, from, link);
-            }
-            // An unsupported command is only acknowledged so: ground stations probe with
-            // them, and a text for each would drown the ones that matter.
-            Err((MavResult::MAV_RESULT_UNSUPPORTED, _)) => {
-                self.ctx
-                    .stats
-                    .commands_refused
-                    .fetch_add(1, Ordering::Relaxed);
-                self.ack(cmd, MavResult::MAV_RESULT_UNSUPPORTED, from, link);
-            }
-            Err((result, why)) => self.refuse(cmd, result, &why, from, link),
-        }
-    }
-
-    fn ack(&mut self, cmd: MavCmd, result: MavResult, to: (u8, u8), link: &mut Link) {
-        let msg = MavMessage::COMMAND_ACK(COMMAND_ACK_DATA {
-            command: cmd,
-            result,
-            target_system: to.0,
-            target_component: to.1,
-            ..COMMAND_ACK_DATA::DEFAULT
-        });
-        self.send(&msg, link);
-    }
-
-    fn refuse(&mut self, cmd: MavCmd, result: MavResult, why: &str, to: (u8, u8), link: &mut Link) {
-        self.ctx
-            .stats
-            .commands_refused
-            .fetch_add(1, Ordering::Relaxed);
-        self.ack(cmd, result, to, link);
-        self.text(MavSeverity::MAV_SEVERITY_WARNING, why, link);
-    }
-
-    /// A commander's command: queued for the flight, acknowledged once it is taken or
-    /// refused (the refusal's reason arrives as the commander's own text).
-    fn forward_command(&mut self, c: Command, cmd: MavCmd, from: (u8, u8), link: &mut Link) {
-        let busy = MavResult::MAV_RESULT_TEMPORARILY_REJECTED;
-        if !self.commands.allows(Instant::now(), COMMANDS_PER_S) {
-            let why = format!("{c} refused: more than {COMMANDS_PER_S} commands a second");
-            return self.refuse(cmd, busy, &why, from, link);
-        }
-        match self
-            .ctx
-            .operator
-            .try_send(OperatorInput::Command(c, LinkSource::Gcs))
-        {
-            Ok(()) => self.pending.push_back(Pending {
-                command: c,
-                mav_cmd: cmd,
-                from,
-                at: Instant::now(),
-            }),
-            Err(_) => {
-                self.ctx.stats.input_drops.fetch_add(1, Ordering::Relaxed);
-                let why = format!("{c} refused: the flight is not taking commands now");
-                self.refuse(cmd, busy, &why, from, link);
-            }
-        }
-    }
-
-    pub fn on_notice(&mut self, n: Result<Notice, broadcast::error::RecvError>, link: &mut Link) {
-        let n = match n {
-            Ok(n) => n,
-            Err(broadcast::error::RecvError::Lagged(missed)) => {
-                self.ctx
-                    .stats
-                    .notices_missed
-                    .fetch_add(missed, Ordering::Relaxed);
-                return;
-            }
-            // The flight is over; cancel follows.
-            Err(broadcast::error::RecvError::Closed) => return,
-        };
+    pub fn on_notice(&mut self, n: Notice, link: &mut Link) {
         match n {
             Notice::Outcome {
                 command,
@@ -431,25 +302,6 @@ impl Gcs {
             Notice::Outcome { .. } => {}
             Notice::Event(e) => self.on_event(e, link),
         }
-    }
-
-    fn on_outcome(&mut self, command: Command, refused: bool, link: &mut Link) {
-        let Some(i) = self.pending.iter().position(|p| p.command == command) else {
-            return;
-        };
-        let Some(p) = self.pending.remove(i) else {
-            return;
-        };
-        let result = if refused {
-            self.ctx
-                .stats
-                .commands_refused
-                .fetch_add(1, Ordering::Relaxed);
-            MavResult::MAV_RESULT_DENIED
-        } else {
-            MavResult::MAV_RESULT_ACCEPTED
-        };
-        self.ack(p.mav_cmd, result, p.from, link);
     }
 
     /// The commander's events as texts (the err.log line's words, with a severity); a mode
@@ -465,7 +317,8 @@ impl Gcs {
                 MavSeverity::MAV_SEVERITY_INFO
             }
             Event::Failsafe { kind, .. } => {
-                if kind == crate::core::commander::Failsafe::Geofence {
+                // A breach stays told for the rest of the run.
+                if kind == Failsafe::Geofence {
                     self.health.fence = false;
                 }
                 MavSeverity::MAV_SEVERITY_CRITICAL
@@ -475,6 +328,12 @@ impl Gcs {
         self.text(severity, &text, link);
     }
 
+    /// Disarmed by both accounts: the commander's events and the flight's newest step.
+    pub(super) fn disarmed(&self) -> bool {
+        let live_mode = self.ctx.live.borrow().map(|l| l.mode);
+        self.mode == Mode::Disarmed && live_mode.is_none_or(|m| m == Mode::Disarmed)
+    }
+
     pub fn on_tick(&mut self, link: &mut Link) {
         let now = Instant::now();
         if now.duration_since(self.health_at) >= Duration::from_secs(1) {
@@ -482,58 +341,30 @@ impl Gcs {
         }
         self.expire_pending(now, link);
         self.send_params(link);
-        let snap = self.snapshot();
-        for i in 0..self.streams.len() {
-            let s = &mut self.streams[i];
-            let Some(every) = s.interval else { continue };
-            if now < s.next {
-                continue;
-            }
-            // Keep the rate without bunching after a late tick.
-            s.next = (s.next + every).max(now);
-            let id = s.id;
-            if let Some(m) = build(id, &snap, self.ctx.cfg.system_id) {
-                self.send(&m, link);
-            }
-        }
+        self.send_due(now, link);
     }
 
-    fn expire_pending(&mut self, now: Instant, link: &mut Link) {
-        while let Some(p) = self.pending.front() {
-            if now.duration_since(p.at) < OUTCOME_TIMEOUT {
-                break;
-            }
-            let Some(p) = self.pending.pop_front() else {
-                break;
-            };
-            let why = format!("{}: no answer from the flight", p.command);
-            self.refuse(p.mav_cmd, MavResult::MAV_RESULT_FAILED, &why, p.from, link);
-        }
-    }
-
-    /// Once a second: the sensors' and motors' health, the control thread's load, a halt.
+    /// Once a second: the sensors', motors' and log folder's health, the control thread's
+    /// load, a halt.
     fn check_health(&mut self, now: Instant, link: &mut Link) {
         let wall_ns = now.duration_since(self.health_at).as_nanos().max(1) as u64;
         self.health_at = now;
         let frames = self.ctx.imu.frames.load(Ordering::Relaxed);
         let halt = self.ctx.watchdog.halt();
         let silent = self.ctx.esc.silent_addresses(&self.ctx.esc_addresses);
-        let ratios_ok = self
-            .ctx
-            .live
-            .borrow()
-            .is_none_or(|l| !l.ratios.outside_gate().any());
+        let live = *self.ctx.live.borrow();
+        let logging = self.ctx.log_problem.borrow().is_none();
         self.health = Health {
             imu: frames > self.frames_seen,
             gps_used: self.ctx.gps.is_some(),
             motors: silent.is_empty() && halt.is_none(),
-            estimator: ratios_ok,
-            // A breach stays told for the rest of the run.
+            estimator: live.is_none_or(|l| !l.ratios.outside_gate().any()),
+            logging,
             fence: self.health.fence,
         };
         self.frames_seen = frames;
         if let Some(clock) = self.ctx.control_cpu {
-            let cpu = clock_ns(clock);
+            let cpu = super::clock_ns(clock);
             let busy = cpu.saturating_sub(self.control_cpu_ns);
             self.control_cpu_ns = cpu;
             self.load_permille = (1000 * busy / wall_ns).min(1000) as u16;
@@ -545,7 +376,7 @@ impl Gcs {
         }
     }
 
-    fn snapshot(&self) -> Snapshot {
+    pub(super) fn snapshot(&self) -> Snapshot {
         let live = *self.ctx.live.borrow();
         let fix = self.ctx.gps.as_ref().and_then(|rx| *rx.borrow());
         let now_us = self.ctx.beats.us(Instant::now());
@@ -561,196 +392,4 @@ impl Gcs {
             load_permille: self.load_permille,
         }
     }
-
-    /// REQUEST_MESSAGE: the message now, if it can be built.
-    fn send_by_id(&mut self, id: u32, link: &mut Link) -> MavResult {
-        if !KNOWN.contains(&id) {
-            return MavResult::MAV_RESULT_DENIED;
-        }
-        match build(id, &self.snapshot(), self.ctx.cfg.system_id) {
-            Some(m) => {
-                self.send(&m, link);
-                MavResult::MAV_RESULT_ACCEPTED
-            }
-            // Known, but not yet available (no estimate, no fix, no takeoff point).
-            None => MavResult::MAV_RESULT_FAILED,
-        }
-    }
-
-    fn set_interval(&mut self, id: u32, interval_us: f32) -> MavResult {
-        let Some(s) = self.streams.iter_mut().find(|s| s.id == id) else {
-            return MavResult::MAV_RESULT_DENIED;
-        };
-        s.interval = if interval_us < 0.0 {
-            None
-        } else if interval_us == 0.0 {
-            s.default
-        } else {
-            // At most the tick's rate.
-            Some(Duration::from_micros(interval_us as u64).max(super::TICK))
-        };
-        s.next = Instant::now();
-        MavResult::MAV_RESULT_ACCEPTED
-    }
-}
-
-/// The messages the link can send, by id.
-const KNOWN: [u32; 10] = [
-    HEARTBEAT_DATA::ID,
-    SYS_STATUS_DATA::ID,
-    GPS_RAW_INT_DATA::ID,
-    ATTITUDE_DATA::ID,
-    LOCAL_POSITION_NED_DATA::ID,
-    GLOBAL_POSITION_INT_DATA::ID,
-    HOME_POSITION_DATA::ID,
-    EXTENDED_SYS_STATE_DATA::ID,
-    ESTIMATOR_STATUS_DATA::ID,
-    AUTOPILOT_VERSION_DATA::ID,
-];
-
-fn build(id: u32, s: &Snapshot, system_id: u8) -> Option<MavMessage> {
-    match id {
-        HEARTBEAT_DATA::ID => Some(tm::heartbeat(s)),
-        SYS_STATUS_DATA::ID => Some(tm::sys_status(s)),
-        GPS_RAW_INT_DATA::ID => tm::gps_raw(s),
-        ATTITUDE_DATA::ID => tm::attitude(s),
-        LOCAL_POSITION_NED_DATA::ID => tm::local_position(s),
-        GLOBAL_POSITION_INT_DATA::ID => tm::global_position(s),
-        HOME_POSITION_DATA::ID => tm::home_position(s),
-        EXTENDED_SYS_STATE_DATA::ID => Some(tm::extended_sys_state(s)),
-        ESTIMATOR_STATUS_DATA::ID => tm::estimator_status(s),
-        AUTOPILOT_VERSION_DATA::ID => Some(tm::autopilot_version(system_id)),
-        _ => None,
-    }
-}
-
-/// The periodic messages: status each second, attitude and position at `gcs.telemetry_hz`,
-/// the takeoff point every 5 s.
-fn default_streams(cfg: &GcsConfig, now: Instant) -> Vec<Stream> {
-    let fast = Duration::from_secs_f64(1.0 / cfg.telemetry_hz);
-    let second = Duration::from_secs(1);
-    [
-        (HEARTBEAT_DATA::ID, second),
-        (SYS_STATUS_DATA::ID, second),
-        (EXTENDED_SYS_STATE_DATA::ID, second),
-        (ESTIMATOR_STATUS_DATA::ID, second),
-        (GPS_RAW_INT_DATA::ID, second),
-        (HOME_POSITION_DATA::ID, 5 * second),
-        (ATTITUDE_DATA::ID, fast),
-        (LOCAL_POSITION_NED_DATA::ID, fast),
-        (GLOBAL_POSITION_INT_DATA::ID, fast),
-    ]
-    .into_iter()
-    .map(|(id, every)| Stream {
-        id,
-        default: Some(every),
-        interval: Some(every),
-        next: now,
-    })
-    .collect()
-}
-
-impl Gcs {
-    fn param_value(&mut self, index: usize, link: &mut Link) {
-        let count = self.ctx.params.len() as u16;
-        let Some(p) = self.ctx.params.get(index).copied() else {
-            return;
-        };
-        let msg = MavMessage::PARAM_VALUE(PARAM_VALUE_DATA {
-            param_value: p.value as f32,
-            param_count: count,
-            param_index: index as u16,
-            param_id: p.id.into(),
-            param_type: p.kind.wire(),
-        });
-        self.send(&msg, link);
-    }
-
-    fn send_params(&mut self, link: &mut Link) {
-        let Some(start) = self.param_cursor else {
-            return;
-        };
-        let end = (start + PARAMS_PER_TICK).min(self.ctx.params.len());
-        for i in start..end {
-            self.param_value(i, link);
-        }
-        self.param_cursor = (end < self.ctx.params.len()).then_some(end);
-    }
-
-    fn on_param_read(&mut self, index: i16, id: &str, link: &mut Link) {
-        let found = match usize::try_from(index) {
-            Ok(i) => (i < self.ctx.params.len()).then_some(i),
-            Err(_) => self.ctx.params.find(id),
-        };
-        match found {
-            Some(i) => self.param_value(i, link),
-            None => {
-                let text = format!("parameter {id:?} (index {index}): no such parameter");
-                self.text(MavSeverity::MAV_SEVERITY_WARNING, &text, link);
-            }
-        }
-    }
-
-    /// PARAM_SET: checked and kept (see `store`); the answer is the parameter's value after
-    /// it — the old one, with a text saying why, when the set is refused.
-    fn on_param_set(&mut self, id: &str, value: f32, link: &mut Link) {
-        let Some(i) = self.ctx.params.find(id) else {
-            let text = format!("parameter {id:?}: no such parameter");
-            return self.text(MavSeverity::MAV_SEVERITY_WARNING, &text, link);
-        };
-        let Some(p) = self.ctx.params.get(i).copied() else {
-            return;
-        };
-        let outcome = if p.flight_critical() && self.mode != Mode::Disarmed {
-            Err(format!(
-                "{}: flight-critical, refused while {}",
-                p.key,
-                self.mode.name()
-            ))
-        } else {
-            let t_s = self.ctx.beats.us(Instant::now()) as f64 / 1e6;
-            p.toml_value(value)
-                .map_err(|e| format!("{}: {e}", p.key))
-                .and_then(|v| self.ctx.store.set(&p, v.clone(), t_s).map(|()| v))
-        };
-        match outcome {
-            Ok(v) => {
-                self.ctx.stats.param_sets.fetch_add(1, Ordering::Relaxed);
-                let kept = crate::gcs::params::value_of(&v).unwrap_or(p.value);
-                self.ctx.params.set(i, kept);
-            }
-            Err(why) => {
-                let text = format!("parameter {} not set: {why}", p.id);
-                self.text(MavSeverity::MAV_SEVERITY_WARNING, &text, link);
-            }
-        }
-        self.param_value(i, link);
-    }
-}
-
-/// The calling thread's CPU time, ns.
-fn thread_cpu_ns() -> u64 {
-    clock_ns(libc::CLOCK_THREAD_CPUTIME_ID)
-}
-
-fn clock_ns(clock: libc::clockid_t) -> u64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: clock_gettime writes into `ts` only.
-    if unsafe { libc::clock_gettime(clock, &mut ts) } != 0 {
-        return 0;
-    }
-    (ts.tv_sec as u64) * 1_000_000_000 + ts.tv_nsec as u64
-}
-
-/// The CPU clock of a running thread (for the control thread's load).
-pub fn thread_clock<T>(handle: &std::thread::JoinHandle<T>) -> Option<libc::clockid_t> {
-    use std::os::unix::thread::JoinHandleExt;
-    let mut clock: libc::clockid_t = 0;
-    // SAFETY: the thread is joinable (not yet joined), so its pthread_t is valid; the call
-    // writes the clock id into `clock` only.
-    let rc = unsafe { libc::pthread_getcpuclockid(handle.as_pthread_t(), &mut clock) };
-    (rc == 0).then_some(clock)
 }
