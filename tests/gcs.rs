@@ -232,3 +232,59 @@ fn kept_parameters_apply_at_the_next_start_and_are_named_when_wrong() {
         .to_string();
     assert!(e.contains(&format!("(from {})", kept.display())), "{e}");
 }
+
+/// The link over a serial radio: a pty stands for it; the test speaks MAVLink on the other
+/// end with the `mavlink` crate's own reader and writer.
+#[test]
+fn the_link_runs_over_a_serial_radio() {
+    use mavlink::dialects::common::{COMMAND_LONG_DATA, MavCmd, MavMessage, MavResult};
+    use serialport::SerialPort;
+    use std::time::{Duration, Instant};
+    let (mut master, slave) = serialport::TTYPort::pair().expect("a pty pair");
+    let path = slave.name().expect("the pty's name");
+    master.set_timeout(Duration::from_millis(200)).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let serial = format!("gcs.serial=\"{path}\"");
+    let args = ["--script", "none", "--duration", "30", "--set", &serial];
+    let mut cmd = realtime_sim(&args, dir.path());
+    cmd.args(["--set", "gcs.enabled=sim-realtime"]);
+    let sim = Uquad::spawn(&mut cmd);
+    let mut reader = mavlink::MavlinkReader::new(master.try_clone().unwrap());
+    let mut next = |what: &str, want: &dyn Fn(&MavMessage) -> bool| {
+        let t0 = Instant::now();
+        loop {
+            assert!(
+                t0.elapsed() < Duration::from_secs(20),
+                "no {what}\n{}",
+                sim.stderr()
+            );
+            if let Ok((_, m)) = reader.read_any_message::<MavMessage>()
+                && want(&m)
+            {
+                return m;
+            }
+        }
+    };
+    next("HEARTBEAT", &|m| matches!(m, MavMessage::HEARTBEAT(_)));
+    let ask = MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
+        command: MavCmd::MAV_CMD_REQUEST_MESSAGE,
+        param1: 148.0,
+        target_system: 1,
+        target_component: 1,
+        ..COMMAND_LONG_DATA::DEFAULT
+    });
+    let header = mavlink::MavHeader {
+        system_id: 255,
+        component_id: 190,
+        sequence: 0,
+    };
+    mavlink::write_v2_msg(&mut master, header, &ask).unwrap();
+    next("AUTOPILOT_VERSION", &|m| {
+        matches!(m, MavMessage::AUTOPILOT_VERSION(_))
+    });
+    let ack = next("COMMAND_ACK", &|m| matches!(m, MavMessage::COMMAND_ACK(_)));
+    let MavMessage::COMMAND_ACK(ack) = ack else {
+        unreachable!()
+    };
+    assert_eq!(ack.result, MavResult::MAV_RESULT_ACCEPTED);
+}

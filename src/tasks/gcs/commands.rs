@@ -2,19 +2,11 @@
 //! queued for the flight and acknowledged once the commander has taken or refused them.
 
 use super::link::Link;
-use super::state::Gcs;
+use super::state::{Gcs, Pending};
 use crate::core::commander::{Command, LinkSource, OperatorInput};
 use crate::gcs::commands::{self, Args, Request};
 use mavlink::dialects::common::*;
 use std::time::{Duration, Instant};
-
-/// A command sent on to the commander, waiting for its outcome.
-pub(super) struct Pending {
-    command: Command,
-    mav_cmd: MavCmd,
-    from: (u8, u8),
-    at: Instant,
-}
 
 /// The flight takes its operator queue at every IMU frame (10 ms); an outcome that has not
 /// come within this never will (the flight has ended): the command is acknowledged FAILED.

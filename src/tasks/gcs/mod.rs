@@ -13,18 +13,19 @@
 //! - `state`: the task's state, the bytes heard, the notices, the tick and health;
 //! - `commands`: commands to the commander and their acknowledgements;
 //! - `streams`: the periodic messages and requests for one;
-//! - `params`: the parameter protocol and keeping a set value;
+//! - `params`: the parameter protocol; `store`: keeping a set value;
 //! - `link`: the UDP socket or the serial radio.
 
 mod commands;
 mod link;
 mod params;
 mod state;
+mod store;
 mod streams;
 
 pub use link::Link;
-pub use params::ParamStore;
 pub use state::GcsContext;
+pub use store::ParamStore;
 
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -60,7 +61,8 @@ pub type GcsStats = Arc<Mutex<GcsReport>>;
 
 /// Serves the link until cancel.
 pub async fn run(mut link: Link, ctx: GcsContext) {
-    let mut g = state::Gcs::new(ctx, link.decoder(), link.params_per_tick());
+    let streams = streams::default_streams(&ctx.cfg, std::time::Instant::now());
+    let mut g = state::Gcs::new(ctx, link.decoder(), streams, link.params_per_tick());
     let mut notices = g.take_notices();
     let mut buf = vec![0u8; 4096];
     let mut tick = tokio::time::interval(TICK);

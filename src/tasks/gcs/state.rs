@@ -3,11 +3,10 @@
 //! its thread's CPU clock.
 
 use super::link::{Link, SendFail};
-use super::params::ParamStore;
-use super::streams::{Stream, default_streams};
+use super::store::ParamStore;
 use super::{GcsReport, GcsStats};
 use crate::config::GcsConfig;
-use crate::core::commander::{Event, Failsafe, LinkSource, Mode, OperatorInput};
+use crate::core::commander::{Command, Event, Failsafe, LinkSource, Mode, OperatorInput};
 use crate::core::gps::LiveFix;
 use crate::gcs::commands::Args;
 use crate::gcs::params::Params;
@@ -80,6 +79,22 @@ impl Window {
     }
 }
 
+/// A command sent on to the commander, waiting for its outcome.
+pub(super) struct Pending {
+    pub(super) command: Command,
+    pub(super) mav_cmd: MavCmd,
+    pub(super) from: (u8, u8),
+    pub(super) at: Instant,
+}
+
+/// A message sent every `interval`, or never (`None`).
+pub(super) struct Stream {
+    pub(super) id: u32,
+    pub(super) default: Option<Duration>,
+    pub(super) interval: Option<Duration>,
+    pub(super) next: Instant,
+}
+
 /// A ground station's heartbeats reach the commander at most this often.
 const BEAT_EVERY: Duration = Duration::from_millis(500);
 /// The vehicle's component id: the autopilot's.
@@ -95,7 +110,7 @@ pub struct Gcs {
     /// The mode as the commander's events tell it.
     pub(super) mode: Mode,
     pub(super) streams: Vec<Stream>,
-    pub(super) pending: VecDeque<super::commands::Pending>,
+    pub(super) pending: VecDeque<Pending>,
     pub(super) param_cursor: Option<usize>,
     pub(super) params_per_tick: usize,
     rx_frames: Window,
@@ -116,10 +131,14 @@ pub struct Gcs {
 }
 
 impl Gcs {
-    pub fn new(ctx: GcsContext, decoder: Decoder, params_per_tick: usize) -> Self {
+    pub fn new(
+        ctx: GcsContext,
+        decoder: Decoder,
+        streams: Vec<Stream>,
+        params_per_tick: usize,
+    ) -> Self {
         let now = Instant::now();
         let encoder = Encoder::new(ctx.cfg.system_id, COMPONENT_ID);
-        let streams = default_streams(&ctx.cfg, now);
         let control_cpu_ns = ctx.control_cpu.map_or(0, super::clock_ns);
         Gcs {
             ctx,

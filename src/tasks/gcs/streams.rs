@@ -3,20 +3,12 @@
 //! sent once on request.
 
 use super::link::Link;
-use super::state::Gcs;
+use super::state::{Gcs, Stream};
 use crate::config::GcsConfig;
 use crate::gcs::telemetry::{self as tm, Snapshot};
 use mavlink::MessageData;
 use mavlink::dialects::common::*;
 use std::time::{Duration, Instant};
-
-/// A message sent every `interval`, or never (`None`).
-pub(super) struct Stream {
-    id: u32,
-    default: Option<Duration>,
-    interval: Option<Duration>,
-    next: Instant,
-}
 
 /// The messages the link can send, by id.
 const KNOWN: [u32; 10] = [
