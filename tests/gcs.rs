@@ -139,8 +139,9 @@ fn a_ground_station_sets_a_parameter_arms_takes_off_and_lands() {
     assert_eq!(r["takeoff"]["target_m"], 1.5, "{r}");
     assert_eq!(r["deadline_misses"], 0, "{r}");
     let g = &r["gcs"];
-    // arm (refused), arm, takeoff, REQUEST_MESSAGE, SET_MESSAGE_INTERVAL twice, land.
-    assert!(u(&g["commands"]) >= 7 && u(&g["param_sets"]) == 1, "{g}");
+    // arm (refused), arm, takeoff, REQUEST_MESSAGE, SET_MESSAGE_INTERVAL twice, DO_SET_MODE,
+    // land.
+    assert!(u(&g["commands"]) >= 8 && u(&g["param_sets"]) == 1, "{g}");
     // The set is kept for the next start and noted in the run, which keeps its values.
     let kept = std::fs::read_to_string(run.parent().unwrap().join("params.toml")).unwrap();
     assert!(kept.contains("climb_m_s = 0.4"), "{kept}");
@@ -207,7 +208,8 @@ fn a_silent_ground_station_lands_the_vehicle_and_noise_is_counted() {
     assert!(u(&g["bad_crc"]) >= 50, "{g}");
     assert!(u(&g["truncated"]) >= 50, "{g}");
     assert!(u(&g["unknown"]) >= 50, "{g}");
-    assert!(u(&g["garbage_bytes"]) > 0, "{g}");
+    // Most of the 50 × 64 random bytes.
+    assert!(u(&g["garbage_bytes"]) > 1000, "{g}");
     // The flood was 450 frames a second against a budget of 200.
     assert!(u(&g["flood_drops"]) > 0, "{g} {measured}");
 }

@@ -103,6 +103,17 @@ impl Decoder {
         }
     }
 
+    /// A stream whose bytes stopped inside a claimed frame: its start is taken for noise
+    /// (skipped and counted) so the bytes behind it are read. True when there was one.
+    pub fn skip_stalled_start(&mut self) -> bool {
+        if self.at >= self.buf.len() {
+            return false;
+        }
+        self.counts.garbage_bytes += 1;
+        self.at += 1;
+        true
+    }
+
     /// The next message in the bytes pushed so far, if a whole one is there.
     pub fn next_message(&mut self) -> Option<Received> {
         loop {
@@ -173,6 +184,10 @@ impl Decoder {
         // when another frame (or the end) follows it; otherwise its start was noise.
         let unknown_flags = v2 && b[2] & !IFLAG_SIGNED != 0;
         if unknown_flags || MavMessage::default_message_from_id(msg_id).is_none() {
+            if b.len() == len && !self.datagrams {
+                // On a stream the next byte decides.
+                return Step::Wait;
+            }
             if b.len() == len || matches!(b[len], STX_V1 | STX_V2) {
                 self.counts.unknown += 1;
                 return Step::Skip(len, None);
@@ -318,8 +333,12 @@ mod tests {
         let mut frame = heartbeat_frame(&mut Encoder::new(1, 1));
         frame[7] = 0xFF; // message id 0xFF0000-ish: not in the dialect
         frame[9] = 0xFF;
+        // On a stream, the byte after it decides that it was a frame (here: another start).
         let mut d = Decoder::for_stream();
         d.push(&frame);
+        assert!(d.next_message().is_none());
+        assert_eq!(d.counts.unknown, 0);
+        d.push(&[STX_V2]);
         assert!(d.next_message().is_none());
         assert_eq!(d.counts.unknown, 1);
         // A claimed frame that never ends holds at most MAX_PENDING bytes; good frames after
@@ -335,6 +354,20 @@ mod tests {
             d.push(&good);
         }
         assert!(d.next_message().is_some(), "{:?}", d.counts);
+    }
+
+    #[test]
+    fn a_stalled_stream_gives_up_a_claimed_frame_for_the_frames_behind_it() {
+        let good = heartbeat_frame(&mut Encoder::new(1, 1));
+        // A stray start claiming 255 bytes of a known id, then one real frame, then silence.
+        let mut bytes = vec![STX_V2, 255, 0, 0, 0, 0, 0, 0, 0, 0];
+        bytes.extend_from_slice(&good);
+        let mut d = Decoder::for_stream();
+        d.push(&bytes);
+        assert!(d.next_message().is_none());
+        assert!(d.skip_stalled_start());
+        assert!(d.next_message().is_some(), "{:?}", d.counts);
+        assert!(!d.skip_stalled_start());
     }
 
     #[test]

@@ -7,7 +7,7 @@ use crate::core::commander::OperatorInput;
 use crate::core::gps::LiveFix;
 use crate::gcs::params::Params;
 use crate::tasks::gcs::{self, GcsContext, Link, ParamStore};
-use crate::tasks::notices::Notice;
+use crate::tasks::notices::{Notice, Notices};
 use tokio::sync::{mpsc, watch};
 
 /// What the link takes from the run beyond the shared handles.
@@ -17,6 +17,16 @@ pub(super) struct Inputs {
     pub gps_live: Option<watch::Receiver<Option<LiveFix>>>,
     pub log_problem: watch::Receiver<Option<String>>,
     pub control_cpu: Option<libc::clockid_t>,
+}
+
+/// The flight's notices for the link, when it is served: the sending side for the control
+/// path, and the queue.
+pub(super) fn notices(served: bool) -> (Notices, Option<mpsc::Receiver<Notice>>) {
+    if !served {
+        return (Notices::default(), None);
+    }
+    let (tx, rx) = Notices::channel();
+    (tx, Some(rx))
 }
 
 pub(super) fn spawn(

@@ -111,6 +111,34 @@ struct RunHandles {
     cancel: CancellationToken,
 }
 
+impl RunHandles {
+    fn new(
+        run_dir: PathBuf,
+        logs: LogHub,
+        live_tx: &watch::Sender<Option<Live>>,
+        notices: Notices,
+        gcs: bool,
+        cancel: CancellationToken,
+    ) -> Self {
+        RunHandles {
+            run_dir,
+            logs,
+            beats: Arc::new(Heartbeats::new(Instant::now())),
+            mailbox: Arc::new(EscMailbox::default()),
+            esc_status: Arc::new(EscStatus::default()),
+            wd_status: Arc::new(WatchdogStatus::default()),
+            imu_stats: Arc::new(ImuStats::default()),
+            gps_stats: Arc::new(GpsStats::default()),
+            live: live_tx.subscribe(),
+            console_drops: Arc::default(),
+            notices,
+            gcs_stats: gcs.then(GcsStats::default),
+            notifier: crate::hw::notify::Notifier::from_env().map(Arc::new),
+            cancel,
+        }
+    }
+}
+
 /// The threads to join at shutdown, motors first, and the ground-station link's task.
 struct Threads {
     esc: JoinHandle<()>,
@@ -131,29 +159,8 @@ pub async fn run(
     let live_tx = edges.live.take().unwrap_or_else(|| watch::channel(None).0);
     // The link's queue exists before the flight starts: it hears the commander's first
     // events.
-    let (notices, notices_rx) = match opts.gcs {
-        true => {
-            let (tx, rx) = Notices::channel();
-            (tx, Some(rx))
-        }
-        false => (Notices::default(), None),
-    };
-    let h = RunHandles {
-        run_dir,
-        logs,
-        beats: Arc::new(Heartbeats::new(Instant::now())),
-        mailbox: Arc::new(EscMailbox::default()),
-        esc_status: Arc::new(EscStatus::default()),
-        wd_status: Arc::new(WatchdogStatus::default()),
-        imu_stats: Arc::new(ImuStats::default()),
-        gps_stats: Arc::new(GpsStats::default()),
-        live: live_tx.subscribe(),
-        console_drops: Arc::default(),
-        notices,
-        gcs_stats: opts.gcs.then(GcsStats::default),
-        notifier: crate::hw::notify::Notifier::from_env().map(Arc::new),
-        cancel,
-    };
+    let (notices, notices_rx) = gcs_link::notices(opts.gcs);
+    let h = RunHandles::new(run_dir, logs, &live_tx, notices, opts.gcs, cancel);
     crate::tasks::esc_writer::halt_on_any_panic(&h.mailbox);
     let esc = start_actuator(profile, edges.bus, &h, opts.realtime)?;
     // Any early return from here on (a thread that cannot start) still stops the ESCs.

@@ -64,8 +64,12 @@ impl Gcs {
     fn forward_command(&mut self, c: Command, cmd: MavCmd, from: (u8, u8), link: &mut Link) {
         let busy = MavResult::MAV_RESULT_TEMPORARILY_REJECTED;
         let now = Instant::now();
-        if !self.commands.allows(now, 1, COMMANDS_PER_S) || self.pending.len() >= PENDING_MAX {
+        if !self.commands.allows(now, 1, COMMANDS_PER_S) {
             let why = format!("{c} refused: more than {COMMANDS_PER_S} commands a second");
+            return self.refuse(cmd, busy, &why, from, link);
+        }
+        if self.pending.len() >= PENDING_MAX {
+            let why = format!("{c} refused: {PENDING_MAX} commands already wait for the flight");
             return self.refuse(cmd, busy, &why, from, link);
         }
         match self

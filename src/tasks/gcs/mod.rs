@@ -69,9 +69,13 @@ pub async fn run(mut link: Link, ctx: GcsContext) {
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
     let cancel = g.cancel();
     loop {
+        // Cancel, then the tick and the flight's notices before the link's bytes: a link
+        // that never goes quiet (a flood) must not starve telemetry and acknowledgements.
         tokio::select! {
             biased;
             _ = cancel.cancelled() => break,
+            _ = tick.tick() => g.timed(|g| g.on_tick(&mut link)),
+            Some(n) = notices.recv() => g.timed(|g| g.on_notice(n, &mut link)),
             r = link.recv(&mut buf) => match r {
                 Ok((n, from)) => g.timed(|g| g.on_bytes(&buf[..n], from, &mut link)),
                 // A datagram refused on the way (ICMP): nothing to read, go on.
@@ -81,10 +85,11 @@ pub async fn run(mut link: Link, ctx: GcsContext) {
                     break;
                 }
             },
-            Some(n) = notices.recv() => g.timed(|g| g.on_notice(n, &mut link)),
-            _ = tick.tick() => g.timed(|g| g.on_tick(&mut link)),
         }
     }
+    // The run ends: what the flight said last (a halt, the kill) still reaches the ground
+    // station, with a last heartbeat.
+    g.timed(|g| g.on_end(&mut notices, &mut link));
 }
 
 /// The calling thread's CPU time, ns.

@@ -109,6 +109,7 @@ pub struct Gcs {
     frame: Vec<u8>,
     /// The mode as the commander's events tell it.
     pub(super) mode: Mode,
+    mode_disagreements: u8,
     pub(super) streams: Vec<Stream>,
     pub(super) pending: VecDeque<Pending>,
     pub(super) param_cursor: Option<usize>,
@@ -126,6 +127,8 @@ pub struct Gcs {
     load_permille: u16,
     control_cpu_ns: u64,
     started: Instant,
+    /// Bytes arrived since the previous tick (a radio's frame still arriving).
+    fresh_bytes: bool,
     cpu_ns: u64,
     pub(super) report: GcsReport,
 }
@@ -146,6 +149,7 @@ impl Gcs {
             encoder,
             frame: Vec::with_capacity(300),
             mode: Mode::Disarmed,
+            mode_disagreements: 0,
             streams,
             pending: VecDeque::new(),
             param_cursor: None,
@@ -161,11 +165,13 @@ impl Gcs {
                 fence: true,
                 ..Health::default()
             },
-            health_at: now,
+            // The first tick measures it.
+            health_at: now.checked_sub(Duration::from_secs(1)).unwrap_or(now),
             frames_seen: 0,
             load_permille: 0,
             control_cpu_ns,
             started: now,
+            fresh_bytes: false,
             cpu_ns: 0,
             report: GcsReport::default(),
         }
@@ -236,13 +242,17 @@ impl Gcs {
                 link.heard_from(f);
                 answered = true;
             }
+            // A ground station's heartbeats always count (a flood must not fake a lost
+            // link); they cost little and reach the commander at most twice a second.
             let max = u64::from(self.ctx.cfg.max_rx_per_s);
-            if self.rx_frames.allows(now, 1, max) {
+            let beat = matches!(m.msg, MavMessage::HEARTBEAT(_));
+            if beat || self.rx_frames.allows(now, 1, max) {
                 self.on_message(m, link);
             } else {
                 self.report.flood_drops += 1;
             }
         }
+        self.fresh_bytes = true;
         self.report.rx = self.decoder.counts;
     }
 
@@ -353,6 +363,16 @@ impl Gcs {
         self.mode == Mode::Disarmed && live_mode.is_none_or(|m| m == Mode::Disarmed)
     }
 
+    /// The run is over: the notices still queued, a halt, a last heartbeat.
+    pub fn on_end(&mut self, notices: &mut mpsc::Receiver<Notice>, link: &mut Link) {
+        while let Ok(n) = notices.try_recv() {
+            self.on_notice(n, link);
+        }
+        self.check_health(Instant::now(), link);
+        let snap = self.snapshot();
+        self.send(&tm::heartbeat(&snap), link);
+    }
+
     pub fn on_tick(&mut self, link: &mut Link) {
         let now = Instant::now();
         if now.duration_since(self.health_at) >= Duration::from_secs(1) {
@@ -361,6 +381,19 @@ impl Gcs {
         self.expire_pending(now, link);
         self.send_params(link);
         self.send_due(now, link);
+        self.unstick_stream(link);
+    }
+
+    /// A radio's bytes held for a frame that has not grown for a tick: the frame's start was
+    /// noise claiming a long frame; the frames behind it are read now, not when enough
+    /// bytes have come to disprove it (seconds at a ground station's heartbeat rate).
+    fn unstick_stream(&mut self, link: &mut Link) {
+        if !std::mem::take(&mut self.fresh_bytes) && self.decoder.skip_stalled_start() {
+            while let Some(m) = self.decoder.next_message() {
+                self.on_message(m, link);
+            }
+            self.report.rx = self.decoder.counts;
+        }
     }
 
     /// Once a second: the sensors', motors' and log folder's health, the control thread's
@@ -382,6 +415,7 @@ impl Gcs {
             fence: self.health.fence,
         };
         self.frames_seen = frames;
+        self.reconcile_mode(live.map(|l| l.mode));
         if let Some(clock) = self.ctx.control_cpu {
             let cpu = super::clock_ns(clock);
             let busy = cpu.saturating_sub(self.control_cpu_ns);
@@ -392,6 +426,22 @@ impl Gcs {
             self.halt_told = true;
             let text = format!("halt {}: motors stopped", h.trip.reason.name());
             self.text(MavSeverity::MAV_SEVERITY_EMERGENCY, &text, link);
+        }
+    }
+
+    /// The mode follows the commander's events; should one have been lost (a full queue), the
+    /// flight's own step corrects it once it has disagreed at two checks in a row (one
+    /// disagreement is an event on its way).
+    fn reconcile_mode(&mut self, live_mode: Option<Mode>) {
+        match live_mode {
+            Some(m) if m != self.mode => {
+                self.mode_disagreements += 1;
+                if self.mode_disagreements >= 2 {
+                    self.mode = m;
+                    self.mode_disagreements = 0;
+                }
+            }
+            _ => self.mode_disagreements = 0,
         }
     }
 
