@@ -169,7 +169,8 @@ impl EstimatorTask {
         let action = self
             .side
             .operator(input, t_us, ArmCheck::Facts(&facts), &mut self.out);
-        if let OperatorInput::Command(command, source) = input {
+        // A ground station's command is acknowledged with its outcome.
+        if let OperatorInput::Command(command, source @ LinkSource::Gcs) = input {
             let refused = self.side.last_refusal().map(str::to_string);
             self.out.notices.send(Notice::Outcome {
                 command,
