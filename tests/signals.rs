@@ -5,7 +5,7 @@
 
 mod common;
 use common::*;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::{Duration, Instant};
 
 /// One flight at a time: each takes a core for its physics and control threads.
@@ -25,14 +25,6 @@ fn flying(dir: &Path) -> Uquad {
         std::thread::sleep(Duration::from_millis(20));
     }
     run
-}
-
-fn run_dir(dir: &Path) -> PathBuf {
-    std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .find(|p| p.is_dir())
-        .expect("a run folder")
 }
 
 fn send(run: &Uquad, signal: i32) {
