@@ -99,14 +99,20 @@ fix), plus gpsd's time. Reports without a fix are not printed; logs go to stderr
 COUNT fixes, non-zero with the reason when gpsd cannot be reached or goes away."
     )]
     Gps(GpsArgs),
-    /// Design hover gains by LQR from the vehicle model and write them as gain files.
+    /// Design gains by LQR at hover or along a path; print them or write them as gain files.
     #[command(
-        long_about = "Design hover gains by LQR from the vehicle model (spec 4.5) and write them as gain files.\n\n\
-The 12-state model is linearised at hover (w = w_hover(vehicle.mass_kg) on all motors), extended \
-with four integrators, discretised at 10 ms and the discrete Riccati equation solved to a relative \
-residual below 1e-9, with the weights of control.lqr_q_file (16 x 16) and control.lqr_r_file \
-(4 x 4). Writes OUT/K_prop.txt (4 x 12) and OUT/K_int.txt (4 x 4), rows = motors, in the \
-convention w = w_hover + K·e + K_int·x_int, and prints the closed-loop spectral radius.\n\n\
+        long_about = "Design gains by LQR from the vehicle model (spec 4.5), at hover or about a path's trim.\n\n\
+The 12-state model is linearised about the trim (hover: w = w_hover(vehicle.mass_kg) on all \
+motors; --path straight: level flight at --speed; --path circle: a coordinated turn of --radius \
+at --speed, the heading turning with the path, modelled in the frame that turns with it), \
+extended with four integrators, discretised at 10 ms and the discrete Riccati equation solved to \
+a relative residual below 1e-9, with the weights of control.lqr_q_file (16 x 16) and \
+control.lqr_r_file (4 x 4). Prints the trim (attitude, body velocity and rates, motor speeds), \
+the closed-loop spectral radius and the residual, then the gains; with --out writes \
+OUT/K_prop.txt (4 x 12) and OUT/K_int.txt (4 x 4) instead, rows = motors, in the convention \
+w = w_trim + K·e + K_int·x_int.\n\n\
+Examples:\n  uquad lqr --out /tmp/hover\n  uquad lqr --path straight --speed 1\n  \
+uquad lqr --path circle --radius 5 --speed 1 --turn right\n\n\
 Integrating psi and phi cannot work at hover (velocity - g·∫angle is conserved): that design is \
 refused with an explanation and nothing is written."
     )]
@@ -252,12 +258,47 @@ struct GpsArgs {
 struct LqrArgs {
     #[command(flatten)]
     profile: ProfileArgs,
-    /// Integrated states: psi,phi,z,theta or x,y,z,theta.
-    #[arg(long, value_name = "LIST", default_value = "psi,phi,z,theta")]
-    integrators: String,
-    /// Folder for K_prop.txt and K_int.txt (created if missing).
+    /// Integrated states: psi,phi,z,theta or x,y,z,theta (default: the profile's
+    /// control.integrators).
+    #[arg(long, value_name = "LIST")]
+    integrators: Option<String>,
+    /// The trim the design is about.
+    #[arg(long, value_enum, default_value = "hover")]
+    path: LqrPath,
+    /// Speed along the path, m/s (straight and circle).
+    #[arg(long, value_name = "M_S")]
+    speed: Option<f64>,
+    /// The circle's radius, m.
+    #[arg(long, value_name = "M")]
+    radius: Option<f64>,
+    /// The circle's direction seen from above: left (counter-clockwise) or right.
+    #[arg(long, value_enum, default_value = "left")]
+    turn: Turn,
+    /// Direction of travel relative to the nose, degrees (0: nose first; 90: to the left).
+    #[arg(
+        long,
+        value_name = "DEG",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
+    course_deg: f64,
+    /// Folder for K_prop.txt and K_int.txt (created if missing); without it the gains are
+    /// printed.
     #[arg(long, value_name = "DIR")]
-    out: PathBuf,
+    out: Option<PathBuf>,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+enum LqrPath {
+    Hover,
+    Straight,
+    Circle,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+enum Turn {
+    Left,
+    Right,
 }
 
 #[derive(clap::Args, Debug)]
@@ -563,24 +604,71 @@ impl GpsArgs {
 
 impl LqrArgs {
     fn run(self) -> anyhow::Result<ExitCode> {
-        use uquad::core::control::Integrators;
-        let integrators = &self.integrators;
-        let set = Integrators::parse(integrators)
-            .filter(|s| *s != Integrators::ZTheta)
-            .ok_or_else(|| {
-                Refused(format!(
-                    "--integrators {integrators:?}: expected psi,phi,z,theta or x,y,z,theta"
-                ))
-            })?;
         let profile = self.profile.load()?;
-        let outcome = uquad::app::lqr::run(&profile, set, &self.out)?;
+        let integrators = self.integrators(&profile)?;
+        let shape = self.shape()?;
+        let outcome = uquad::app::lqr::run(&profile, integrators, shape, self.out.as_deref())?;
+        println!("{}", uquad::app::lqr::describe_trim(&outcome.trim));
         println!(
             "closed-loop spectral radius {:.9} (relative Riccati residual {:.2e})",
             outcome.design.spectral_radius, outcome.design.residual_rel
         );
-        println!("{}", outcome.k_prop_path.display());
-        println!("{}", outcome.k_int_path.display());
+        match &outcome.files {
+            Some((k_prop, k_int)) => {
+                println!("{}", k_prop.display());
+                println!("{}", k_int.display());
+            }
+            None => {
+                use uquad::app::lqr::format_matrix;
+                print!(
+                    "K_prop (4 x 12):\n{}",
+                    format_matrix(&outcome.design.k_prop())
+                );
+                print!("K_int (4 x 4):\n{}", format_matrix(&outcome.design.k_int()));
+            }
+        }
         Ok(ExitCode::SUCCESS)
+    }
+
+    fn integrators(&self, profile: &Profile) -> anyhow::Result<uquad::core::control::Integrators> {
+        use uquad::core::control::Integrators;
+        let list = match &self.integrators {
+            Some(list) => list,
+            None => &profile.config.control.integrators,
+        };
+        Integrators::parse(list)
+            .filter(|s| *s != Integrators::ZTheta)
+            .ok_or_else(|| {
+                Refused(format!(
+                    "--integrators {list:?}: expected psi,phi,z,theta or x,y,z,theta"
+                ))
+                .into()
+            })
+    }
+
+    fn shape(&self) -> anyhow::Result<uquad::core::trim::PathShape> {
+        use uquad::core::trim::PathShape;
+        let positive = |v: Option<f64>, flag: &str| match v {
+            Some(v) if v.is_finite() && v > 0.0 => Ok(v),
+            Some(v) => Err(Refused(format!("{flag} {v}: must be a positive number"))),
+            None => Err(Refused(
+                format!("--path {:?} needs {flag}", self.path).to_lowercase(),
+            )),
+        };
+        let course_rad = self.course_deg.to_radians();
+        Ok(match self.path {
+            LqrPath::Hover => PathShape::Hover,
+            LqrPath::Straight => PathShape::Straight {
+                speed_m_s: positive(self.speed, "--speed")?,
+                course_rad,
+            },
+            LqrPath::Circle => PathShape::Circle {
+                radius_m: positive(self.radius, "--radius")?,
+                speed_m_s: positive(self.speed, "--speed")?,
+                course_rad,
+                left: self.turn == Turn::Left,
+            },
+        })
     }
 }
 

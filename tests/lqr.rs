@@ -19,6 +19,19 @@ fn assert_close(a: &[Vec<f64>], b: &[Vec<f64>], rel: f64, what: &str) {
     }
 }
 
+/// The spectral radius and residual from "closed-loop spectral radius R (relative Riccati
+/// residual E)".
+fn design_figures(stdout: &str) -> (f64, f64) {
+    let line = stdout
+        .lines()
+        .find(|l| l.starts_with("closed-loop spectral radius"))
+        .unwrap_or_else(|| panic!("no design line in {stdout}"));
+    let words: Vec<&str> = line.split_whitespace().collect();
+    let rho = words[3].parse().unwrap();
+    let residual = words[7].trim_end_matches(')').parse().unwrap();
+    (rho, residual)
+}
+
 #[test]
 fn xyzt_design_matches_an_independent_solution() {
     let out = tempfile::tempdir().unwrap();
@@ -36,10 +49,7 @@ fn xyzt_design_matches_an_independent_solution() {
     );
     let stdout = String::from_utf8_lossy(&o.stdout);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    // "closed-loop spectral radius R (relative Riccati residual E)"
-    let words: Vec<&str> = stdout.split_whitespace().collect();
-    let rho: f64 = words[3].parse().unwrap();
-    let residual: f64 = words[7].trim_end_matches(')').parse().unwrap();
+    let (rho, residual) = design_figures(&stdout);
     assert!(rho < 1.0 && rho > 0.9, "{stdout}");
     assert!(residual < 1e-9, "{stdout}");
 
@@ -159,4 +169,42 @@ fn the_default_profile_gains_are_its_lqr_design() {
         let b = matrix(&root().join("config").join(shipped));
         assert_close(&a, &b, 1e-12, shipped);
     }
+}
+
+#[test]
+fn path_designs_match_an_independent_solution() {
+    // `uquad lqr --path straight --speed 1` and `--path circle --radius 5 --speed 1` on the
+    // default profile, against SciPy's trim and Schur-method DARE on the same model
+    // (tests/data/lqr/path_reference.py).
+    for (args, case) in [
+        (&["--path", "straight", "--speed", "1"][..], "straight_v1"),
+        (
+            &["--path", "circle", "--radius", "5", "--speed", "1"][..],
+            "circle_r5_v1",
+        ),
+    ] {
+        let out = tempfile::tempdir().unwrap();
+        let mut all = vec!["lqr", "--out", out.path().to_str().unwrap()];
+        all.extend_from_slice(args);
+        let o = uquad(&root(), &all);
+        let stdout = String::from_utf8_lossy(&o.stdout);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let (rho, residual) = design_figures(&stdout);
+        assert!(rho < 1.0, "{case}: {stdout}");
+        assert!(residual <= 1e-9, "{case}: {stdout}");
+        for (ours, theirs) in [
+            ("K_prop.txt", format!("K_prop_{case}.txt")),
+            ("K_int.txt", format!("K_int_{case}.txt")),
+        ] {
+            let a = matrix(&out.path().join(ours));
+            let b = matrix(&root().join("tests/data/lqr").join(&theirs));
+            assert_close(&a, &b, 1e-9, &theirs);
+        }
+    }
+    // Without --out the gains are printed; a circle without its radius is refused by name.
+    let o = uquad(&root(), &["lqr", "--path", "straight", "--speed", "1"]);
+    assert!(String::from_utf8_lossy(&o.stdout).contains("K_prop (4 x 12):"));
+    let o = uquad(&root(), &["lqr", "--path", "circle", "--speed", "1"]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("needs --radius"));
 }

@@ -9,10 +9,12 @@
 //! w = w_hover + K·e + K_int·x_int with e = set point − state and x_int = ∫e.
 
 use crate::core::control::Integrators;
+use crate::core::math::{cos, sin};
 use crate::core::model::{
-    ARM_LENGTH_M, D_CENTER_MASS_M, F_B1, F_B2, GRAVITY_M_S2, IXX_KG_M2, IYY_KG_M2, IZZ_KG_M2, M_D1,
-    M_D2, w_hover_rad_s,
+    ARM_LENGTH_M, D_CENTER_MASS_M, F_B1, F_B2, GRAVITY_M_S2, IXX_KG_M2, IYY_KG_M2, IZZ_KG_M2,
+    IZZM_KG_M2, M_D1, M_D2, w_hover_rad_s,
 };
+use crate::core::trim::Trim;
 use nalgebra::{Complex, SMatrix, SVector};
 
 /// States of the extended model: 12 + 4 integrators.
@@ -66,14 +68,132 @@ pub fn hover_model(mass_kg: f64) -> (SMatrix<f64, 12, 12>, SMatrix<f64, 12, 4>) 
 /// The model extended with integrators of the listed states (ẋ_int,k = x_state(k)).
 pub fn extended_model(mass_kg: f64, integrators: Integrators) -> (Mat16, Mat16x4) {
     let (a, b) = hover_model(mass_kg);
+    extend(&a, &b, integrators)
+}
+
+/// `a`, `b` extended with integrators of the listed states.
+pub fn extend(
+    a: &SMatrix<f64, 12, 12>,
+    b: &SMatrix<f64, 12, 4>,
+    integrators: Integrators,
+) -> (Mat16, Mat16x4) {
     let mut ae = Mat16::zeros();
     let mut be = Mat16x4::zeros();
-    ae.fixed_view_mut::<12, 12>(0, 0).copy_from(&a);
-    be.fixed_view_mut::<12, 4>(0, 0).copy_from(&b);
+    ae.fixed_view_mut::<12, 12>(0, 0).copy_from(a);
+    be.fixed_view_mut::<12, 4>(0, 0).copy_from(b);
     for (k, &state) in integrators.states().iter().enumerate() {
         ae[(12 + k, state)] = 1.0;
     }
     (ae, be)
+}
+
+/// The continuous linear model about a path's trim (spec 4.5 for hover and straight flight;
+/// a circle in the frame that turns with the heading, which adds the −Ω × p terms to rows 0
+/// and 1). Position rows use the true rotation (the original's kinematics carry slips in rows
+/// 0 and 2); the yaw is the heading frame's (0); the other rows are spec 4.5's, with the
+/// correct partials where the original's code had ωz for ωx (row 10).
+pub fn path_model(mass_kg: f64, t: &Trim) -> (SMatrix<f64, 12, 12>, SMatrix<f64, 12, 4>) {
+    let mut a = SMatrix::<f64, 12, 12>::zeros();
+    position_rows(&mut a, t);
+    rate_rows(&mut a, mass_kg, t);
+    (a, path_inputs(mass_kg, t))
+}
+
+/// Rows 0–2: ∂(R(ψ, φ, θ)·v)/∂(ψ, φ, θ, v) at θ = 0, and the turning frame's −Ω × p.
+fn position_rows(a: &mut SMatrix<f64, 12, 12>, t: &Trim) {
+    let (sps, cps) = (sin(t.psi_rad), cos(t.psi_rad));
+    let (sph, cph) = (sin(t.phi_rad), cos(t.phi_rad));
+    let [vx, vy, vz] = t.v_body_m_s;
+    let r = [
+        [cph, sph * sps, cps * sph],
+        [0.0, cps, -sps],
+        [-sph, cph * sps, cph * cps],
+    ];
+    for (i, row) in r.iter().enumerate() {
+        for (j, v) in row.iter().enumerate() {
+            a[(i, 6 + j)] = *v;
+        }
+    }
+    a[(0, 3)] = vy * sph * cps - vz * sps * sph;
+    a[(1, 3)] = -vy * sps - vz * cps;
+    a[(2, 3)] = vy * cph * cps - vz * cph * sps;
+    a[(0, 4)] = -vx * sph + vy * cph * sps + vz * cps * cph;
+    a[(2, 4)] = -vx * cph - vy * sph * sps - vz * sph * cps;
+    a[(0, 5)] = -(cps * vy - sps * vz);
+    a[(1, 5)] = cph * vx + sph * sps * vy + cps * sph * vz;
+    a[(0, 1)] = t.yaw_rate_rad_s;
+    a[(1, 0)] = -t.yaw_rate_rad_s;
+}
+
+/// Rows 3–10: attitude kinematics, body-frame velocity and rate dynamics (spec 4.5).
+fn rate_rows(a: &mut SMatrix<f64, 12, 12>, mass_kg: f64, t: &Trim) {
+    let g = GRAVITY_M_S2;
+    let (sps, cps) = (sin(t.psi_rad), cos(t.psi_rad));
+    let (sph, cph) = (sin(t.phi_rad), cos(t.phi_rad));
+    let tph = sph / cph;
+    let [vx, vy, vz] = t.v_body_m_s;
+    let [wx, wy, wz] = t.w_body_rad_s;
+    let m = t.w_motor_rad_s;
+    let big_w = m[0] - m[1] + m[2] - m[3];
+    a[(3, 3)] = wy * cps * tph - wz * sps * tph;
+    a[(3, 4)] = (wz * cps + wy * sps) * (tph * tph + 1.0);
+    a[(3, 9)] = 1.0;
+    a[(3, 10)] = sps * tph;
+    a[(3, 11)] = cps * tph;
+    a[(4, 3)] = -wy * sps - wz * cps;
+    a[(4, 10)] = cps;
+    a[(4, 11)] = -sps;
+    a[(5, 3)] = (wy * cps - wz * sps) / cph;
+    a[(5, 4)] = (wy * sps * sph + wz * cps * sph) / (cph * cph);
+    a[(5, 10)] = sps / cph;
+    a[(5, 11)] = cps / cph;
+    a[(6, 4)] = g * cph;
+    a[(6, 7)] = wz;
+    a[(6, 8)] = -wy;
+    a[(6, 10)] = -vz;
+    a[(6, 11)] = vy;
+    a[(7, 3)] = -g * cps * cph;
+    a[(7, 4)] = g * sps * sph;
+    a[(7, 6)] = -wz;
+    a[(7, 8)] = wx;
+    a[(7, 9)] = vz;
+    a[(7, 11)] = -vx;
+    a[(8, 3)] = g * sps * cph;
+    a[(8, 4)] = g * cps * sph;
+    a[(8, 6)] = wy;
+    a[(8, 7)] = -wx;
+    a[(8, 9)] = -vy;
+    a[(8, 10)] = vx;
+    a[(9, 3)] = -D_CENTER_MASS_M * mass_kg * g * cph * cps / IXX_KG_M2;
+    a[(9, 4)] = D_CENTER_MASS_M * mass_kg * g * sph * sps / IXX_KG_M2;
+    a[(9, 10)] = (IZZM_KG_M2 * big_w + (IYY_KG_M2 - IZZ_KG_M2) * wz) / IXX_KG_M2;
+    a[(9, 11)] = (IYY_KG_M2 - IZZ_KG_M2) * wy / IXX_KG_M2;
+    a[(10, 4)] = -D_CENTER_MASS_M * mass_kg * g * cph / IYY_KG_M2;
+    a[(10, 9)] = (IZZM_KG_M2 * big_w + (IZZ_KG_M2 - IXX_KG_M2) * wz) / IYY_KG_M2;
+    a[(10, 11)] = (IZZ_KG_M2 - IXX_KG_M2) * wx / IYY_KG_M2;
+}
+
+/// B about the trim: thrust and drag slopes at each motor's speed, and the rotors'
+/// gyroscopic coupling with the body's rates.
+fn path_inputs(mass_kg: f64, t: &Trim) -> SMatrix<f64, 12, 4> {
+    let m = t.w_motor_rad_s;
+    let dt = m.map(|w| 2.0 * F_B1 * w + F_B2);
+    let dd = m.map(|w| 2.0 * M_D1 * w + M_D2);
+    let [wx, wy, _] = t.w_body_rad_s;
+    let (gy, gx) = (wy * IZZM_KG_M2, wx * IZZM_KG_M2);
+    let l = ARM_LENGTH_M;
+    let mut b = SMatrix::<f64, 12, 4>::zeros();
+    for j in 0..4 {
+        b[(8, j)] = dt[j] / mass_kg;
+        b[(11, j)] = if j % 2 == 0 { -dd[j] } else { dd[j] } / IZZ_KG_M2;
+    }
+    let roll = [gy, -gy + l * dt[1], gy, -gy - l * dt[3]];
+    let pitch = [gx - l * dt[0], -gx, gx + l * dt[2], -gx];
+    for j in 0..4 {
+        b[(9, j)] = roll[j] / IXX_KG_M2;
+        b[(10, j)] = pitch[j] / IYY_KG_M2;
+    }
+    b
 }
 
 /// Zero-order-hold discretisation: expm([[A, B], [0, 0]]·Ts) = [[Φ, Γ], [0, I]].
@@ -92,7 +212,7 @@ pub fn discretise(a: &Mat16, b: &Mat16x4, ts_s: f64) -> (Mat16, Mat16x4) {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum LqrError {
     #[error(
-        "the hover model with integrators on {integrators} is not stabilisable: closed-loop \
+        "the linear model with integrators on {integrators} is not stabilisable: closed-loop \
          eigenvalues stay on the unit circle ({eigenvalues}). {why}"
     )]
     NotStabilisable {
@@ -197,7 +317,31 @@ pub fn design(
     r: &Mat4,
 ) -> Result<Design, LqrError> {
     let (a, b) = extended_model(mass_kg, integrators);
-    let (phi, gamma) = discretise(&a, &b, TS_S);
+    design_extended(&a, &b, integrators, q, r)
+}
+
+/// Designs the gains about a path's trim (`uquad lqr --path`, the mission's segments).
+pub fn design_path(
+    mass_kg: f64,
+    trim: &Trim,
+    integrators: Integrators,
+    q: &Mat16,
+    r: &Mat4,
+) -> Result<Design, LqrError> {
+    let (a, b) = path_model(mass_kg, trim);
+    let (a, b) = extend(&a, &b, integrators);
+    design_extended(&a, &b, integrators, q, r)
+}
+
+/// Discretises the extended model and solves its Riccati equation.
+fn design_extended(
+    a: &Mat16,
+    b: &Mat16x4,
+    integrators: Integrators,
+    q: &Mat16,
+    r: &Mat4,
+) -> Result<Design, LqrError> {
+    let (phi, gamma) = discretise(a, b, TS_S);
     let p = solve_dare(&phi, &gamma, q, r)?;
     let residual_rel = dare_residual(&phi, &gamma, q, r, &p);
     let k = gain(&phi, &gamma, r, &p);
@@ -313,6 +457,127 @@ mod tests {
                     d[i]
                 );
             }
+        }
+    }
+
+    /// The continuous nonlinear model the path model linearises: spec 3.3 with the true
+    /// rotation, the pendulum term, no bias, position in a frame turning at `rate` and yaw
+    /// relative to it.
+    fn f_turning(x: &[f64; 12], u: &[f64; 4], m: f64, rate: f64) -> [f64; 12] {
+        use crate::core::model::{drag_nm, thrust_n};
+        let (psi, phi, th) = (x[3], x[4], x[5]);
+        let (v, w) = ([x[6], x[7], x[8]], [x[9], x[10], x[11]]);
+        let r = crate::core::math::rotation(psi, phi, th);
+        let p = |i: usize| r[i][0] * v[0] + r[i][1] * v[1] + r[i][2] * v[2];
+        let (sps, cps, sph, cph) = (psi.sin(), psi.cos(), phi.sin(), phi.cos());
+        let t = u.map(thrust_n);
+        let big_w = u[0] - u[1] + u[2] - u[3];
+        let g = GRAVITY_M_S2;
+        let dmg = D_CENTER_MASS_M * m * g;
+        [
+            p(0) + rate * x[1],
+            p(1) - rate * x[0],
+            p(2),
+            w[0] + w[2] * sph / cph * cps + w[1] * sph / cph * sps,
+            w[1] * cps - w[2] * sps,
+            (w[2] * cps + w[1] * sps) / cph - rate,
+            v[1] * w[2] - v[2] * w[1] + g * sph,
+            v[2] * w[0] - v[0] * w[2] - g * cph * sps,
+            v[0] * w[1] - v[1] * w[0] - g * cph * cps + t.iter().sum::<f64>() / m,
+            (w[1] * w[2] * (IYY_KG_M2 - IZZ_KG_M2)
+                + w[1] * IZZM_KG_M2 * big_w
+                + ARM_LENGTH_M * (t[1] - t[3])
+                - dmg * cph * sps)
+                / IXX_KG_M2,
+            (w[0] * w[2] * (IZZ_KG_M2 - IXX_KG_M2)
+                + w[0] * IZZM_KG_M2 * big_w
+                + ARM_LENGTH_M * (t[2] - t[0])
+                - dmg * sph)
+                / IYY_KG_M2,
+            -(drag_nm(u[0]) - drag_nm(u[1]) + drag_nm(u[2]) - drag_nm(u[3])) / IZZ_KG_M2,
+        ]
+    }
+
+    #[test]
+    fn path_model_is_the_jacobian_of_the_turning_model() {
+        use crate::core::trim::{PathShape, trim};
+        let m = 1.55;
+        for shape in [
+            PathShape::Hover,
+            PathShape::Straight {
+                speed_m_s: 1.5,
+                course_rad: 0.7,
+            },
+            PathShape::Circle {
+                radius_m: 4.0,
+                speed_m_s: 3.0,
+                course_rad: -0.4,
+                left: false,
+            },
+        ] {
+            let t = trim(shape, m).unwrap();
+            let (a, b) = path_model(m, &t);
+            let mut x0 = [0.0; 12];
+            x0[3] = t.psi_rad;
+            x0[4] = t.phi_rad;
+            x0[6..9].copy_from_slice(&t.v_body_m_s);
+            x0[9..12].copy_from_slice(&t.w_body_rad_s);
+            let u0 = t.w_motor_rad_s;
+            let rate = t.yaw_rate_rad_s;
+            let h = 1e-6;
+            for j in 0..16 {
+                let (mut xp, mut xm, mut up, mut um) = (x0, x0, u0, u0);
+                if j < 12 {
+                    xp[j] += h;
+                    xm[j] -= h;
+                } else {
+                    up[j - 12] += h;
+                    um[j - 12] -= h;
+                }
+                let (fp, fm) = (f_turning(&xp, &up, m, rate), f_turning(&xm, &um, m, rate));
+                for i in 0..12 {
+                    let d = (fp[i] - fm[i]) / (2.0 * h);
+                    let ours = if j < 12 { a[(i, j)] } else { b[(i, j - 12)] };
+                    assert!(
+                        (d - ours).abs() < 1e-6,
+                        "{shape:?} [{i}][{j}]: {ours} vs {d}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn path_model_at_hover_is_the_hover_model() {
+        use crate::core::trim::{PathShape, trim};
+        let t = trim(PathShape::Hover, 1.55).unwrap();
+        let (a, b) = path_model(1.55, &t);
+        let (ah, bh) = hover_model(1.55);
+        assert!((a - ah).norm() < 1e-12 && (b - bh).norm() < 1e-12);
+    }
+
+    #[test]
+    fn straight_and_circle_designs_stabilise() {
+        use crate::core::trim::{PathShape, trim};
+        let (q, r) = weights();
+        for shape in [
+            PathShape::Straight {
+                speed_m_s: 1.0,
+                course_rad: 0.0,
+            },
+            PathShape::Circle {
+                radius_m: 5.0,
+                speed_m_s: 1.0,
+                course_rad: 0.0,
+                left: true,
+            },
+        ] {
+            let t = trim(shape, 1.55).unwrap();
+            let d = design_path(1.55, &t, Integrators::XYZTheta, &q, &r).unwrap();
+            assert!(
+                d.residual_rel < RESIDUAL_GOAL && d.spectral_radius < 1.0,
+                "{shape:?}"
+            );
         }
     }
 

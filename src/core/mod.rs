@@ -15,4 +15,5 @@ pub mod model;
 pub mod motor;
 pub mod numfile;
 pub mod torque;
+pub mod trim;
 pub mod watchdog;
