@@ -158,6 +158,10 @@ struct FlyArgs {
     /// console. Profiles with commander.start = "flying" arm and take off by themselves.
     #[arg(long)]
     arm: bool,
+    /// Load the mission in FILE (e.g. config/missions/square.toml); `start` flies it (from
+    /// the ground: its takeoff first), `pause`, `resume` and `return` steer it.
+    #[arg(long, value_name = "FILE")]
+    mission: Option<PathBuf>,
 }
 
 #[derive(clap::Args, Debug)]
@@ -213,6 +217,11 @@ struct SimArgs {
     /// cycle, "arm@2,takeoff@10,land@45" (none when commander.start = "flying").
     #[arg(long, value_name = "SCRIPT", value_parser = uquad::sim::operator::Script::parse)]
     script: Option<uquad::sim::operator::Script>,
+    /// Fly the mission in FILE (e.g. config/missions/square.toml): the default script becomes
+    /// "arm@2,start@10" and the run ends at the mission's touchdown; the report gains
+    /// track_rms_m, track_max_m, mission_s and mission_ideal_s.
+    #[arg(long, value_name = "FILE")]
+    mission: Option<PathBuf>,
 }
 
 #[derive(clap::Args, Debug)]
@@ -432,6 +441,14 @@ fn main() -> ExitCode {
     }
 }
 
+/// The profile with the mission in `path`, if one is given.
+fn with_mission(profile: Profile, path: Option<&Path>) -> anyhow::Result<Profile> {
+    match path {
+        Some(p) => Ok(profile.with_mission(p).map_err(Refused)?),
+        None => Ok(profile),
+    }
+}
+
 /// Runs `work` on a new runtime, then shuts the runtime down without waiting more than
 /// `grace` for tasks still blocked on I/O (a stdin read must not hold the process).
 fn on_runtime<T>(grace: Duration, work: impl std::future::Future<Output = T>) -> anyhow::Result<T> {
@@ -472,6 +489,7 @@ impl FlyArgs {
     fn run(self) -> anyhow::Result<ExitCode> {
         use uquad::app::fly::{Edges, FlyOptions};
         let profile = self.profile.load_kept(self.log_dir.as_deref())?;
+        let profile = with_mission(profile, self.mission.as_deref())?;
         let cfg = &profile.config;
         // Before any device is opened: a flight without real-time guarantees is refused.
         if !self.allow_no_rt
@@ -525,6 +543,7 @@ impl SimArgs {
     fn run(self) -> anyhow::Result<ExitCode> {
         let mode = self.mode();
         let profile = self.profile.load_kept(self.log_dir.as_deref())?;
+        let profile = with_mission(profile, self.mission.as_deref())?;
         let opts = SimOptions {
             inject: self.inject,
             duration_s: self.duration,

@@ -91,6 +91,7 @@ impl CommanderSummary {
                     t_s: secs(*t_us),
                     why: why.clone(),
                 }),
+                Event::Reached { .. } => {}
             }
         }
         r

@@ -3,7 +3,6 @@
 //! GPS feed the profile's `gps.mode` asks for.
 
 use crate::config::{GpsMode, Profile};
-use crate::core::commander::Commander;
 use crate::core::flight::{ControllerSide, EstimatorSide, GpsFeed};
 
 /// The GPS feed of a live run: gpsd's (or the simulator's) fixes, the fake-GPS rule, or none.
@@ -20,7 +19,7 @@ pub fn live_sides(profile: &Profile) -> (EstimatorSide, ControllerSide) {
     let estimator = EstimatorSide::new(
         profile.estimator_core(false).hold_after_settle(),
         live_gps_feed(profile),
-        Commander::new(profile.config.commander_params()),
+        profile.commander(),
     );
     (estimator, ControllerSide::new(profile.controller_core()))
 }

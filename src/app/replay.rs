@@ -15,7 +15,6 @@
 //! Replay is deterministic: the same inputs give byte-identical outputs.
 
 use crate::config::{GpsMode, Profile};
-use crate::core::commander::Commander;
 use crate::core::ekf::Ekf;
 use crate::core::flight::ArmCheck;
 use crate::core::flight::{
@@ -268,6 +267,20 @@ pub fn out_is_the_run_folder(run_dir: &Path, out_dir: &Path) -> bool {
     run == out
 }
 
+/// The profile with the mission the run flew (`mission.toml` in its folder), if it flew one
+/// and `profile` has none of its own.
+fn with_kept_mission(run_dir: &Path, profile: &Profile) -> anyhow::Result<Option<Profile>> {
+    let kept = run_dir.join(crate::app::run_dir::MISSION_FILE);
+    if profile.mission.is_some() || !kept.is_file() {
+        return Ok(None);
+    }
+    let p = profile
+        .clone()
+        .with_mission(&kept)
+        .map_err(anyhow::Error::msg)?;
+    Ok(Some(p))
+}
+
 /// Replays `run_dir` with `profile`, writing the logs into `out_dir` (created if missing).
 pub fn run(run_dir: &Path, profile: &Profile, out_dir: &Path) -> anyhow::Result<ReplaySummary> {
     run_observed(run_dir, profile, out_dir, |_| {})
@@ -280,6 +293,8 @@ pub fn run_observed(
     out_dir: &Path,
     mut on_step: impl FnMut(&Ekf),
 ) -> anyhow::Result<ReplaySummary> {
+    let with_mission = with_kept_mission(run_dir, profile)?;
+    let profile = with_mission.as_ref().unwrap_or(profile);
     // The inputs are independent files: read them concurrently.
     let (raw, recorded_times, cmd_times, ctrl_times, recorded_gps) = std::thread::scope(|scope| {
         let time_column = |name: &'static str| {
@@ -312,16 +327,12 @@ pub fn run_observed(
         .is_ok_and(|t| t.starts_with(logs::UQUAD_GPS_HEADER));
     let gps = gps_source(profile, recorded_gps, local_positions)?;
     // The original's imu_raw.log holds no settling frames (spec 1.6): start with calibration.
-    let mut estimator = EstimatorSide::new(
-        profile.estimator_core(true),
-        gps,
-        Commander::new(cfg.commander_params()),
-    )
-    .with_clock(RecordedClock {
-        kalman_us: recorded_times,
-        ctrl_us: ctrl_times,
-        cmd_us: cmd_times,
-    });
+    let mut estimator = EstimatorSide::new(profile.estimator_core(true), gps, profile.commander())
+        .with_clock(RecordedClock {
+            kalman_us: recorded_times,
+            ctrl_us: ctrl_times,
+            cmd_us: cmd_times,
+        });
     let mut controller = ControllerSide::new(profile.controller_core());
     let mut feedback = controller.first_feedback();
     let mut out = Records::default();

@@ -7,6 +7,7 @@ use crate::core::watchdog::Halt;
 use crate::logs::{PerStream, Record};
 use crate::sim::esc::EscEnd;
 use crate::sim::hover::HoverStats;
+use crate::sim::track::TrackStats;
 use anyhow::Context;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -139,6 +140,9 @@ pub struct SimReport {
     pub fly: FlyReport,
     #[serde(flatten)]
     pub hover: HoverStats,
+    /// With a mission: its track and durations.
+    #[serde(flatten, skip_serializing_if = "Option::is_none")]
+    pub track: Option<TrackStats>,
     pub simulated_s: f64,
     pub esc_end: Vec<EscEnd>,
 }
@@ -343,6 +347,7 @@ impl FlySummary {
 pub struct SimSummary {
     pub fly: FlySummary,
     pub hover: HoverStats,
+    pub track: Option<TrackStats>,
     pub simulated_s: f64,
     pub esc_end: Vec<EscEnd>,
 }
@@ -353,6 +358,7 @@ impl SimSummary {
         SimReport {
             fly: self.fly.report(),
             hover: self.hover,
+            track: self.track,
             simulated_s: self.simulated_s,
             esc_end: self.esc_end.clone(),
         }
@@ -373,8 +379,12 @@ impl SimSummary {
                 h.pitch_rms_rad
             )
         };
+        let track = self
+            .track
+            .map(|t| format!("\n  {}", t.text()))
+            .unwrap_or_default();
         format!(
-            "{}\n  simulated {:.1} s; {hover}",
+            "{}{track}\n  simulated {:.1} s; {hover}",
             self.fly.text(),
             self.simulated_s
         )

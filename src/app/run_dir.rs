@@ -56,7 +56,15 @@ pub fn create_run_dir(parent: &Path) -> anyhow::Result<PathBuf> {
 
 /// Makes the run folder self-contained: copies the data files the profile names and writes
 /// the resolved configuration pointing at the copies, so `uquad replay <run>` works anywhere.
+/// The mission a run flew, kept in its folder for its replay.
+pub const MISSION_FILE: &str = "mission.toml";
+
 pub fn write_run_config(profile: &Profile, run_dir: &Path) -> anyhow::Result<()> {
+    if let Some(m) = &profile.mission {
+        let path = run_dir.join(MISSION_FILE);
+        std::fs::write(&path, &m.text)
+            .with_context(|| format!("cannot write {}", path.display()))?;
+    }
     let mut c: Config = profile.config.clone();
     let copy = |p: &mut PathBuf| -> anyhow::Result<()> {
         let name = p

@@ -21,15 +21,31 @@ pub struct SimOptions {
 }
 
 /// The operator's script of a simulation: the given one, else the whole cycle for a vehicle
-/// that starts disarmed and none for one that starts flying (the original's way).
+/// that starts disarmed (arm, then `start` with a mission) and none for one that starts flying
+/// (the original's way).
 pub fn script(opts: &SimOptions, profile: &crate::config::Profile) -> crate::sim::operator::Script {
-    use crate::sim::operator::{DEFAULT_SCRIPT, Script};
+    use crate::sim::operator::{DEFAULT_SCRIPT, MISSION_SCRIPT, Script};
+    let default = match profile.mission {
+        Some(_) => MISSION_SCRIPT,
+        None => DEFAULT_SCRIPT,
+    };
     match (&opts.script, profile.config.commander.start) {
         (Some(s), _) => s.clone(),
         (None, crate::core::commander::Start::Flying) => Script::default(),
         (None, crate::core::commander::Start::Disarmed) => {
-            Script::parse(DEFAULT_SCRIPT).unwrap_or_default()
+            Script::parse(default).unwrap_or_default()
         }
+    }
+}
+
+/// Simulated seconds: the given, else `sim.duration_s`, else for a mission long enough to fly
+/// it twice over (the run ends at its touchdown anyway).
+pub fn duration_s(opts: &SimOptions, profile: &crate::config::Profile) -> f64 {
+    let configured = profile.config.sim.duration_s;
+    match (opts.duration_s, &profile.mission) {
+        (Some(d), _) => d,
+        (None, Some(m)) => configured.max(10.0 + 60.0 + 2.0 * m.nominal_s),
+        (None, None) => configured,
     }
 }
 

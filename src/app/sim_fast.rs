@@ -31,6 +31,7 @@ use crate::sim::esc::EscModel;
 use crate::sim::faults::{Fault, FaultSchedule, LOG_STALL_US, WireFaults};
 use crate::sim::hover::{CycleTrace, FlightView, HoverWindow, TrueState, progress_line};
 use crate::sim::operator::SimOperator;
+use crate::sim::track::TrackTrace;
 use crate::sim::{FRAME_US, frame_start_byte, gps_fix, imu::SimImu, physics::Plant};
 use crate::tasks::prearm::PreArm;
 use anyhow::Context;
@@ -137,11 +138,12 @@ struct FastSim<'a> {
     /// The ESCs were started once: a disarmed vehicle has flown.
     armed_once: bool,
     trace: CycleTrace,
+    track: TrackTrace,
 }
 
 pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSummary> {
     let cfg = &profile.config;
-    let duration_us = (opts.duration_s.unwrap_or(cfg.sim.duration_s) * 1e6).round() as i64;
+    let duration_us = (crate::app::sim::duration_s(opts, profile) * 1e6).round() as i64;
     let seed = opts.seed.unwrap_or(cfg.sim.seed);
     let run_dir = create_run_dir(&opts.log_dir.clone().unwrap_or_else(|| cfg.log.dir.clone()))?;
     let mut profile_run = profile.clone();
@@ -227,6 +229,7 @@ impl<'a> FastSim<'a> {
             quit: false,
             armed_once: false,
             trace: CycleTrace::default(),
+            track: TrackTrace::default(),
             faults,
         }
     }
@@ -444,8 +447,10 @@ impl<'a> FastSim<'a> {
         };
         let truth = TrueState::of(&self.plant);
         self.hover.sample(self.t_us, flight, truth);
-        let height_m = self.estimator.commander().guidance().height_m;
-        self.trace.sample(self.t_us, mode, height_m, &self.plant);
+        let guidance = self.estimator.commander().guidance();
+        self.trace
+            .sample(self.t_us, mode, guidance.height_m, &self.plant);
+        self.track.sample(&guidance, self.plant.position_m());
     }
 
     /// The end of the run: zero and disable, as fly's shutdown does; the closing lines; the
@@ -493,9 +498,11 @@ impl<'a> FastSim<'a> {
                 .with_context(|| format!("cannot write {}", path.display()))?;
         }
         fly.log_records = self.out.records;
+        let mission = self.estimator.commander().mission_figures();
         Ok(SimSummary {
             fly: self.fly,
             hover: self.hover.stats(),
+            track: self.track.stats(mission),
             simulated_s: self.t_us as f64 / 1e6,
             esc_end: self.escs.end_state(),
         })

@@ -61,7 +61,7 @@ struct SimResult {
 
 pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSummary> {
     let cfg = &profile.config;
-    let duration = Duration::from_secs_f64(opts.duration_s.unwrap_or(cfg.sim.duration_s));
+    let duration = Duration::from_secs_f64(crate::app::sim::duration_s(opts, profile));
     let seed = opts.seed.unwrap_or(cfg.sim.seed);
     let start = Instant::now();
     let model = Arc::new(Mutex::new(EscModel::new(profile.motor_map())));
@@ -146,6 +146,7 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
         esc_end,
         fly,
         hover: result.hover,
+        track: None,
         simulated_s: result.simulated_us as f64 / 1e6,
     })
 }

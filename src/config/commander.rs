@@ -126,6 +126,7 @@ impl super::Config {
             ekf_action: f.ekf_action,
             z_min_m: self.control.manual.z_min_m,
             z_max_m: self.control.manual.z_max_m,
+            mission: self.mission.limits(),
         }
     }
 }

@@ -217,6 +217,7 @@ fn load_layers(
             k_int: data.k_int,
             lqr_q: data.lqr_q,
             lqr_r: data.lqr_r,
+            mission: None,
         }),
         _ => Err(report.into_error()),
     }

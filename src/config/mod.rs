@@ -14,6 +14,7 @@
 mod commander;
 mod gcs;
 mod load;
+mod mission;
 mod overrides;
 mod profile;
 mod schema;
@@ -25,6 +26,7 @@ pub use load::{
     ConfigError, DEFAULT_CONFIG, Problem, check_kept, check_set, kept_params_path, load, load_kept,
     resolve_path, write_kept,
 };
+pub use mission::{LoadedMission, MissionConfig, load_mission};
 pub use overrides::parse_set;
 pub use profile::Profile;
 pub use schema::{

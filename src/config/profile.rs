@@ -20,6 +20,8 @@ pub struct Profile {
     /// LQR weights: 16 × 16 and 4 × 4, row-major.
     pub lqr_q: Vec<f64>,
     pub lqr_r: Vec<f64>,
+    /// The mission `start` flies (`--mission FILE`), with its gains.
+    pub mission: Option<std::sync::Arc<super::LoadedMission>>,
 }
 
 impl Profile {
@@ -74,10 +76,23 @@ impl Profile {
             c.control.original_timing,
             (c.control.gps_hold_timeout_s * 1e6).round() as i64,
         );
+        let core = match &self.mission {
+            Some(m) => core.with_gain_table(m.gains.clone()),
+            None => core,
+        };
         if c.control.torque_observer_s > 0.0 {
             core.with_torque_observer(c.control.torque_observer_s, c.motor.tau_s)
         } else {
             core
+        }
+    }
+
+    /// The commander this profile describes, with its mission.
+    pub fn commander(&self) -> crate::core::commander::Commander {
+        let c = crate::core::commander::Commander::new(self.config.commander_params());
+        match &self.mission {
+            Some(m) => c.with_mission(m.mission.clone()),
+            None => c,
         }
     }
 

@@ -24,6 +24,7 @@ pub struct Config {
     pub failsafe: super::FailsafeConfig,
     pub fence: super::Fence,
     pub gcs: super::GcsConfig,
+    pub mission: super::MissionConfig,
 }
 
 /// The ESC writer (spec 6.3, 6.4).

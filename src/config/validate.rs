@@ -268,6 +268,7 @@ pub(super) fn validate(c: &Config) -> Vec<Check> {
         commander_rules(c),
         failsafe_rules(c),
         gcs_rules(c),
+        mission_rules(c),
     ];
     rules.into_iter().flatten().filter(|r| !r.passed).collect()
 }
@@ -645,6 +646,27 @@ fn gcs_rules(c: &Config) -> Vec<Check> {
         in_range("gcs.system_id", u32::from(g.system_id), 1..=254, ""),
         in_range("gcs.telemetry_hz", g.telemetry_hz, 0.1..=50.0, "Hz"),
         in_range("gcs.max_rx_per_s", g.max_rx_per_s, 10..=10_000, "frames/s"),
+    ]
+}
+
+/// How missions are flown: accelerations and rates a vehicle can follow.
+fn mission_rules(c: &Config) -> Vec<Check> {
+    let m = &c.mission;
+    vec![
+        in_range("mission.acc_m_s2", m.acc_m_s2, positive_to(5.0), "m/s²"),
+        in_range(
+            "mission.yaw_rate_rad_s",
+            m.yaw_rate_rad_s,
+            positive_to(3.0),
+            "rad/s",
+        ),
+        in_range(
+            "mission.yaw_acc_rad_s2",
+            m.yaw_acc_rad_s2,
+            positive_to(10.0),
+            "rad/s²",
+        ),
+        in_range("mission.return_m_s", m.return_m_s, 0.05..=10.0, "m/s"),
     ]
 }
 

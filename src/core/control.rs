@@ -5,7 +5,9 @@
 //! the control period T_s in µs.
 
 use crate::core::ekf::State;
-use crate::core::model::MotorLimits;
+use crate::core::math::{cos, sin};
+use crate::core::model::{GRAVITY_M_S2, MotorLimits, w_hover_rad_s};
+use crate::core::path::PathPoint;
 
 /// States the controller works on: the first 12 of the filter's (no accelerometer bias).
 pub const N_CONTROLLED: usize = 12;
@@ -99,6 +101,13 @@ pub const ERROR_LIMITS: [(usize, f64); 4] = [(0, 18.0), (1, 18.0), (2, 4.0), (5,
 
 /// The horizontal position and velocity states: x, y, vqx, vqy.
 const HORIZONTAL_STATES: [usize; 4] = [0, 1, 6, 7];
+
+/// Gains in the controller's layout: 4 × 12 proportional, 4 × 4 integral (rows = motors).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Gains {
+    pub k_prop: [[f64; N_CONTROLLED]; 4],
+    pub k_int: [[f64; 4]; 4],
+}
 
 /// The set point: 12 states and the motor speeds around which the controller acts.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -201,6 +210,27 @@ impl Controller {
         })
     }
 
+    /// The gains in use.
+    pub fn gains(&self) -> Gains {
+        Gains {
+            k_prop: self.k,
+            k_int: self.k_int,
+        }
+    }
+
+    /// Flies with other gains from the next step on; the integrators keep their values.
+    pub fn set_gains(&mut self, g: &Gains) {
+        self.k = g.k_prop;
+        self.k_int = g.k_int;
+        if self.integrators == Integrators::PsiPhiZTheta {
+            for row in &mut self.k {
+                for state in HORIZONTAL_STATES {
+                    row[state] = 0.0;
+                }
+            }
+        }
+    }
+
     /// Integrator states, in gain-file column order.
     pub fn x_int(&self) -> &[f64] {
         &self.x_int[..self.integrators.states().len()]
@@ -232,6 +262,10 @@ impl Controller {
         for (i, ei) in e.iter_mut().enumerate() {
             *ei = sp.x[i] - x_hat[i];
         }
+        // The gains are designed in the frame of the set point's heading (x forward): the
+        // horizontal position error is turned into it. (With ψ, φ integrators the x, y gains
+        // are zero and this changes nothing.)
+        [e[0], e[1]] = HeadingFrame::of(sp.x[5]).turn([e[0], e[1]]);
         if !hold_position {
             for i in HORIZONTAL_STATES {
                 e[i] = 0.0;
@@ -267,6 +301,50 @@ impl Controller {
         }
         w
     }
+}
+
+/// Turns horizontal vectors from the inertial frame into a heading's (x forward, y left).
+#[derive(Debug, Clone, Copy)]
+struct HeadingFrame {
+    sin: f64,
+    cos: f64,
+}
+
+impl HeadingFrame {
+    fn of(yaw_rad: f64) -> Self {
+        HeadingFrame {
+            sin: sin(yaw_rad),
+            cos: cos(yaw_rad),
+        }
+    }
+
+    fn turn(self, v: [f64; 2]) -> [f64; 2] {
+        [
+            self.cos * v[0] + self.sin * v[1],
+            -self.sin * v[0] + self.cos * v[1],
+        ]
+    }
+}
+
+/// A world-frame vector in the body frame: R(ψ, φ, θ)ᵀ·v (ZYX angles, as the filter's).
+pub fn body_from_world(psi: f64, phi: f64, theta: f64, v: [f64; 3]) -> [f64; 3] {
+    let (sps, cps) = (sin(psi), cos(psi));
+    let (sph, cph) = (sin(phi), cos(phi));
+    let (sth, cth) = (sin(theta), cos(theta));
+    let r = [
+        [
+            cph * cth,
+            cth * sph * sps - cps * sth,
+            sps * sth + cps * cth * sph,
+        ],
+        [
+            cph * sth,
+            sth * sph * sps + cps * cth,
+            cps * sth * sph - cth * sps,
+        ],
+        [-sph, cph * sps, cph * cps],
+    ];
+    std::array::from_fn(|j| r[0][j] * v[0] + r[1][j] * v[1] + r[2][j] * v[2])
 }
 
 /// Manual-mode commands (spec 5.2) as typed values.
@@ -437,6 +515,31 @@ impl HoverPlanner {
 
     pub fn limits(&self) -> MotorLimits {
         MotorLimits::new(self.mass_kg, self.w_max_rad_s)
+    }
+
+    /// The set point along a path: the position, the heading and its rate; the attitude
+    /// whose thrust gives the path's acceleration against gravity; the velocity and rates in
+    /// the body frame; the motor speeds whose thrust that is (all four alike).
+    pub fn follow(&mut self, p: &PathPoint) {
+        let (s, c) = (sin(p.yaw_rad), cos(p.yaw_rad));
+        let a = p.acc_m_s2;
+        let f_world = [a[0], a[1], a[2] + GRAVITY_M_S2];
+        let f_heading = [
+            c * f_world[0] + s * f_world[1],
+            -s * f_world[0] + c * f_world[1],
+            f_world[2],
+        ];
+        let (psi, phi) = crate::core::trim::attitude_for_force(f_heading);
+        let x = &mut self.sp.x;
+        x[..3].copy_from_slice(&p.pos_m);
+        (x[3], x[4], x[5]) = (psi, phi, p.yaw_rad);
+        x[6..9].copy_from_slice(&body_from_world(psi, phi, p.yaw_rad, p.vel_m_s));
+        let rate = p.yaw_rate_rad_s;
+        let (sps, cps, sph, cph) = (sin(psi), cos(psi), sin(phi), cos(phi));
+        x[9..12].copy_from_slice(&[-rate * sph, rate * cph * sps, rate * cph * cps]);
+        let f_norm = f_heading.iter().map(|v| v * v).sum::<f64>().sqrt();
+        let w = w_hover_rad_s(self.mass_kg * f_norm / GRAVITY_M_S2).min(self.w_max_rad_s);
+        self.sp.w_rad_s = [w; 4];
     }
 
     /// `pp_update_setpoint`: the motor set point follows the current mass.

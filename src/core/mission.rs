@@ -5,9 +5,11 @@
 //! designed for: hover, straight flight at a speed, a turn of a radius at a speed.
 //!
 //! Positions are metres from the takeoff point (x north, y west) and heights above it. The
-//! commander flies `takeoff` and `land` with its own profiles; the rest is here.
+//! commander flies `takeoff` and `land` with its own profiles; the rest is here. Not in the
+//! original's spec (its planner, 5.1, only hovered; its gains along paths, 4.5, stayed in
+//! Matlab).
 
-use crate::core::control::Integrators;
+use crate::core::control::{Gains, Integrators};
 use crate::core::lqr::{self, Mat4, Mat16};
 use crate::core::math::atan2;
 use crate::core::path::{Circle, Line, PathPoint, Segment, SpeedProfile};
@@ -108,13 +110,6 @@ impl GainKey {
     }
 }
 
-/// Gains in the controller's layout: 4 × 12 proportional, 4 × 4 integral.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Gains {
-    pub k_prop: [[f64; 12]; 4],
-    pub k_int: [[f64; 4]; 4],
-}
-
 /// The gains designed for a mission's segments, by key.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct GainTable {
@@ -194,17 +189,16 @@ fn item_keys(item: &Item) -> Vec<GainKey> {
 /// What the run asks of the commander at a step.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Next {
-    /// Fly this set point with these gains; `reached` is the item just completed, if any.
+    /// Fly this set point with these gains.
     Fly {
         point: PathPoint,
         segment: Segment,
         gains: GainKey,
-        reached: Option<usize>,
     },
-    /// The next item is a landing (index, and the item reached before it).
-    Land { item: usize, reached: Option<usize> },
-    /// Every item is done; the last one reached.
-    Done { reached: Option<usize> },
+    /// The next item is a landing (its index).
+    Land { item: usize },
+    /// Every item is done.
+    Done,
 }
 
 /// A mission being flown.
@@ -257,7 +251,7 @@ impl MissionRun {
         MissionRun::new(mission, limits, home_m, 0, from)
     }
 
-    /// The item being flown (0-based).
+    /// The item being flown (0-based); those before it are done.
     pub fn item(&self) -> usize {
         self.item
     }
@@ -282,20 +276,13 @@ impl MissionRun {
     /// Advances by `dt_s` and says what to fly.
     pub fn advance(&mut self, dt_s: f64) -> Next {
         self.t_s += dt_s;
-        let mut reached = None;
         loop {
             let Some(&(seg, gains)) = self.plan.front() else {
                 // Nothing planned: a landing, the end, or an item that needs no motion.
                 match self.mission.items.get(self.item) {
-                    Some(Item::Land) => {
-                        return Next::Land {
-                            item: self.item,
-                            reached,
-                        };
-                    }
-                    None => return Next::Done { reached },
+                    Some(Item::Land) => return Next::Land { item: self.item },
+                    None => return Next::Done,
                     Some(_) => {
-                        reached = Some(self.item);
                         self.item += 1;
                         self.plan_item();
                         continue;
@@ -308,7 +295,6 @@ impl MissionRun {
                     point: self.last,
                     segment: seg,
                     gains,
-                    reached,
                 };
             }
             // The segment is done; what is left of the step goes on into the next one.
@@ -316,7 +302,6 @@ impl MissionRun {
             self.last = seg.end();
             self.plan.pop_front();
             if self.plan.is_empty() {
-                reached = Some(self.item);
                 self.item += 1;
                 self.plan_item();
             }
@@ -497,12 +482,7 @@ mod tests {
         for _ in 0..100_000 {
             let next = run.advance(0.01);
             t += 0.01;
-            let r = match next {
-                Next::Fly { reached, .. } | Next::Land { reached, .. } | Next::Done { reached } => {
-                    reached
-                }
-            };
-            reached.extend(r);
+            reached.extend(reached.len()..run.item());
             match next {
                 Next::Fly { point, .. } => {
                     let d: f64 = (0..3)
@@ -573,8 +553,8 @@ mod tests {
                         assert_eq!(c.radius_m, 5.0);
                     }
                 }
-                Next::Done { reached } => {
-                    assert_eq!(reached, Some(0));
+                Next::Done => {
+                    assert_eq!(run.item(), 1);
                     break;
                 }
                 other => panic!("{other:?}"),

@@ -3,7 +3,8 @@
 //! point (position, velocity, acceleration, heading and its rate). Lines and circles follow a
 //! smooth speed profile from rest to rest: the speed rises as a raised cosine, so the
 //! acceleration is continuous (no step in the attitude the controller is asked for) and the
-//! jerk bounded by 2·A²/V. Units: m, m/s, m/s², rad, rad/s, s; x north, y west, z up.
+//! jerk bounded by 2·A²/V. Spec 5.1 names the original's STRAIGHT and CIRCULAR paths, which it
+//! never built. Units: m, m/s, m/s², rad, rad/s, s; x north, y west, z up.
 
 use crate::core::math::{cos, sin};
 use std::f64::consts::PI;

@@ -53,6 +53,11 @@ pub fn map(cmd: MavCmd, a: Args) -> Result<Request, Refusal> {
         MavCmd::MAV_CMD_NAV_TAKEOFF => takeoff(a),
         MavCmd::MAV_CMD_NAV_LAND => Ok(Commander(Command::Land)),
         MavCmd::MAV_CMD_NAV_LOITER_UNLIM => Ok(Commander(Command::Hold(None))),
+        MavCmd::MAV_CMD_NAV_RETURN_TO_LAUNCH => Ok(Commander(Command::Return)),
+        MavCmd::MAV_CMD_MISSION_START => Ok(Commander(Command::Start)),
+        // param 1: 0 pause, 1 continue.
+        MavCmd::MAV_CMD_DO_PAUSE_CONTINUE if p[0] == 0.0 => Ok(Commander(Command::Pause)),
+        MavCmd::MAV_CMD_DO_PAUSE_CONTINUE if p[0] == 1.0 => Ok(Commander(Command::Resume)),
         MavCmd::MAV_CMD_DO_FLIGHTTERMINATION if p[0] > 0.5 => Ok(Commander(Command::Kill)),
         MavCmd::MAV_CMD_DO_SET_MODE => set_mode(p[0], p[1]),
         MavCmd::MAV_CMD_REQUEST_MESSAGE => Ok(Message(whole(p[0])?)),
@@ -127,6 +132,8 @@ fn set_mode(base: f32, custom: f32) -> Result<Request, Refusal> {
     match mode_of_custom(custom as u32).filter(|_| whole) {
         Some(Mode::Hold) => Ok(Request::Commander(Command::Hold(None))),
         Some(Mode::Land) => Ok(Request::Commander(Command::Land)),
+        Some(Mode::Mission) => Ok(Request::Commander(Command::Start)),
+        Some(Mode::Return) => Ok(Request::Commander(Command::Return)),
         Some(m) => Err(denied(format!(
             "set mode {}: entered by its own command (arm, takeoff, disarm, kill)",
             m.name()

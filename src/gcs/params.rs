@@ -105,6 +105,11 @@ pub const TABLE: &[(&str, &str)] = &[
     ("GCS_SYSID", "gcs.system_id"),
     ("GCS_TELEM_HZ", "gcs.telemetry_hz"),
     ("GCS_MAX_RX_S", "gcs.max_rx_per_s"),
+    ("MIS_ACC_M_S2", "mission.acc_m_s2"),
+    ("MIS_YAW_RATE", "mission.yaw_rate_rad_s"),
+    ("MIS_YAW_ACC", "mission.yaw_acc_rad_s2"),
+    ("MIS_RETURN_M_S", "mission.return_m_s"),
+    ("MIS_PATH_GAINS", "mission.path_gains"),
 ];
 
 /// How a parameter's value is written in the configuration.

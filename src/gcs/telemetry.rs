@@ -12,13 +12,15 @@ use crate::core::gps::LiveFix;
 use mavlink::dialects::common::*;
 
 /// The vehicle's mode as HEARTBEAT's custom mode: its index in this list.
-pub const CUSTOM_MODES: [Mode; 6] = [
+pub const CUSTOM_MODES: [Mode; 8] = [
     Mode::Disarmed,
     Mode::Armed,
     Mode::Takeoff,
     Mode::Hold,
     Mode::Land,
     Mode::Kill,
+    Mode::Mission,
+    Mode::Return,
 ];
 
 /// What the link reports, gathered by the task from the run's shared state.
@@ -67,7 +69,7 @@ pub fn mode_of_custom(custom: u32) -> Option<Mode> {
 }
 
 fn armed(mode: Mode) -> bool {
-    matches!(mode, Mode::Armed | Mode::Takeoff | Mode::Hold | Mode::Land)
+    matches!(mode, Mode::Armed) || mode.airborne()
 }
 
 pub fn heartbeat(s: &Snapshot) -> MavMessage {
@@ -264,7 +266,7 @@ pub fn landed_state(mode: Mode) -> MavLandedState {
     match mode {
         Mode::Disarmed | Mode::Armed => MavLandedState::MAV_LANDED_STATE_ON_GROUND,
         Mode::Takeoff => MavLandedState::MAV_LANDED_STATE_TAKEOFF,
-        Mode::Hold => MavLandedState::MAV_LANDED_STATE_IN_AIR,
+        Mode::Hold | Mode::Mission | Mode::Return => MavLandedState::MAV_LANDED_STATE_IN_AIR,
         Mode::Land => MavLandedState::MAV_LANDED_STATE_LANDING,
         // The motors were cut: where the vehicle is now is not known.
         Mode::Kill => MavLandedState::MAV_LANDED_STATE_UNDEFINED,

@@ -25,6 +25,7 @@ pub fn write_event(out: &mut String, e: &Event) {
             writeln!(out, "{t_us} failsafe {} {}", kind.name(), action.name())
         }
         Event::Refusal { t_us, command, why } => writeln!(out, "{t_us} refused {command} | {why}"),
+        Event::Reached { t_us, item, name } => writeln!(out, "{t_us} reached {item} {name}"),
     };
 }
 
@@ -97,7 +98,7 @@ fn parse_input(line: &str) -> Result<Option<RecordedInput>, String> {
             OperatorInput::Key(k.ok_or_else(|| format!("unknown key {rest:?}"))?)
         }
         "in" => return parse_command(t_us, rest, source).map(Some),
-        "mode" | "failsafe" | "refused" => return Ok(None),
+        "mode" | "failsafe" | "refused" | "reached" => return Ok(None),
         _ => return Err(format!("unknown record {kind:?}")),
     };
     Ok(Some((t_us, input, Ok(()))))

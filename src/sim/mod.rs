@@ -9,6 +9,7 @@ pub mod hover;
 pub mod imu;
 pub mod operator;
 pub mod physics;
+pub mod track;
 
 use crate::config::Profile;
 use crate::core::gps::{Fix, GpsSample, LiveFix};

@@ -10,6 +10,9 @@ use std::collections::VecDeque;
 /// take off once calibrated, hover, land.
 pub const DEFAULT_SCRIPT: &str = "arm@2,takeoff@10,land@45";
 
+/// With a mission: arm, then `start` (its takeoff, its items, its landing).
+pub const MISSION_SCRIPT: &str = "arm@2,start@10";
+
 /// Heartbeat period of the simulated ground station, µs.
 pub const BEAT_PERIOD_US: i64 = 1_000_000;
 

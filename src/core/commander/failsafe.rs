@@ -1,5 +1,6 @@
 //! The graded failsafes: `link-loss`, `gps-loss`, `geofence` and `estimator`, each firing once
-//! a run with its configured action (`land`, `hold`, or `kill` where nothing else is safe).
+//! a run with its configured action (`land`, `hold`, `return`, or `kill` where nothing else is
+//! safe).
 //! The link rule follows the original's `check_net` (spec 8.2), landing instead of cutting.
 
 use super::{Commander, EscRequest, Event, Mode, Observation};
@@ -11,6 +12,8 @@ pub enum Action {
     Land,
     Hold,
     Kill,
+    /// Fly back above the takeoff point, then land.
+    Return,
 }
 
 impl Action {
@@ -19,6 +22,7 @@ impl Action {
             Action::Land => "land",
             Action::Hold => "hold",
             Action::Kill => "kill",
+            Action::Return => "return",
         }
     }
 }
@@ -152,6 +156,7 @@ impl Commander {
             Action::Kill => return Some(EscRequest::Kill),
             Action::Land => self.begin_land(Some(o), t_us, &why, out),
             Action::Hold if self.mode != Mode::Hold => self.set_mode(Mode::Hold, t_us, &why, out),
+            Action::Return => self.begin_return(Some(o), t_us, &why, out),
             _ => {}
         }
         None

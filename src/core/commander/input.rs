@@ -1,5 +1,5 @@
 //! The operator's words: the commander's commands (`arm`, `takeoff [ALT_M]`, `hold [X Y Z]`,
-//! `land`, `disarm`, `kill`), where an input came from (the link sources the `link-loss`
+//! `land`, `disarm`, `kill`, and for missions `start`, `pause`, `resume`, `return`), where an input came from (the link sources the `link-loss`
 //! failsafe counts), a typed line as inputs, and what became of a manual key (spec 5.2).
 
 use super::Mode;
@@ -18,10 +18,19 @@ pub enum Command {
     Land,
     Disarm,
     Kill,
+    /// Fly the loaded mission (from the ground: its takeoff first).
+    Start,
+    /// Hold where the mission has got to.
+    Pause,
+    /// Go on with a paused mission.
+    Resume,
+    /// Fly back above the takeoff point, then land.
+    Return,
 }
 
 impl Command {
-    /// Parses `arm`, `takeoff [ALT_M]`, `hold [X Y Z]`, `land`, `disarm`, `kill`.
+    /// Parses `arm`, `takeoff [ALT_M]`, `hold [X Y Z]`, `land`, `disarm`, `kill`, `start`,
+    /// `pause`, `resume`, `return`.
     pub fn parse(line: &str) -> Result<Command, String> {
         let mut words = line.split_whitespace();
         let verb = words.next().unwrap_or("");
@@ -42,9 +51,16 @@ impl Command {
             ("land", []) => Ok(Command::Land),
             ("disarm", []) => Ok(Command::Disarm),
             ("kill", []) => Ok(Command::Kill),
-            ("arm" | "land" | "disarm" | "kill", _) => Err(format!("{verb} takes no arguments")),
+            ("start", []) => Ok(Command::Start),
+            ("pause", []) => Ok(Command::Pause),
+            ("resume", []) => Ok(Command::Resume),
+            ("return", []) => Ok(Command::Return),
+            ("arm" | "land" | "disarm" | "kill" | "start" | "pause" | "resume" | "return", _) => {
+                Err(format!("{verb} takes no arguments"))
+            }
             _ => Err(format!(
-                "unknown command {verb:?}: arm, takeoff [ALT_M], hold [X Y Z], land, disarm, kill"
+                "unknown command {verb:?}: arm, takeoff [ALT_M], hold [X Y Z], land, disarm, \
+                 kill, start, pause, resume, return"
             )),
         }
     }
@@ -52,7 +68,11 @@ impl Command {
     /// `line` starts with a command word (not manual keys, though `hold` is made of keys).
     pub fn is_word(line: &str) -> bool {
         let verb = line.split_whitespace().next().unwrap_or("");
-        ["arm", "takeoff", "hold", "land", "disarm", "kill"].contains(&verb)
+        [
+            "arm", "takeoff", "hold", "land", "disarm", "kill", "start", "pause", "resume",
+            "return",
+        ]
+        .contains(&verb)
     }
 
     pub fn word(self) -> &'static str {
@@ -63,6 +83,10 @@ impl Command {
             Command::Land => "land",
             Command::Disarm => "disarm",
             Command::Kill => "kill",
+            Command::Start => "start",
+            Command::Pause => "pause",
+            Command::Resume => "resume",
+            Command::Return => "return",
         }
     }
 }

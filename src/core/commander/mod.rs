@@ -16,17 +16,21 @@ mod checks;
 mod failsafe;
 mod figures;
 mod input;
+mod mission_mode;
 mod profile;
 
 pub use checks::{ArmFacts, calibration_problem};
 pub use failsafe::{Action, Failsafe};
 pub use figures::{ClimbTrace, DescentTrace, Figures, Takeoff, Touchdown};
 pub use input::{Command, KeyOutcome, LinkSource, OperatorInput};
+pub use mission_mode::MissionFigures;
 use profile::{BRAKE_SHARE, Profile};
 
 use crate::core::control::{Dir, ManualCommand};
 use crate::core::ekf::TestRatios;
+use crate::core::mission::{GainKey, Mission, MissionRun};
 use crate::core::model::GRAVITY_M_S2;
+use crate::core::path::{PathPoint, Segment};
 
 /// The vehicle's mode; [`Mode::name`] is what logs, the console and reports show.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -37,6 +41,10 @@ pub enum Mode {
     Hold,
     Land,
     Kill,
+    /// Flying a mission's items.
+    Mission,
+    /// Flying back above the takeoff point, then landing (`return`, a failsafe's action).
+    Return,
 }
 
 impl Mode {
@@ -48,12 +56,17 @@ impl Mode {
             Mode::Hold => "hold",
             Mode::Land => "land",
             Mode::Kill => "kill",
+            Mode::Mission => "mission",
+            Mode::Return => "return",
         }
     }
 
     /// The motors carry the vehicle (it may be off the ground).
     pub fn airborne(self) -> bool {
-        matches!(self, Mode::Takeoff | Mode::Hold | Mode::Land)
+        matches!(
+            self,
+            Mode::Takeoff | Mode::Hold | Mode::Land | Mode::Mission | Mode::Return
+        )
     }
 }
 
@@ -101,6 +114,8 @@ pub struct Params {
     /// The manual altitude keys' bounds, m.
     pub z_min_m: f64,
     pub z_max_m: f64,
+    /// How missions and returns are flown.
+    pub mission: crate::core::mission::Limits,
 }
 
 /// What the commander reports; the flight turns these into records.
@@ -120,6 +135,12 @@ pub enum Event {
         t_us: i64,
         command: String,
         why: String,
+    },
+    /// A mission item was done (0-based, as loaded).
+    Reached {
+        t_us: i64,
+        item: usize,
+        name: &'static str,
     },
 }
 
@@ -149,6 +170,8 @@ pub struct Observation {
     pub gps_fused: bool,
     /// The step's innovation test ratios per measurement group (above 1: outside the gate).
     pub ratios: TestRatios,
+    /// The yaw measured at calibration (the hover's heading), rad.
+    pub yaw_cal_rad: f64,
 }
 
 /// What the controller does this step.
@@ -166,6 +189,11 @@ pub struct Guidance {
     pub height_m: f64,
     /// Where the takeoff began (the ground station's home), m.
     pub home_m: Option<[f64; 3]>,
+    /// A mission's (or return's) set point this step: velocity, acceleration and heading
+    /// rate with the position; the segment it lies on; the gains it is flown with.
+    pub path: Option<(PathPoint, Segment, GainKey)>,
+    /// The heading to hold, rad (unwrapped); none: the calibration's.
+    pub yaw_rad: Option<f64>,
 }
 
 impl Guidance {
@@ -178,6 +206,8 @@ impl Guidance {
         hold_xy: false,
         height_m: 0.0,
         home_m: None,
+        path: None,
+        yaw_rad: None,
     };
 }
 
@@ -231,6 +261,20 @@ pub struct Commander {
     touchdown: Option<Touchdown>,
     /// Steps since the takeoff began (its spool-up).
     takeoff_steps: u32,
+    /// The mission loaded, its run (kept while paused), and what it measured.
+    mission: Option<Mission>,
+    run: Option<MissionRun>,
+    paused: bool,
+    /// `start` from the ground: the mission follows the takeoff.
+    mission_after_takeoff: bool,
+    /// Items of the mission reported done.
+    items_done: usize,
+    mission_figures: MissionFigures,
+    /// The mission's set point this step.
+    path: Option<(PathPoint, Segment, GainKey)>,
+    /// The heading a mission left (unwrapped), and the calibration's.
+    yaw_rad: Option<f64>,
+    yaw_cal_rad: f64,
 }
 
 impl Commander {
@@ -258,7 +302,26 @@ impl Commander {
             descent: DescentTrace::default(),
             touchdown: None,
             takeoff_steps: 0,
+            mission: None,
+            run: None,
+            paused: false,
+            mission_after_takeoff: false,
+            items_done: 0,
+            mission_figures: MissionFigures::default(),
+            path: None,
+            yaw_rad: None,
+            yaw_cal_rad: 0.0,
         }
+    }
+
+    /// The mission `start` flies.
+    pub fn with_mission(mut self, mission: Mission) -> Self {
+        self.mission = Some(mission);
+        self
+    }
+
+    pub fn mission_figures(&self) -> MissionFigures {
+        self.mission_figures
     }
 
     pub fn mode(&self) -> Mode {
@@ -288,6 +351,15 @@ impl Commander {
     }
 
     fn set_mode(&mut self, mode: Mode, t_us: i64, why: &str, out: &mut Vec<Event>) {
+        // A path's set point is only the mission's and the return's; a run is kept only by a
+        // pause.
+        if !matches!(mode, Mode::Mission | Mode::Return) {
+            self.path = None;
+            if !(mode == Mode::Hold && self.paused) {
+                self.run = None;
+                self.paused = false;
+            }
+        }
         self.mode = mode;
         out.push(Event::Mode {
             t_us,
@@ -395,19 +467,28 @@ impl Commander {
             Command::Takeoff(_) if m != Mode::Armed => {
                 Err(format!("{}: takeoff needs armed", m.name()))
             }
-            Command::Takeoff(_) => match est {
-                None => Err("estimator: not running yet (the IMU calibration is not done)".into()),
-                Some(o) if outside_gate(&o.ratios) => Err(format!(
-                    "estimator: innovation test ratios outside the gate (attitude {:.2}, \
-                     altitude {:.2}, gps {:?})",
-                    o.ratios.attitude, o.ratios.altitude, o.ratios.gps
-                )),
-                Some(_) => Ok(()),
-            },
-            Command::Hold(_) | Command::Land if !m.airborne() => {
+            Command::Takeoff(_) => self.estimator_ready(est),
+            Command::Start => self.check_start(est),
+            Command::Pause if m != Mode::Mission => Err(format!("{}: no mission flying", m.name())),
+            Command::Resume => self.check_resume(),
+            Command::Return if m == Mode::Return => Err("already return".into()),
+            Command::Hold(_) | Command::Land | Command::Return if !m.airborne() => {
                 Err(format!("{}: not in the air", m.name()))
             }
-            Command::Hold(_) | Command::Land => Ok(()),
+            Command::Hold(_) | Command::Land | Command::Return | Command::Pause => Ok(()),
+        }
+    }
+
+    /// The estimator is running and inside its gates (a takeoff needs it).
+    fn estimator_ready(&self, est: Option<&Observation>) -> Result<(), String> {
+        match est {
+            None => Err("estimator: not running yet (the IMU calibration is not done)".into()),
+            Some(o) if outside_gate(&o.ratios) => Err(format!(
+                "estimator: innovation test ratios outside the gate (attitude {:.2}, altitude \
+                 {:.2}, gps {:?})",
+                o.ratios.attitude, o.ratios.altitude, o.ratios.gps
+            )),
+            Some(_) => Ok(()),
         }
     }
 
@@ -443,6 +524,23 @@ impl Commander {
             }
             Command::Land => {
                 self.begin_land(est, t_us, &why, out);
+                None
+            }
+            Command::Start => {
+                let o = est?;
+                self.start_mission(o, t_us, &why, out);
+                None
+            }
+            Command::Pause => {
+                self.pause(t_us, &why, out);
+                None
+            }
+            Command::Resume => {
+                self.resume(t_us, &why, out);
+                None
+            }
+            Command::Return => {
+                self.begin_return(est, t_us, &why, out);
                 None
             }
         }
@@ -550,6 +648,7 @@ impl Commander {
             .map_or(0.01, |t| (o.t_us - t) as f64 / 1e6)
             .clamp(0.0, 0.1);
         self.last_t_us = Some(o.t_us);
+        self.yaw_cal_rad = o.yaw_cal_rad;
         if o.gps_fused {
             self.last_fix_us = Some(o.t_us);
         }
@@ -577,6 +676,8 @@ impl Commander {
             hold_xy: self.hold_xy,
             height_m: self.target_m[2] - self.home_m.map_or(0.0, |h| h[2]),
             home_m: self.home_m,
+            path: self.path,
+            yaw_rad: self.yaw_rad,
         }
     }
 
@@ -592,9 +693,15 @@ impl Commander {
                 }
                 let reached = self.profile.z_m == self.target_m[2]
                     && (o.pos_m[2] - self.target_m[2]).abs() <= p.takeoff_tolerance_m;
-                if reached {
+                if reached && self.mission_after_takeoff {
+                    self.enter_mission(1, o.t_us, "takeoff height reached", out);
+                } else if reached {
                     self.set_mode(Mode::Hold, o.t_us, "takeoff height reached", out);
                 }
+                None
+            }
+            Mode::Mission | Mode::Return => {
+                self.fly_path(o, dt_s, out);
                 None
             }
             Mode::Hold => {

@@ -29,6 +29,12 @@ fn params() -> Params {
         ekf_action: Action::Land,
         z_min_m: 0.2,
         z_max_m: 3.0,
+        mission: crate::core::mission::Limits {
+            acc_m_s2: 0.5,
+            yaw_rate_rad_s: 0.8,
+            yaw_acc_rad_s2: 1.0,
+            return_m_s: 1.0,
+        },
     }
 }
 
@@ -58,6 +64,7 @@ fn at(t_us: i64, z_m: f64) -> Observation {
             altitude: 0.0,
             gps: None,
         },
+        yaw_cal_rad: 0.25,
     }
 }
 
@@ -742,4 +749,187 @@ fn targets_outside_the_bounds_or_the_fence_are_refused() {
         "{ev:?}"
     );
     assert_eq!(c.mode(), Mode::Armed);
+}
+
+fn out_and_back() -> crate::core::mission::Mission {
+    use crate::core::mission::Item;
+    crate::core::mission::Mission {
+        items: vec![
+            Item::Takeoff { height_m: 1.5 },
+            Item::Goto {
+                at_m: [3.0, 0.0, 1.5],
+                speed_m_s: 1.0,
+            },
+            Item::Hold { seconds: 1.0 },
+            Item::Return,
+            Item::Land,
+        ],
+    }
+}
+
+fn reached(ev: &[Event]) -> Vec<usize> {
+    ev.iter()
+        .filter_map(|e| match e {
+            Event::Reached { item, .. } => Some(*item),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn start_flies_the_mission_from_the_ground_to_its_landing() {
+    let (c, mut ev) = armed();
+    let mut c = c.with_mission(out_and_back());
+    c.command(
+        Command::Start,
+        10_000,
+        Ok(()),
+        Some(&at(10_000, 0.0)),
+        &mut ev,
+    );
+    assert_eq!(c.mode(), Mode::Takeoff);
+    let mut t = 20_000;
+    let mut far = 0.0f64;
+    while c.mode() != Mode::Land {
+        let g = follow(&mut c, t, t, &mut ev);
+        if let Some((p, _, _)) = g.path {
+            far = far.max(p.pos_m[0]);
+            // The heading starts from the calibration's and turns toward the point.
+            assert!(g.yaw_rad.is_some());
+        }
+        t += STEP_US;
+        assert!(t < 60_000_000, "never landed: {:?}", modes(&ev));
+    }
+    assert_eq!(
+        modes(&ev),
+        [
+            Mode::Disarmed,
+            Mode::Armed,
+            Mode::Takeoff,
+            Mode::Mission,
+            Mode::Land
+        ]
+    );
+    assert_eq!(reached(&ev), [1, 2, 3]);
+    assert!((far - 3.0).abs() < 1e-9, "{far}");
+    // Landing above the takeoff point, the mission's set point left at rest.
+    let g = c.guidance();
+    assert!(g.path.is_none() && g.pos_m[0].abs() < 1e-6 && g.pos_m[1].abs() < 1e-6);
+    let f = c.mission_figures();
+    let flown_s = (f.ended_us.unwrap() - f.started_us.unwrap()) as f64 / 1e6;
+    assert!(
+        (flown_s - f.ideal_s).abs() < 0.03,
+        "{flown_s} vs {}",
+        f.ideal_s
+    );
+}
+
+#[test]
+fn pause_holds_where_the_mission_got_to_and_resume_goes_on() {
+    let (c, mut ev) = armed();
+    let mut c = c.with_mission(out_and_back());
+    c.command(
+        Command::Start,
+        10_000,
+        Ok(()),
+        Some(&at(10_000, 0.0)),
+        &mut ev,
+    );
+    let mut t = 20_000;
+    while c.mode() != Mode::Mission || c.guidance().path.is_some_and(|p| p.0.pos_m[0] < 1.0) {
+        follow(&mut c, t, t, &mut ev);
+        t += STEP_US;
+    }
+    let o = at(t, 1.5);
+    c.command(Command::Pause, t, Ok(()), Some(&o), &mut ev);
+    let held = c.guidance();
+    assert_eq!((c.mode(), held.path), (Mode::Hold, None));
+    let g = follow(&mut c, t + STEP_US, t + 3_000_000, &mut ev);
+    assert_eq!(g.pos_m, held.pos_m, "the hold stays put");
+    t += 3_010_000;
+    c.command(Command::Resume, t, Ok(()), Some(&at(t, 1.5)), &mut ev);
+    assert_eq!(c.mode(), Mode::Mission);
+    while c.mode() == Mode::Mission {
+        follow(&mut c, t, t, &mut ev);
+        t += STEP_US;
+    }
+    assert_eq!(reached(&ev), [1, 2, 3]);
+    // Resume twice, pause outside a mission: refused with the reason.
+    c.command(Command::Resume, t, Ok(()), Some(&at(t, 1.5)), &mut ev);
+    c.command(Command::Pause, t, Ok(()), Some(&at(t, 1.5)), &mut ev);
+    let why = refusals(&ev);
+    assert!(why[0].contains("no paused mission") && why[1].contains("no mission flying"));
+}
+
+#[test]
+fn start_is_refused_without_a_mission_or_without_its_takeoff() {
+    let (mut c, mut ev) = armed();
+    c.command(
+        Command::Start,
+        10_000,
+        Ok(()),
+        Some(&at(10_000, 0.0)),
+        &mut ev,
+    );
+    let mut m = out_and_back();
+    m.items.remove(0);
+    let (c2, _) = armed();
+    let mut c2 = c2.with_mission(m);
+    c2.command(
+        Command::Start,
+        10_000,
+        Ok(()),
+        Some(&at(10_000, 0.0)),
+        &mut ev,
+    );
+    let why = refusals(&ev);
+    assert!(why[0].starts_with("no mission loaded"), "{why:?}");
+    assert!(why[1].contains("does not begin with a takeoff"), "{why:?}");
+    assert_eq!((c.mode(), c2.mode()), (Mode::Armed, Mode::Armed));
+}
+
+#[test]
+fn a_return_failsafe_flies_home_then_lands() {
+    let mut p = params();
+    p.link_action = Action::Return;
+    let mut c = Commander::new(p);
+    let mut ev = Vec::new();
+    c.start(0, &mut ev);
+    c.command(Command::Arm, 0, good_facts().verdict(), None, &mut ev);
+    c.on_estimate(&at(0, 0.0), &mut ev);
+    c.command(
+        Command::Takeoff(Some(1.5)),
+        10_000,
+        Ok(()),
+        Some(&at(10_000, 0.0)),
+        &mut ev,
+    );
+    let mut t = 20_000;
+    while c.mode() != Mode::Hold {
+        follow(&mut c, t, t, &mut ev);
+        t += STEP_US;
+    }
+    c.command(
+        Command::Hold(Some([2.0, 1.0, 1.5])),
+        t,
+        Ok(()),
+        Some(&at(t, 1.5)),
+        &mut ev,
+    );
+    let g = follow(&mut c, t, t + 3_000_000, &mut ev);
+    assert_eq!([g.pos_m[0], g.pos_m[1]], [2.0, 1.0]);
+    // The link falls silent: after its timeout, return; then land above the takeoff point.
+    t += 3_010_000;
+    while c.mode() != Mode::Land {
+        follow_with(&mut c, t, t, &mut ev, false);
+        t += STEP_US;
+        assert!(t < 60_000_000, "{:?}", modes(&ev));
+    }
+    assert!(modes(&ev).ends_with(&[Mode::Hold, Mode::Hold, Mode::Return, Mode::Land]));
+    let g = c.guidance();
+    assert!(
+        g.pos_m[0].abs() < 1e-6 && g.pos_m[1].abs() < 1e-6,
+        "{:?}",
+        g.pos_m
+    );
 }

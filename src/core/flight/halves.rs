@@ -10,6 +10,7 @@
 //! every mode makes these same calls in the same order with the same inputs.
 
 use crate::core::commander::{Guidance, Mode};
+use crate::core::control::Gains;
 use crate::core::control::{Controller, HoverPlanner, ManualCommand, ManualOutcome, SetPoint};
 use crate::core::ekf::{
     Ekf, EkfError, EkfParams, GatedGroups, Input, State, StepInput, TestRatios,
@@ -18,6 +19,7 @@ use crate::core::gps::GpsSample;
 use crate::core::imu::calib::{Calibration, ImuSample};
 use crate::core::imu::frame::RawFrame;
 use crate::core::imu::startup::{FrontEndEvent, ImuFrontEnd, StartupParams};
+use crate::core::mission::{GainKey, GainTable};
 use crate::core::model::MotorLimits;
 use crate::core::motor::{FLIGHT_RAMP_STEPS, command_for_step};
 use crate::core::torque::TorqueObserver;
@@ -200,6 +202,12 @@ pub struct ControllerCore {
     /// The Kalman step the control law started at (the takeoff): the flight ramp counts
     /// from it.
     ramp_from: Option<u32>,
+    /// Gains designed along a mission's paths, the profile's, and which are flown.
+    gain_table: std::sync::Arc<GainTable>,
+    profile_gains: Gains,
+    active_gains: GainKey,
+    /// The last step's set point was a path's.
+    following: bool,
 }
 
 /// What the hover planner is built from once the calibration yaw is known.
@@ -221,6 +229,10 @@ impl ControllerCore {
         gps_hold_timeout_us: i64,
     ) -> Self {
         ControllerCore {
+            profile_gains: controller.gains(),
+            gain_table: std::sync::Arc::new(GainTable::default()),
+            active_gains: GainKey::Profile,
+            following: false,
             controller,
             make_planner: spec,
             planner: None,
@@ -244,6 +256,23 @@ impl ControllerCore {
     pub fn with_torque_observer(mut self, tau_s: f64, motor_tau_s: f64) -> Self {
         self.observer = Some(TorqueObserver::new(tau_s, motor_tau_s));
         self
+    }
+
+    /// Flies the segments of a mission with these gains (designed before the flight; the
+    /// control path only swaps them in at a segment's start).
+    pub fn with_gain_table(mut self, table: std::sync::Arc<GainTable>) -> Self {
+        self.gain_table = table;
+        self
+    }
+
+    /// Swaps in the gains the guidance asks for (the profile's when none were designed).
+    fn swap_gains(&mut self, key: GainKey) {
+        if key == self.active_gains {
+            return;
+        }
+        self.active_gains = key;
+        let gains = *self.gain_table.get(key).unwrap_or(&self.profile_gains);
+        self.controller.set_gains(&gains);
     }
 
     /// The err.log line for a change of position hold.
@@ -327,6 +356,7 @@ impl ControllerCore {
             .step
             .saturating_sub(*self.ramp_from.get_or_insert(est.step))
             + 1;
+        self.swap_gains(est.guidance.path.map_or(GainKey::Profile, |p| p.2));
         let (sp, mass_kg) = self.guided_set_point(est);
         let limits = MotorLimits::new(mass_kg, self.make_planner.w_max_rad_s);
         let t_s = self.period_us(t_ctrl_us) as f64 / 1e6;
@@ -382,6 +412,17 @@ impl ControllerCore {
                 spec.bounds,
             )
         });
+        if let Some((point, _, _)) = g.path {
+            planner.follow(&point);
+            self.following = true;
+            return (planner.sp, planner.mass_kg());
+        }
+        // Off a path: its attitude, velocity and rates back to rest, its heading kept (the
+        // manual keys move them again from there).
+        if std::mem::take(&mut self.following) {
+            planner.sp.x[3..].fill(0.0);
+            planner.sp.x[crate::core::ekf::idx::THETA] = g.yaw_rad.unwrap_or(est.theta_cal_rad);
+        }
         planner.sp.x[0] = g.pos_m[0];
         planner.sp.x[1] = g.pos_m[1];
         planner.sp.x[2] = g.pos_m[2];

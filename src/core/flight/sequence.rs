@@ -635,6 +635,7 @@ impl EstimatorSide {
             acc_z_m_s2: est.sample.acc_m_s2[2],
             gps_fused: est.gps_used,
             ratios: est.ratios,
+            yaw_cal_rad: est.theta_cal_rad,
         };
         self.observed = Some(o);
         let (guidance, request) = self.commander.on_estimate(&o, &mut self.events);
@@ -701,6 +702,9 @@ pub fn commander_line(e: &commander::Event) -> String {
             format!("failsafe {}: {}", kind.name(), action.name())
         }
         commander::Event::Refusal { command, why, .. } => format!("{command} refused: {why}"),
+        commander::Event::Reached { item, name, .. } => {
+            format!("mission item {} ({name}) done", item + 1)
+        }
     }
 }
 

@@ -353,6 +353,7 @@ impl Gcs {
                 MavSeverity::MAV_SEVERITY_CRITICAL
             }
             Event::Refusal { .. } => MavSeverity::MAV_SEVERITY_WARNING,
+            Event::Reached { .. } => MavSeverity::MAV_SEVERITY_INFO,
         };
         self.text(severity, &text, link);
     }

@@ -1,0 +1,188 @@
+//! The commander's `mission` and `return` modes: `start` (from the ground through the
+//! mission's takeoff, or from a hold), `pause` (hold where the mission has got to), `resume`,
+//! `return` (the command and the failsafe action), each step's set point from the mission's
+//! run, and the mission's figures (when it started and ended, its planned duration). Not in
+//! the original's spec, whose path planner (5.1) only hovered.
+
+use super::{Commander, Event, Mode, Observation};
+use crate::core::mission::{Item, MissionRun, Next};
+use crate::core::path::PathPoint;
+
+/// When the mission flew, for the report.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct MissionFigures {
+    /// The first step in `mission` mode, µs.
+    pub started_us: Option<i64>,
+    /// The last step in `mission` mode, µs (a pause and a resume keep flying it).
+    pub ended_us: Option<i64>,
+    /// The planned duration of every segment begun, s.
+    pub ideal_s: f64,
+}
+
+impl Commander {
+    /// Why `start` cannot be done now, if it cannot.
+    pub(super) fn check_start(&self, est: Option<&Observation>) -> Result<(), String> {
+        let Some(mission) = &self.mission else {
+            return Err(
+                "no mission loaded (uquad sim --mission FILE, uquad fly --mission FILE)".into(),
+            );
+        };
+        match self.mode {
+            Mode::Armed => match mission.items.first() {
+                Some(Item::Takeoff { .. }) => self.estimator_ready(est),
+                _ => Err("the mission does not begin with a takeoff: take off, then start".into()),
+            },
+            Mode::Hold => Ok(()),
+            m => Err(format!(
+                "{}: start needs armed (on the ground) or hold",
+                m.name()
+            )),
+        }
+    }
+
+    /// Why a paused mission cannot go on, if it cannot.
+    pub(super) fn check_resume(&self) -> Result<(), String> {
+        if self.mode == Mode::Hold && self.paused && self.run.is_some() {
+            Ok(())
+        } else {
+            Err(format!("{}: no paused mission", self.mode.name()))
+        }
+    }
+
+    /// `start`: from the ground the mission's takeoff first (the commander's profile), then
+    /// its next item; from a hold its first item that is not a takeoff.
+    pub(super) fn start_mission(
+        &mut self,
+        o: &Observation,
+        t_us: i64,
+        why: &str,
+        out: &mut Vec<Event>,
+    ) {
+        let Some(mission) = &self.mission else { return };
+        match (self.mode, mission.items.first()) {
+            (Mode::Armed, Some(&Item::Takeoff { height_m })) => {
+                self.begin_takeoff(o, height_m, t_us, why, out);
+                self.mission_after_takeoff = true;
+            }
+            (_, first) => {
+                let skip = usize::from(matches!(first, Some(Item::Takeoff { .. })));
+                self.enter_mission(skip, t_us, why, out);
+            }
+        }
+    }
+
+    /// Flies the loaded mission from item `first`, from the present set point.
+    pub(super) fn enter_mission(
+        &mut self,
+        first: usize,
+        t_us: i64,
+        why: &str,
+        out: &mut Vec<Event>,
+    ) {
+        let (Some(mission), Some(home)) = (self.mission.clone(), self.home_m) else {
+            return;
+        };
+        let run = MissionRun::new(mission, self.p.mission, home, first, self.here());
+        self.run = Some(run);
+        self.items_done = first;
+        self.paused = false;
+        self.mission_after_takeoff = false;
+        self.set_mode(Mode::Mission, t_us, why, out);
+    }
+
+    /// `pause`: hold where the mission's set point is, the mission kept.
+    pub(super) fn pause(&mut self, t_us: i64, why: &str, out: &mut Vec<Event>) {
+        let p = self.here();
+        self.target_m = p.pos_m;
+        self.paused = true;
+        self.set_mode(Mode::Hold, t_us, why, out);
+    }
+
+    /// `resume`: the paused item again, from the hold.
+    pub(super) fn resume(&mut self, t_us: i64, why: &str, out: &mut Vec<Event>) {
+        let here = self.here();
+        if let Some(run) = &mut self.run {
+            run.replan_from(here);
+        }
+        self.paused = false;
+        self.set_mode(Mode::Mission, t_us, why, out);
+    }
+
+    /// Back above the takeoff point at the present height, then land; without a takeoff
+    /// point, land here.
+    pub(super) fn begin_return(
+        &mut self,
+        est: Option<&Observation>,
+        t_us: i64,
+        why: &str,
+        out: &mut Vec<Event>,
+    ) {
+        let Some(home) = self.home_m else {
+            return self.begin_land(est, t_us, why, out);
+        };
+        if self.mode == Mode::Return {
+            return;
+        }
+        self.run = Some(MissionRun::returning(self.p.mission, home, self.here()));
+        self.paused = false;
+        self.set_mode(Mode::Return, t_us, why, out);
+    }
+
+    /// The set point now, as a path point: the mission's last while one flies, else the
+    /// hold's target and profile, with the heading a mission left (the calibration's before).
+    pub(super) fn here(&self) -> PathPoint {
+        if let (Some(run), Mode::Mission | Mode::Return) = (&self.run, self.mode) {
+            return run.last();
+        }
+        PathPoint {
+            pos_m: [self.target_m[0], self.target_m[1], self.profile.z_m],
+            yaw_rad: self.yaw_rad.unwrap_or(self.yaw_cal_rad),
+            ..PathPoint::default()
+        }
+    }
+
+    /// One step of `mission` or `return`: the run's set point, and what follows its end.
+    pub(super) fn fly_path(&mut self, o: &Observation, dt_s: f64, out: &mut Vec<Event>) {
+        let Some(run) = self.run.as_mut() else {
+            return self.set_mode(Mode::Hold, o.t_us, "no mission", out);
+        };
+        let next = run.advance(dt_s);
+        if self.mode == Mode::Mission {
+            let f = &mut self.mission_figures;
+            f.started_us.get_or_insert(o.t_us);
+            f.ended_us = Some(o.t_us);
+            f.ideal_s = run.ideal_s;
+            // Every item the step finished (one that needs no motion finishes with the next).
+            let items = &run.mission().items;
+            while self.items_done < run.item() {
+                let i = self.items_done;
+                let name = items.get(i).map_or("?", Item::name);
+                out.push(Event::Reached {
+                    t_us: o.t_us,
+                    item: i,
+                    name,
+                });
+                self.items_done += 1;
+            }
+        }
+        match next {
+            Next::Fly {
+                point,
+                segment,
+                gains,
+                ..
+            } => {
+                self.target_m = point.pos_m;
+                self.profile.z_m = point.pos_m[2];
+                self.profile.vz_m_s = point.vel_m_s[2];
+                self.yaw_rad = Some(point.yaw_rad);
+                self.path = Some((point, segment, gains));
+            }
+            Next::Land { .. } => {
+                let why = format!("{}: land", self.mode.name());
+                self.begin_land(None, o.t_us, &why, out);
+            }
+            Next::Done => self.set_mode(Mode::Hold, o.t_us, "mission done", out),
+        }
+    }
+}
