@@ -1422,7 +1422,7 @@ fn log_line(kind: usize, seeds: &[Vec<String>]) -> BoxedStrategy<String> {
         (log_time(), log_time(), any::<u8>(), vec(log_float(), 5))
             .prop_map(|(t, st, m, v)| {
                 let mut s = String::new();
-                write_gps_fix(&mut s, t, st, m, [v[0], v[1], v[2]], v[3], v[4]);
+                write_gps_fix(&mut s, t, st, m, [v[0], v[1], v[2]], None, v[3], v[4]);
                 s
             })
             .boxed(),
@@ -1603,6 +1603,7 @@ fn log_readers() {
                 t_us,
                 fix_mode,
                 pos_m,
+                vel_m_s,
                 lat_deg,
                 lon_deg,
                 ..
@@ -1610,7 +1611,7 @@ fn log_readers() {
                 && let Ok(mode) = u8::try_from(fix_mode)
             {
                 let mut line = String::new();
-                write_gps_fix(&mut line, t_us, 0, mode, pos_m, lat_deg, lon_deg);
+                write_gps_fix(&mut line, t_us, 0, mode, pos_m, vel_m_s, lat_deg, lon_deg);
                 let f: Vec<&str> = line.split_ascii_whitespace().collect();
                 let again = GpsLogRecord::parse_fields(&f);
                 let same = match again {
@@ -1618,6 +1619,7 @@ fn log_readers() {
                         t_us: t2,
                         fix_mode: m2,
                         pos_m: p2,
+                        vel_m_s: v2,
                         lat_deg: la2,
                         lon_deg: lo2,
                         alt_m,
@@ -1625,6 +1627,10 @@ fn log_readers() {
                         t2 == t_us
                             && m2 == fix_mode
                             && (0..3).all(|i| same_f64(p2[i], pos_m[i]))
+                            && match (v2, vel_m_s) {
+                                (Some(a), Some(b)) => (0..3).all(|i| same_f64(a[i], b[i])),
+                                (a, b) => a.is_none() && b.is_none(),
+                            }
                             && same_f64(la2, lat_deg)
                             && same_f64(lo2, lon_deg)
                             && same_f64(alt_m, pos_m[2])

@@ -35,11 +35,13 @@ fn flies(file: &str, items: usize) -> Value {
     assert_eq!(modes(&r), want, "{r}");
     assert!(r["halt"].is_null() && r["deadline_misses"] == 0, "{r}");
     let f = |k: &str| r[k].as_f64().unwrap_or_else(|| panic!("no {k}: {r}"));
-    assert!(f("track_rms_m") <= 0.5, "{r}");
-    assert!(f("track_max_m") < 1.5, "{r}");
+    // The estimate follows the path within 0.5 m; the truth within the simulated receiver's
+    // error (a u-blox NEO-M8N: a bias of 2 m that wanders over a minute) on top.
+    assert!(f("track_est_rms_m") <= 0.5, "{r}");
+    assert!(f("track_rms_m") <= 2.5 && f("track_max_m") < 4.0, "{r}");
     assert!((f("mission_s") - f("mission_ideal_s")).abs() < 0.5, "{r}");
     assert!(
-        r["touchdown"]["from_takeoff_m"].as_f64().unwrap() < 1.0,
+        r["touchdown"]["from_takeoff_m"].as_f64().unwrap() < 5.0,
         "{r}"
     );
     let run = Path::new(r["run_dir"].as_str().unwrap()).to_path_buf();

@@ -179,6 +179,7 @@ fn hovers_with_gains_designed_by_uquad_lqr() {
     ];
     let with = |extra: &[&'static str]| {
         let mut args = designed.to_vec();
+        args.extend_from_slice(&EXACT_GPS);
         args.extend_from_slice(extra);
         sim_report(&args)
     };
@@ -192,10 +193,10 @@ fn hovers_with_gains_designed_by_uquad_lqr() {
         "control.torque_observer_s=0",
     ]);
     assert_hovers(&report);
-    // The same gains on GPS fixes: with the 2012 filter noise (x, y forget their velocity every
-    // step) each fix jumps the position and the stiff x, y feedback tips the vehicle over;
-    // with this profile's noise the fixes correct the velocity too and it holds its place.
-    let (_, r, _logs) = with(&["--set", EKF_Q_2012]);
+    // The same gains on (exact) GPS fixes: with the 2012 filter noise and its joint update
+    // (x, y forget their velocity every step) each fix jumps the position and the stiff x, y
+    // feedback tips the vehicle over; with this profile's noise and fusion it holds its place.
+    let (_, r, _logs) = with(&["--set", EKF_Q_2012, "--set", "ekf.gps_fusion=\"joint\""]);
     assert_eq!(r["halt"]["reason"], "sanity-tilt", "{r}");
     let (_, r, _logs) = with(&[]);
     assert_hovers(&r);

@@ -18,7 +18,9 @@ fn sim_report(args: &[&str]) -> (serde_json::Value, tempfile::TempDir) {
 
 /// A 60-second flight in which m0 loses 30 % of its thrust at 30 s, with `extra` arguments.
 fn thrust_loss_report(extra: &[&str]) -> (serde_json::Value, tempfile::TempDir) {
+    // Exact fixes: the figures are the control's, not the receiver's error.
     let mut args = vec!["--duration", "60", "--inject", "thrust-loss@30"];
+    args.extend_from_slice(&EXACT_GPS);
     args.extend_from_slice(extra);
     sim_report(&args)
 }

@@ -225,6 +225,7 @@ fn gps_source(
                         t_us,
                         fix_mode,
                         pos_m,
+                        vel_m_s,
                         lat_deg,
                         lon_deg,
                         alt_m,
@@ -237,6 +238,7 @@ fn gps_source(
                             GpsSample {
                                 xy_m: [pos_m[0], pos_m[1]],
                                 z_m: pos_m[2].is_finite().then_some(pos_m[2]),
+                                vel_m_s,
                             }
                         } else {
                             frame.to_local(lat_deg, lon_deg, alt_m.is_finite().then_some(alt_m))

@@ -29,10 +29,11 @@ use crate::core::watchdog::{Event, Trip, Watchdog};
 use crate::logs::{PerStream, Record, Stream};
 use crate::sim::esc::EscModel;
 use crate::sim::faults::{Fault, FaultSchedule, LOG_STALL_US, WireFaults};
+use crate::sim::gps::SimGps;
 use crate::sim::hover::{CycleTrace, FlightView, HoverWindow, TrueState, progress_line};
 use crate::sim::operator::SimOperator;
 use crate::sim::track::TrackTrace;
-use crate::sim::{FRAME_US, frame_start_byte, gps_fix, imu::SimImu, physics::Plant};
+use crate::sim::{FRAME_US, frame_start_byte, imu::SimImu, physics::Plant};
 use crate::tasks::prearm::PreArm;
 use anyhow::Context;
 use bytes::BytesMut;
@@ -111,7 +112,7 @@ struct FastSim<'a> {
     frames_sent: u64,
     decoder: FrameDecoder,
     bytes: BytesMut,
-    gps_seq: u64,
+    gps: SimGps,
     pending_fix: Option<LiveFix>,
     estimator: EstimatorSide,
     controller: ControllerSide,
@@ -205,7 +206,7 @@ impl<'a> FastSim<'a> {
             frames_sent: 0,
             decoder: FrameDecoder::new(),
             bytes: BytesMut::with_capacity(64),
-            gps_seq: 0,
+            gps: SimGps::new(&cfg.sim, seed),
             pending_fix: None,
             feedback: controller.first_feedback(),
             estimator,
@@ -249,9 +250,12 @@ impl<'a> FastSim<'a> {
         if t % FRAME_US == FRAME_US / 2 {
             self.imu.first_half(&self.plant);
         }
-        if self.gps_live && t % 1_000_000 == 0 && !self.faults.active(Fault::GpsLoss, t) {
-            self.pending_fix = Some(gps_fix(&mut self.gps_seq, self.plant.position_m(), t));
-            self.newest_fix = self.pending_fix;
+        let fix = self
+            .gps
+            .step(t, self.plant.position_m(), self.plant.velocity_m_s(), t);
+        if self.gps_live && fix.is_some() && !self.faults.active(Fault::GpsLoss, t) {
+            self.pending_fix = fix;
+            self.newest_fix = fix;
         }
         if self.faults.active(Fault::GpsLoss, t) {
             self.pending_fix = None;
@@ -450,7 +454,11 @@ impl<'a> FastSim<'a> {
         let guidance = self.estimator.commander().guidance();
         self.trace
             .sample(self.t_us, mode, guidance.height_m, &self.plant);
-        self.track.sample(&guidance, self.plant.position_m());
+        let est_m = self
+            .estimator
+            .ekf()
+            .map_or([f64::NAN; 3], |e| [e.x[0], e.x[1], e.x[2]]);
+        self.track.sample(&guidance, self.plant.position_m(), est_m);
     }
 
     /// The end of the run: zero and disable, as fly's shutdown does; the closing lines; the

@@ -18,7 +18,7 @@ use crate::sim::hover::{
 };
 use crate::sim::operator::SimOperator;
 use crate::sim::physics::Plant;
-use crate::sim::{FRAME_US, frame_start_byte, gps_fix};
+use crate::sim::{FRAME_US, frame_start_byte};
 use crate::tasks::SIM_PRIORITY;
 use crate::tasks::controller::Live;
 use crate::tasks::imu_reader::BINARY_MODE_COMMAND;
@@ -159,7 +159,8 @@ impl SimThread {
         let (mut plant, mut imu) = crate::sim::vehicle(&self.profile, self.seed);
         let step_us = 1_000_000 / i64::from(sc.physics_hz);
         let mut hover = HoverWindow::new(sc.settle_s);
-        let (mut t_us, mut frames_sent, mut gps_seq) = (0i64, 0u64, 0u64);
+        let (mut t_us, mut frames_sent) = (0i64, 0u64);
+        let mut gps = crate::sim::gps::SimGps::new(&self.profile.config.sim, self.seed);
         let mut wire = WireFaults::new(self.seed);
         // The IMU streams once the host asks (spec 1.1), as the real one: frames sent before
         // the reader runs would arrive in one burst, and the settling check would see it.
@@ -179,11 +180,11 @@ impl SimThread {
             if t_us % FRAME_US == FRAME_US / 2 {
                 imu.first_half(&plant);
             }
-            if let Some(tx) = &self.gps_tx
-                && t_us % 1_000_000 == 0
+            let fix = gps.step(t_us, plant.position_m(), plant.velocity_m_s(), now_us);
+            if let (Some(tx), Some(fix)) = (&self.gps_tx, fix)
                 && !self.faults.active(Fault::GpsLoss, t_us)
             {
-                tx.send_replace(Some(gps_fix(&mut gps_seq, plant.position_m(), now_us)));
+                tx.send_replace(Some(fix));
             }
             if t_us % FRAME_US != 0 {
                 continue;

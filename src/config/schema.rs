@@ -84,6 +84,18 @@ pub struct Sim {
     /// The `gust` fault: a push northward of this force, N, for this long, s.
     pub gust_n: f64,
     pub gust_s: f64,
+    /// The simulated receiver (`sim::gps`): fixes a second, delay, s; white noise and the
+    /// wandering bias's spread (horizontal per axis, vertical), m; the bias's correlation
+    /// time, s.
+    pub gps_rate_hz: f64,
+    pub gps_delay_s: f64,
+    pub gps_noise_h_m: f64,
+    pub gps_noise_v_m: f64,
+    pub gps_bias_h_m: f64,
+    pub gps_bias_v_m: f64,
+    pub gps_bias_tau_s: f64,
+    /// White noise of the receiver's velocity, per axis, m/s.
+    pub gps_noise_vel_m_s: f64,
 }
 
 impl Default for Sim {
@@ -105,6 +117,15 @@ impl Default for Sim {
             seed: 1,
             gust_n: 3.0,
             gust_s: 3.0,
+            // A u-blox NEO-M8N (`sim::gps::GpsErrors::NEO_M8N`).
+            gps_rate_hz: 1.0,
+            gps_delay_s: 0.1,
+            gps_noise_h_m: 0.7,
+            gps_noise_v_m: 1.4,
+            gps_bias_h_m: 2.0,
+            gps_bias_v_m: 4.0,
+            gps_bias_tau_s: 60.0,
+            gps_noise_vel_m_s: 0.05,
         }
     }
 }
@@ -224,6 +245,11 @@ pub struct Ekf {
     pub gate_sigma: f64,
     /// Leave a measurement group outside the gate out of the step's update.
     pub gate_fusion: bool,
+    /// "joint": a fix with the IMU rows into every state (the 2012 flights); "position-velocity":
+    /// after them, into position and velocity only.
+    pub gps_fusion: crate::core::ekf::GpsFusion,
+    /// With "position-velocity": noise of the receiver's horizontal velocity, (m/s)².
+    pub r_gps_vel: f64,
 }
 
 impl Default for Ekf {
@@ -238,6 +264,8 @@ impl Default for Ekf {
             gate_sigma: p.gate_sigma,
             // As the default profile: the 2012 flights fused everything, uquad gates.
             gate_fusion: true,
+            gps_fusion: p.gps_fusion,
+            r_gps_vel: p.r_gps_vel,
         }
     }
 }
@@ -255,6 +283,8 @@ impl Ekf {
             dt_max_us: i64::from(imu.period_max_us),
             gate_sigma: self.gate_sigma,
             gate_fusion: self.gate_fusion,
+            gps_fusion: self.gps_fusion,
+            r_gps_vel: self.r_gps_vel,
         }
     }
 }

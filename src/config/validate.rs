@@ -583,6 +583,19 @@ fn sim_rules(sim: &Sim) -> Vec<Check> {
         within("sim.initial_yaw_rad", sim.initial_yaw_rad, 3.2, "rad"),
         in_range("sim.gust_n", sim.gust_n, 0.0..=100.0, "N"),
         in_range("sim.gust_s", sim.gust_s, 0.0..=600.0, "s"),
+        in_range("sim.gps_rate_hz", sim.gps_rate_hz, 1.0..=10.0, "Hz"),
+        in_range("sim.gps_delay_s", sim.gps_delay_s, 0.0..=1.0, "s"),
+        in_range("sim.gps_noise_h_m", sim.gps_noise_h_m, 0.0..=50.0, "m"),
+        in_range("sim.gps_noise_v_m", sim.gps_noise_v_m, 0.0..=50.0, "m"),
+        in_range("sim.gps_bias_h_m", sim.gps_bias_h_m, 0.0..=50.0, "m"),
+        in_range("sim.gps_bias_v_m", sim.gps_bias_v_m, 0.0..=50.0, "m"),
+        in_range("sim.gps_bias_tau_s", sim.gps_bias_tau_s, 1.0..=3600.0, "s"),
+        in_range(
+            "sim.gps_noise_vel_m_s",
+            sim.gps_noise_vel_m_s,
+            0.0..=10.0,
+            "m/s",
+        ),
     ]
 }
 
@@ -743,6 +756,7 @@ fn ekf_rules(c: &Config) -> Vec<Check> {
             "standard deviations",
         )
         .note("finite")])
+        .chain([in_range("ekf.r_gps_vel", c.ekf.r_gps_vel, variance, "(m/s)²").note("a variance")])
         .collect()
 }
 

@@ -103,6 +103,21 @@ pub struct EkfParams {
     /// Leave a measurement group whose test ratio is above 1 out of the step's update. `false`
     /// fuses every row (the ratios are still computed and reported).
     pub gate_fusion: bool,
+    /// How a GPS fix is fused.
+    pub gps_fusion: GpsFusion,
+    /// Noise of a fix's horizontal velocity rows ([`GpsFusion::PositionVelocity`]), (m/s)².
+    pub r_gps_vel: f64,
+}
+
+/// How a GPS fix is fused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum GpsFusion {
+    /// With the IMU rows in one update of every state (spec 3.7; the 2012 flights).
+    Joint,
+    /// After the IMU rows, into position and velocity only, the first fix placing the
+    /// position (`core::ekf_fix`).
+    PositionVelocity,
 }
 
 /// The gate width of the default profile, standard deviations: PX4 EKF2's default for its GPS
@@ -128,6 +143,8 @@ impl EkfParams {
             gate_sigma: DEFAULT_GATE_SIGMA,
             // The 2012 flights fused every measurement; their replays must stay bit-exact.
             gate_fusion: false,
+            gps_fusion: GpsFusion::Joint,
+            r_gps_vel: 0.01,
         }
     }
 }
@@ -173,7 +190,7 @@ pub struct StepReport {
 /// the group's rows of y_i²/(gate_sigma²·S_ii), with y the innovation and S = H·P·Hᵀ + R.
 /// Dimensionless; above 1 the innovation is outside the gate. NaN when a row's measurement is
 /// not a number (the step then fuses nothing).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct TestRatios {
     pub attitude: f64,
     pub altitude: f64,
@@ -226,10 +243,10 @@ impl GatedGroups {
 }
 
 /// What a measurement update did.
-struct UpdateOutcome {
-    ratios: TestRatios,
-    gated: GatedGroups,
-    result: Result<(), EkfError>,
+pub(crate) struct UpdateOutcome {
+    pub(crate) ratios: TestRatios,
+    pub(crate) gated: GatedGroups,
+    pub(crate) result: Result<(), EkfError>,
 }
 
 /// The filter: estimate and covariance.
@@ -238,6 +255,9 @@ pub struct Ekf {
     pub params: EkfParams,
     pub x: State,
     pub p: StateMatrix,
+    /// A fix has been fused (with [`GpsFusion::PositionVelocity`] the first one places the
+    /// position).
+    pub fix_seen: bool,
 }
 
 struct Trig {
@@ -496,7 +516,12 @@ impl Ekf {
         x[idx::BAY] = null_sample.acc_m_s2[1];
         x[idx::BAZ] = null_sample.acc_m_s2[2] - GRAVITY_M_S2;
         let p = StateMatrix::from_diagonal(&State::from(params.p0_diag));
-        Ekf { params, x, p }
+        Ekf {
+            params,
+            x,
+            p,
+            fix_seen: false,
+        }
     }
 
     /// Clamps a step interval to the accepted range (spec 3.9).
@@ -555,6 +580,21 @@ impl Ekf {
         let (a, w, e) = (sample.acc_m_s2, sample.gyro_rad_s, sample.euler_rad);
         let imu9 = [e[0], e[1], theta_m, a[0], a[1], a[2], w[0], w[1], w[2]];
         match gps {
+            Some(g) if self.params.gps_fusion == GpsFusion::PositionVelocity => {
+                let imu = self.correct(sample, theta_m, az_pred, None);
+                let fix = self.fuse_fix(&g);
+                UpdateOutcome {
+                    ratios: TestRatios {
+                        gps: fix.ratios.gps,
+                        ..imu.ratios
+                    },
+                    gated: GatedGroups {
+                        gps: fix.gated.gps,
+                        ..imu.gated
+                    },
+                    result: imu.result.and(fix.result),
+                }
+            }
             None => {
                 let z: [f64; IMU_ROWS] =
                     std::array::from_fn(|i| if i < 9 { imu9[i] } else { sample.alt_m });
@@ -1066,6 +1106,7 @@ mod tests {
         let two_d = z_after(Some(GpsSample {
             xy_m: [0.0, 0.0],
             z_m: None,
+            vel_m_s: None,
         }));
         let three_d = z_after(Some(GpsSample::at([0.0, 0.0, 0.0])));
         assert!((two_d - baro_only).abs() < 1e-6, "{two_d} vs {baro_only}");

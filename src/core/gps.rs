@@ -52,6 +52,11 @@ pub struct Tpv {
     pub epv: Option<f64>,
     /// Estimated horizontal position error (gpsd ≥ 3.20), m.
     pub eph: Option<f64>,
+    /// Speed over ground, m/s; course over ground, degrees from true north clockwise; climb
+    /// rate, m/s.
+    pub speed: Option<f64>,
+    pub track: Option<f64>,
+    pub climb: Option<f64>,
 }
 
 /// Sky view: only the satellites' count is kept.
@@ -121,6 +126,20 @@ impl Tpv {
     }
 }
 
+impl Tpv {
+    /// The velocity in the local frame (north, west, up), m/s, when gpsd gives a finite speed
+    /// and course (a missing climb is 0).
+    pub fn velocity_m_s(&self) -> Option<[f64; 3]> {
+        let (speed, track) = (self.speed?, self.track?);
+        let climb = self.climb.unwrap_or(0.0);
+        if !(speed.is_finite() && track.is_finite() && climb.is_finite()) {
+            return None;
+        }
+        let (s, c) = track.to_radians().sin_cos();
+        Some([speed * c, -speed * s, climb])
+    }
+}
+
 /// Why a gpsd line was not understood.
 #[derive(Debug, thiserror::Error)]
 #[error("not a gpsd report: {0}")]
@@ -148,6 +167,8 @@ pub struct LiveFix {
 pub struct GpsSample {
     pub xy_m: [f64; 2],
     pub z_m: Option<f64>,
+    /// The receiver's velocity in the local frame (north, west, up), m/s, when it gives one.
+    pub vel_m_s: Option<[f64; 3]>,
 }
 
 impl GpsSample {
@@ -156,6 +177,7 @@ impl GpsSample {
         GpsSample {
             xy_m: [pos_m[0], pos_m[1]],
             z_m: Some(pos_m[2]),
+            vel_m_s: None,
         }
     }
 
@@ -360,6 +382,7 @@ impl LocalFrame {
                 -(utm.easting_m - o.easting_m),
             ],
             z_m,
+            vel_m_s: None,
         }
     }
 }
@@ -374,6 +397,26 @@ mod tests {
         r#"{"class":"VERSION","release":"3.22","rev":"3.22","proto_major":3,"proto_minor":14}"#;
     const DEVICES: &str = r#"{"class":"DEVICES","devices":[{"class":"DEVICE","path":"tcp://127.0.0.1:29471","driver":"NMEA0183","activated":"2026-11-22T19:21:31.304Z","flags":1}]}"#;
     const WATCH: &str = r#"{"class":"WATCH","enable":true,"json":true,"nmea":false,"raw":0,"scaled":false,"timing":false,"split24":false,"pps":false}"#;
+
+    #[test]
+    fn gpsd_velocity_is_turned_into_the_local_frame() {
+        let tpv = |speed: f64, track: f64, climb: Option<f64>| Tpv {
+            speed: Some(speed),
+            track: Some(track),
+            climb,
+            ..Tpv::default()
+        };
+        // East at 2 m/s is −y (west up); north-west at √2 m/s is +x, +y.
+        let v = tpv(2.0, 90.0, Some(0.5)).velocity_m_s().unwrap();
+        assert!(v[0].abs() < 1e-12 && (v[1] + 2.0).abs() < 1e-12 && v[2] == 0.5);
+        let v = tpv(2f64.sqrt(), 315.0, None).velocity_m_s().unwrap();
+        assert!((v[0] - 1.0).abs() < 1e-12 && (v[1] - 1.0).abs() < 1e-12 && v[2] == 0.0);
+        assert_eq!(tpv(f64::NAN, 0.0, None).velocity_m_s(), None);
+        let Report::Tpv(t) = parse_report(TPV_3D).unwrap() else {
+            panic!()
+        };
+        assert_eq!(t.velocity_m_s(), Some([0.0, -0.0, 0.0]));
+    }
 
     #[test]
     fn parses_the_report_classes() {

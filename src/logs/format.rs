@@ -469,7 +469,8 @@ pub fn parse_x_hat(f: &[&str]) -> Result<[f64; 15], String> {
 /// local frame (x north, y west, z up from the first fix, m), printed to round-trip exactly.
 pub const UQUAD_GPS_HEADER: &str = "# uquad gps.log: t_main gps_time fix x y z vx vy vz lat lon speed climb track vel_ok; x y z = local frame (north, west, up from the first fix), m";
 
-/// Writes one fused gpsd fix in the 15 columns of spec 7.1 (velocities not used: 0). `t_us` is
+/// Writes one fused gpsd fix in the 15 columns of spec 7.1 (the velocity, when the receiver
+/// gave one, with vel_ok 1; else zeros and 0). `t_us` is
 /// the time before which the fix was received, so a replay fuses it in the same step.
 #[allow(clippy::too_many_arguments)]
 pub fn write_gps_fix(
@@ -478,17 +479,20 @@ pub fn write_gps_fix(
     stamp_us: i64,
     fix_mode: u8,
     pos_m: [f64; 3],
+    vel_m_s: Option<[f64; 3]>,
     lat_deg: f64,
     lon_deg: f64,
 ) {
     push_time_us(out, t_us);
     out.push('\t');
     push_time_us(out, stamp_us);
-    // `{}` prints the shortest text that reads back to the same f64.
+    // `{}` prints the shortest text that reads back to the same f64. The velocity columns and
+    // vel_ok (the last) say whether the receiver gave a velocity.
+    let (v, ok) = vel_m_s.map_or(([0.0; 3], 0), |v| (v, 1));
     let _ = writeln!(
         out,
-        "\t{fix_mode}\t{}\t{}\t{}\t0\t0\t0\t{lat_deg}\t{lon_deg}\t0\t0\t0\t0\t",
-        pos_m[0], pos_m[1], pos_m[2]
+        "\t{fix_mode}\t{}\t{}\t{}\t{}\t{}\t{}\t{lat_deg}\t{lon_deg}\t0\t0\t0\t{ok}\t",
+        pos_m[0], pos_m[1], pos_m[2], v[0], v[1], v[2]
     );
 }
 
@@ -505,6 +509,9 @@ pub enum GpsLogRecord {
         /// Columns 4–6: absolute UTM in the original's logs; the local-frame position in
         /// uquad's (whose gps.log starts with [`UQUAD_GPS_HEADER`]).
         pos_m: [f64; 3],
+        /// Columns 7–9 when column 15 (vel_ok) is 1: the velocity in the local frame (uquad's
+        /// logs).
+        vel_m_s: Option<[f64; 3]>,
         lat_deg: f64,
         lon_deg: f64,
         alt_m: f64,
@@ -527,6 +534,10 @@ impl GpsLogRecord {
                 t_us: time_field(f, 0, "t_main")?,
                 fix_mode: field(f, 2, "fix")?,
                 pos_m: [field(f, 3, "x")?, field(f, 4, "y")?, field(f, 5, "z")?],
+                vel_m_s: match field::<f64>(f, 14, "vel_ok")? {
+                    1.0 => Some([field(f, 6, "vx")?, field(f, 7, "vy")?, field(f, 8, "vz")?]),
+                    _ => None,
+                },
                 alt_m: field(f, 5, "z")?,
                 lat_deg: field(f, 9, "lat")?,
                 lon_deg: field(f, 10, "lon")?,
@@ -598,6 +609,7 @@ mod tests {
                 t_us: 174_962_037,
                 fix_mode: 3,
                 pos_m: [576_155.592_9, 6_135_556.114_4, 27.7],
+                vel_m_s: Some([-0.0, -0.0, -0.1]),
                 lat_deg: -34.919588333,
                 lon_deg: -56.166258333,
                 alt_m: 27.7
@@ -607,13 +619,30 @@ mod tests {
         // uquad's own gpsd lines round-trip the local position exactly, behind a header.
         let mut ours = format!("{UQUAD_GPS_HEADER}\n");
         let pos = [0.1 + 0.2, -13.426_443_214_528_263, 1e-300];
+        let vel = [0.3 - 0.1, -1e-7, 2.0 / 3.0];
         write_gps_fix(
-            &mut ours, 12_000_001, 11_999_000, 3, pos, -34.9193, -56.167_14,
+            &mut ours, 12_000_001, 11_999_000, 3, pos, None, -34.9193, -56.167_14,
+        );
+        write_gps_fix(
+            &mut ours,
+            13_000_001,
+            12_999_000,
+            3,
+            pos,
+            Some(vel),
+            -34.9193,
+            -56.167_14,
         );
         let p = parse_log(&ours, GpsLogRecord::parse_fields).unwrap();
-        assert!(
-            matches!(p.rows[0], GpsLogRecord::Gpsd { pos_m, t_us: 12_000_001, .. } if pos_m == pos)
-        );
+        assert!(matches!(
+            p.rows[0],
+            GpsLogRecord::Gpsd { pos_m, t_us: 12_000_001, vel_m_s: None, .. } if pos_m == pos
+        ));
+        // And the velocity, when the receiver gave one.
+        assert!(matches!(
+            p.rows[1],
+            GpsLogRecord::Gpsd { vel_m_s: Some(v), .. } if v == vel
+        ));
     }
 
     #[test]

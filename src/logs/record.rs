@@ -175,6 +175,7 @@ impl Record {
                 fix.stamp_us,
                 fix.fix.mode,
                 fix.sample.pos_m(),
+                fix.sample.vel_m_s,
                 fix.fix.lat_deg,
                 fix.fix.lon_deg,
             ),

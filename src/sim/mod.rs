@@ -5,6 +5,7 @@
 
 pub mod esc;
 pub mod faults;
+pub mod gps;
 pub mod hover;
 pub mod imu;
 pub mod operator;
@@ -46,11 +47,17 @@ pub fn vehicle(profile: &Profile, seed: u64) -> (physics::Plant, imu::SimImu) {
 /// Montevideo), latitude and longitude, degrees.
 pub const SITE_DEG: [f64; 2] = [-34.919588333, -56.166258333];
 
-/// Simulated gpsd: a fix of the true position `pos_m` (local frame) arriving at `t_us`, the
-/// next in `seq`. Its latitude and longitude place the local frame at [`SITE_DEG`] (for a
+/// Simulated gpsd: a fix at `pos_m` (local frame; the receiver's, errors included) arriving
+/// at `t_us`, the next in `seq`. Its latitude and longitude place the local frame at [`SITE_DEG`] (for a
 /// ground station's map); the run's gps.log carries the local position, which is what the
 /// filter and a replay fuse.
-pub fn gps_fix(seq: &mut u64, pos_m: [f64; 3], t_us: i64) -> LiveFix {
+pub fn gps_fix(
+    seq: &mut u64,
+    pos_m: [f64; 3],
+    vel_m_s: [f64; 3],
+    t_us: i64,
+    eph_m: f64,
+) -> LiveFix {
     *seq += 1;
     let [lat_deg, lon_deg] = crate::core::gps::offset_deg(SITE_DEG, [pos_m[0], pos_m[1]]);
     LiveFix {
@@ -60,10 +67,13 @@ pub fn gps_fix(seq: &mut u64, pos_m: [f64; 3], t_us: i64) -> LiveFix {
             lat_deg,
             lon_deg,
             alt_m: Some(pos_m[2]),
-            // The simulated fixes are the true position: no error.
-            eph_m: Some(0.0),
+            // The receiver's own estimate of its error (`sim::gps`).
+            eph_m: Some(eph_m),
         },
-        sample: GpsSample::at(pos_m),
+        sample: GpsSample {
+            vel_m_s: Some(vel_m_s),
+            ..GpsSample::at(pos_m)
+        },
         stamp_us: t_us,
     }
 }

@@ -122,7 +122,9 @@ pub async fn run(
                             if let Some(fix) = tpv.fix() {
                                 seq += 1;
                                 stats.fixes.fetch_add(1, Ordering::Relaxed);
-                                let sample = frame.to_local(fix.lat_deg, fix.lon_deg, fix.alt_m);
+                                let mut sample =
+                                    frame.to_local(fix.lat_deg, fix.lon_deg, fix.alt_m);
+                                sample.vel_m_s = tpv.velocity_m_s();
                                 tx.send_replace(Some(LiveFix {
                                     seq,
                                     fix,

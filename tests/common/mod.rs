@@ -157,6 +157,23 @@ pub fn read_table(path: &Path) -> Vec<Vec<String>> {
 
 /// `--set` value giving the default profile the 2012 flights' EKF process noise (roll and pitch
 /// 0.01 instead of the default profile's 0.001).
+/// The simulated receiver without errors: exact fixes once a second (for checks of the
+/// control against the set point, which a real receiver's wandering error would swamp).
+pub const EXACT_GPS: [&str; 12] = [
+    "--set",
+    "sim.gps_delay_s=0",
+    "--set",
+    "sim.gps_noise_h_m=0",
+    "--set",
+    "sim.gps_noise_v_m=0",
+    "--set",
+    "sim.gps_bias_h_m=0",
+    "--set",
+    "sim.gps_bias_v_m=0",
+    "--set",
+    "sim.gps_noise_vel_m_s=0",
+];
+
 pub const EKF_Q_2012: &str = "ekf.q=[100.0, 100.0, 100.0, 0.01, 0.01, 1e-5, 100.0, 100.0, 100.0, 0.1, 0.1, 0.1, 1.0, 1.0, 1.0]";
 
 /// Copies the two 2012 profile files and the data files they name into `dir`.

@@ -1,0 +1,270 @@
+//! A GPS fix fused into position and velocity only (`ekf.gps_fusion = "position-velocity"`),
+//! after the step's IMU rows: its x, y, z (z left out without an altitude) and, when the
+//! receiver gives one, its horizontal velocity (the body velocity turned by the estimated
+//! attitude). Not in the original's spec (3.7 fuses a fix's position with the IMU rows into
+//! every state): with a real receiver's metre-level errors that joint update explains a fix's
+//! error partly as tilt and accelerometer bias, and the tilt it then reports is flown; and a
+//! velocity learnt only from 1 Hz positions lags by half a second, which the position loop
+//! cannot fly on. The gain is kept to the position and velocity states, the covariance
+//! updated in Joseph form (right for any gain); the first fix places the position.
+
+use crate::core::ekf::{
+    Ekf, EkfError, GPS_ROWS, GatedGroups, N_STATES, StateMatrix, TestRatios, UpdateOutcome, idx,
+};
+use crate::core::gps::GpsSample;
+use crate::core::math::{cos, sin};
+use nalgebra::{SMatrix, SVector};
+
+/// The states a fix's horizontal rows correct, and its altitude row: the barometer owns the
+/// vertical, and a horizontal error must not move it (nor the altitude the horizontal).
+const HORIZONTAL: [usize; 4] = [idx::X, idx::Y, idx::VQX, idx::VQY];
+const VERTICAL: [usize; 2] = [idx::Z, idx::VQZ];
+/// Rows: x, y, z, north and west velocity.
+const ROWS: usize = 5;
+
+impl Ekf {
+    /// Fuses fix `g` into position and velocity.
+    pub(crate) fn fuse_fix(&mut self, g: &GpsSample) -> UpdateOutcome {
+        let rg = self.params.r_gps_diag;
+        let rv = self.params.r_gps_vel;
+        let r = [rg[GPS_ROWS - 3], rg[GPS_ROWS - 2], rg[GPS_ROWS - 1], rv, rv];
+        if !self.fix_seen {
+            self.fix_seen = true;
+            self.place(&g.xy_m, &r[..2]);
+            return outcome(TestRatios::default(), false, Ok(()));
+        }
+        let vel = g.vel_m_s.unwrap_or([f64::NAN; 3]);
+        let z = [
+            g.xy_m[0],
+            g.xy_m[1],
+            g.z_m.unwrap_or(f64::NAN),
+            vel[0],
+            vel[1],
+        ];
+        // Rows without a measurement (no altitude, no velocity) are left out.
+        let used: [bool; ROWS] = [
+            true,
+            true,
+            g.z_m.is_some(),
+            g.vel_m_s.is_some(),
+            g.vel_m_s.is_some(),
+        ];
+        if (0..ROWS).any(|i| used[i] && !z[i].is_finite()) {
+            return outcome(
+                TestRatios::default(),
+                false,
+                Err(EkfError::NonFiniteMeasurement),
+            );
+        }
+        let h = self.observation(&used);
+        let y = SVector::<f64, ROWS>::from_fn(|i, _| {
+            if used[i] {
+                z[i] - (h.row(i) * self.x)[(0, 0)]
+            } else {
+                0.0
+            }
+        });
+        let pht = self.p * h.transpose();
+        let mut s = h * pht;
+        for i in 0..ROWS {
+            s[(i, i)] += if used[i] { r[i] } else { 1.0 };
+        }
+        let gate_sq = self.params.gate_sigma * self.params.gate_sigma;
+        let ratio = (0..2)
+            .map(|i| y[i] * y[i] / (gate_sq * s[(i, i)]))
+            .fold(0.0f64, |m, v| if v > m || v.is_nan() { v } else { m });
+        let ratios = TestRatios {
+            gps: Some(ratio),
+            ..TestRatios::default()
+        };
+        if self.params.gate_fusion && (ratio > 1.0 || ratio.is_nan()) {
+            return outcome(ratios, true, Ok(()));
+        }
+        let Some(s_inv) = s.try_inverse() else {
+            return outcome(ratios, false, Err(EkfError::SingularInnovation));
+        };
+        let mut k = pht * s_inv;
+        for st in 0..N_STATES {
+            for c in 0..ROWS {
+                let keep = if c == 2 {
+                    &VERTICAL[..]
+                } else {
+                    &HORIZONTAL[..]
+                };
+                if !keep.contains(&st) {
+                    k[(st, c)] = 0.0;
+                }
+            }
+        }
+        self.x += k * y;
+        self.joseph(&k, &h, &r, &used);
+        outcome(ratios, false, Ok(()))
+    }
+
+    /// H: the position rows read x, y, z; the velocity rows the body velocity turned by the
+    /// estimated attitude (its partials in the angles are left out with their gain). Rows not
+    /// used are zero.
+    fn observation(&self, used: &[bool; ROWS]) -> SMatrix<f64, ROWS, N_STATES> {
+        let mut h = SMatrix::<f64, ROWS, N_STATES>::zeros();
+        for i in 0..3 {
+            if used[i] {
+                h[(i, i)] = 1.0;
+            }
+        }
+        let (sps, cps) = (sin(self.x[idx::PSI]), cos(self.x[idx::PSI]));
+        let (sph, cph) = (sin(self.x[idx::PHI]), cos(self.x[idx::PHI]));
+        let (sth, cth) = (sin(self.x[idx::THETA]), cos(self.x[idx::THETA]));
+        let r = [
+            [
+                cph * cth,
+                cth * sph * sps - cps * sth,
+                sps * sth + cps * cth * sph,
+            ],
+            [
+                cph * sth,
+                sth * sph * sps + cps * cth,
+                cps * sth * sph - cth * sps,
+            ],
+        ];
+        for (row, rr) in r.iter().enumerate() {
+            if used[3 + row] {
+                for (j, v) in rr.iter().enumerate() {
+                    h[(3 + row, idx::VQX + j)] = *v;
+                }
+            }
+        }
+        h
+    }
+
+    /// P = (I − K·H)·P·(I − K·H)ᵀ + K·R·Kᵀ over the rows used.
+    fn joseph(
+        &mut self,
+        k: &SMatrix<f64, N_STATES, ROWS>,
+        h: &SMatrix<f64, ROWS, N_STATES>,
+        r: &[f64; ROWS],
+        used: &[bool; ROWS],
+    ) {
+        let i_kh = StateMatrix::identity() - k * h;
+        let mut krk = StateMatrix::zeros();
+        for c in (0..ROWS).filter(|&c| used[c]) {
+            let col = k.column(c);
+            krk += col * col.transpose() * r[c];
+        }
+        self.p = i_kh * self.p * i_kh.transpose() + krk;
+    }
+
+    /// The first fix: the horizontal position is the fix's, its covariance the fix's noise,
+    /// uncorrelated with the rest.
+    fn place(&mut self, xy: &[f64; 2], r: &[f64]) {
+        for (i, (&v, &ri)) in xy.iter().zip(r).enumerate() {
+            self.x[i] = v;
+            self.p.row_mut(i).fill(0.0);
+            self.p.column_mut(i).fill(0.0);
+            self.p[(i, i)] = ri;
+        }
+    }
+}
+
+fn outcome(ratios: TestRatios, gps_gated: bool, result: Result<(), EkfError>) -> UpdateOutcome {
+    UpdateOutcome {
+        ratios,
+        gated: GatedGroups {
+            gps: gps_gated,
+            ..GatedGroups::default()
+        },
+        result,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::core::ekf::{Ekf, EkfParams, GpsFusion, StepInput, idx};
+    use crate::core::gps::GpsSample;
+    use crate::core::imu::calib::ImuSample;
+    use crate::core::model::{GRAVITY_M_S2, w_hover_rad_s};
+
+    /// A level filter at rest, fusing fixes into position and velocity.
+    fn filter() -> (Ekf, ImuSample, StepInput) {
+        let mut p = EkfParams::flight_2012();
+        p.original_model = false;
+        p.gps_fusion = GpsFusion::PositionVelocity;
+        p.q_diag[idx::X] = 1e-4;
+        p.q_diag[idx::Y] = 1e-4;
+        p.q_diag[idx::VQX] = 1e-4;
+        p.q_diag[idx::VQY] = 1e-4;
+        p.r_gps_diag[11] = 1e12;
+        let still = ImuSample {
+            acc_m_s2: [0.0, 0.0, GRAVITY_M_S2],
+            ..ImuSample::default()
+        };
+        let ekf = Ekf::new(p, &still);
+        let input = StepInput {
+            u_rad_s: [w_hover_rad_s(1.55); 4],
+            mass_kg: 1.55,
+            dt_us: 10_000,
+            gps: None,
+        };
+        (ekf, still, input)
+    }
+
+    fn fix(x: f64, y: f64, vel: Option<[f64; 3]>) -> GpsSample {
+        GpsSample {
+            xy_m: [x, y],
+            z_m: Some(5.0),
+            vel_m_s: vel,
+        }
+    }
+
+    #[test]
+    fn the_first_fix_places_the_position_and_later_ones_leave_the_attitude_alone() {
+        let (mut ekf, still, mut input) = filter();
+        input.gps = Some(fix(3.0, -2.0, None));
+        let (_, res) = ekf.step(&still, &input);
+        res.unwrap();
+        assert_eq!([ekf.x[idx::X], ekf.x[idx::Y]], [3.0, -2.0]);
+        // A second fix 2 m off, with a velocity of 1 m/s north: position and velocity move,
+        // attitude, rates, biases and the altitude do not.
+        for _ in 0..100 {
+            input.gps = None;
+            ekf.step(&still, &input).1.unwrap();
+        }
+        let before = ekf.x;
+        input.gps = Some(fix(5.0, -2.0, Some([1.0, 0.0, 0.0])));
+        ekf.step(&still, &input).1.unwrap();
+        assert!(ekf.x[idx::X] > before[idx::X] + 0.01, "{}", ekf.x[idx::X]);
+        assert!(ekf.x[idx::VQX] > 0.5, "velocity {}", ekf.x[idx::VQX]);
+        for s in [
+            idx::PSI,
+            idx::PHI,
+            idx::THETA,
+            idx::Z,
+            idx::VQZ,
+            idx::BAX,
+            idx::BAY,
+        ] {
+            assert!(
+                (ekf.x[s] - before[s]).abs() < 1e-3,
+                "state {s}: {} vs {}",
+                ekf.x[s],
+                before[s]
+            );
+        }
+        // The covariance stays symmetric and positive definite.
+        assert!((ekf.p - ekf.p.transpose()).norm() < 1e-9 * ekf.p.norm());
+        assert!(ekf.p.cholesky().is_some());
+    }
+
+    #[test]
+    fn a_fix_far_outside_the_gate_is_left_out() {
+        let (mut ekf, still, mut input) = filter();
+        ekf.params.gate_fusion = true;
+        ekf.params.r_gps_diag[9] = 1.0;
+        ekf.params.r_gps_diag[10] = 1.0;
+        input.gps = Some(fix(0.0, 0.0, None));
+        ekf.step(&still, &input).1.unwrap();
+        input.gps = Some(fix(500.0, 0.0, None));
+        let (rep, _) = ekf.step(&still, &input);
+        assert!(rep.gated.gps && rep.ratios.gps.is_some_and(|r| r > 1.0));
+        assert!(ekf.x[idx::X].abs() < 1e-6);
+    }
+}
