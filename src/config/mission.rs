@@ -79,8 +79,9 @@ impl super::Profile {
             ));
         }
         let params = c.commander_params();
-        let mission = load_mission(path, &params)?;
-        let text = std::fs::read_to_string(path).unwrap_or_default();
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| format!("cannot read the mission {}: {e}", path.display()))?;
+        let mission = parse_mission(path, &text, &params)?;
         let gains = if c.mission.path_gains {
             let q = Mat16::from_row_slice(&self.lqr_q);
             let r = Mat4::from_row_slice(&self.lqr_r);
@@ -171,8 +172,13 @@ struct RawMission {
 pub fn load_mission(path: &Path, p: &Params) -> Result<Mission, String> {
     let text = std::fs::read_to_string(path)
         .map_err(|e| format!("cannot read the mission {}: {e}", path.display()))?;
-    let raw: RawMission = toml::from_str(&text)
-        .map_err(|e| format!("mission {}: {}", path.display(), e.message()))?;
+    parse_mission(path, &text, p)
+}
+
+/// [`load_mission`] on the file's text (`path` names it in errors).
+fn parse_mission(path: &Path, text: &str, p: &Params) -> Result<Mission, String> {
+    let raw: RawMission =
+        toml::from_str(text).map_err(|e| format!("mission {}: {}", path.display(), e.message()))?;
     let mut items = Vec::with_capacity(raw.item.len());
     for (i, r) in raw.item.iter().enumerate() {
         let item = check_item(r, p).map_err(|e| {

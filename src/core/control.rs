@@ -218,10 +218,27 @@ impl Controller {
         }
     }
 
-    /// Flies with other gains from the next step on; the integrators keep their values.
+    /// Flies with other gains from the next step on, without a bump: the integrators are
+    /// rescaled so the integral action K_int·x_int is what it was (swapping K_int under the
+    /// accumulated x_int would step the command at every segment start). When the new K_int
+    /// cannot carry it (singular, or an integrator past its cap), the integral gains stay.
     pub fn set_gains(&mut self, g: &Gains) {
         self.k = g.k_prop;
-        self.k_int = g.k_int;
+        let n = self.integrators.states().len();
+        if n == 4 {
+            let old = nalgebra::Matrix4::from_fn(|r, c| self.k_int[r][c]);
+            let new = nalgebra::Matrix4::from_fn(|r, c| g.k_int[r][c]);
+            let action = old * nalgebra::Vector4::from(self.x_int);
+            let rescaled = new.lu().solve(&action).filter(|x| {
+                x.iter()
+                    .zip(&self.rules)
+                    .all(|(v, rule)| v.is_finite() && v.abs() <= rule.cap)
+            });
+            if let Some(x) = rescaled {
+                self.k_int = g.k_int;
+                self.x_int = [x[0], x[1], x[2], x[3]];
+            }
+        }
         if self.integrators == Integrators::PsiPhiZTheta {
             for row in &mut self.k {
                 for state in HORIZONTAL_STATES {
@@ -666,6 +683,45 @@ mod tests {
             (held[0] - free[0] + 0.4 + 2e-3).abs() < 1e-12,
             "{held:?} {free:?}"
         );
+    }
+
+    #[test]
+    fn a_gain_swap_keeps_the_integral_action() {
+        let k_int: Vec<f64> = (0..16)
+            .map(|i| if i % 5 == 0 { 2.0 } else { 0.1 })
+            .collect();
+        let mut c = Controller::new(
+            &[0.0; 48],
+            &k_int,
+            false,
+            Integrators::XYZTheta,
+            &rules4(),
+            false,
+        )
+        .unwrap();
+        let sp = SetPoint {
+            x: [0.0; 12],
+            w_rad_s: [300.0; 4],
+        };
+        let mut x_hat = State::zeros();
+        x_hat[0] = 0.3;
+        x_hat[2] = -0.2;
+        for _ in 0..50 {
+            c.step(&x_hat, &sp, 0.01);
+        }
+        // On the set point (no new integration): the output before and after the swap.
+        let before = c.clone().step(&State::zeros(), &sp, 0.01);
+        let mut g = c.gains();
+        for (r, row) in g.k_int.iter_mut().enumerate() {
+            row[r] *= 3.0;
+            row[(r + 1) % 4] -= 0.5;
+        }
+        c.set_gains(&g);
+        assert_eq!(c.gains().k_int, g.k_int);
+        let after = c.step(&State::zeros(), &sp, 0.01);
+        for (a, b) in before.iter().zip(&after) {
+            assert!((a - b).abs() < 1e-9, "{before:?} {after:?}");
+        }
     }
 
     #[test]

@@ -28,11 +28,6 @@ impl Ekf {
         let rg = self.params.r_gps_diag;
         let rv = self.params.r_gps_vel;
         let r = [rg[GPS_ROWS - 3], rg[GPS_ROWS - 2], rg[GPS_ROWS - 1], rv, rv];
-        if !self.fix_seen {
-            self.fix_seen = true;
-            self.place(&g.xy_m, &r[..2]);
-            return outcome(TestRatios::default(), false, Ok(()));
-        }
         let vel = g.vel_m_s.unwrap_or([f64::NAN; 3]);
         let z = [
             g.xy_m[0],
@@ -56,6 +51,11 @@ impl Ekf {
                 Err(EkfError::NonFiniteMeasurement),
             );
         }
+        if !self.fix_seen {
+            self.fix_seen = true;
+            self.place(&g.xy_m, &r[..2]);
+            return outcome(TestRatios::default(), false, Ok(()));
+        }
         let h = self.observation(&used);
         let y = SVector::<f64, ROWS>::from_fn(|i, _| {
             if used[i] {
@@ -70,7 +70,11 @@ impl Ekf {
             s[(i, i)] += if used[i] { r[i] } else { 1.0 };
         }
         let gate_sq = self.params.gate_sigma * self.params.gate_sigma;
-        let ratio = (0..2)
+        // The gps group: the horizontal position and velocity rows (a receiver's glitch in
+        // either is left out whole).
+        let ratio = [0, 1, 3, 4]
+            .into_iter()
+            .filter(|&i| used[i])
             .map(|i| y[i] * y[i] / (gate_sq * s[(i, i)]))
             .fold(0.0f64, |m, v| if v > m || v.is_nan() { v } else { m });
         let ratios = TestRatios {

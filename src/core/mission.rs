@@ -11,7 +11,7 @@
 
 use crate::core::control::{Gains, Integrators};
 use crate::core::lqr::{self, Mat4, Mat16};
-use crate::core::math::atan2;
+use crate::core::math::{atan2, cos, sin};
 use crate::core::path::{Circle, Line, PathPoint, Segment, SpeedProfile};
 use crate::core::trim::{self, PathShape};
 use std::collections::VecDeque;
@@ -215,7 +215,7 @@ pub struct MissionRun {
     last: PathPoint,
     /// Where the plan so far ends (while planning).
     plan_end: PathPoint,
-    /// The planned duration of every segment begun so far, s.
+    /// The planned duration of the segments planned so far (an item's when it is reached), s.
     pub ideal_s: f64,
 }
 
@@ -265,8 +265,11 @@ impl MissionRun {
         self.last
     }
 
-    /// Plans the current item again from `from` (a resume after a pause).
+    /// Plans the current item again from `from` (a resume after a pause). What was planned and
+    /// not flown leaves the planned duration.
     pub fn replan_from(&mut self, from: PathPoint) {
+        let unflown: f64 = self.plan.iter().map(|(s, _)| s.duration_s()).sum();
+        self.ideal_s -= (unflown - self.t_s).max(0.0);
         self.last = from;
         self.plan.clear();
         self.t_s = 0.0;
@@ -409,8 +412,8 @@ impl MissionRun {
             atan2(dy, dx)
         };
         let entry = [
-            centre[0] + radius_m * start.cos(),
-            centre[1] + radius_m * start.sin(),
+            centre[0] + radius_m * cos(start),
+            centre[1] + radius_m * sin(start),
             p[2],
         ];
         self.line_to(entry, speed_m_s);

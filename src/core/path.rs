@@ -60,7 +60,7 @@ impl SpeedProfile {
     /// Distance, speed and acceleration at `t_s` (clamped to the profile).
     pub fn at(&self, t_s: f64) -> (f64, f64, f64) {
         let total = self.duration_s();
-        if total <= 0.0 {
+        if total.is_nan() || total <= 0.0 {
             return (self.distance, 0.0, 0.0);
         }
         let t = t_s.clamp(0.0, total);

@@ -32,7 +32,7 @@ impl Commander {
                 Some(Item::Takeoff { .. }) => self.estimator_ready(est),
                 _ => Err("the mission does not begin with a takeoff: take off, then start".into()),
             },
-            Mode::Hold => Ok(()),
+            Mode::Hold => self.position_held(),
             m => Err(format!(
                 "{}: start needs armed (on the ground) or hold",
                 m.name()
@@ -40,10 +40,19 @@ impl Commander {
         }
     }
 
+    /// A path needs the horizontal position observed: a fix fused lately.
+    fn position_held(&self) -> Result<(), String> {
+        if self.hold_xy {
+            Ok(())
+        } else {
+            Err("gps: no fix lately (position hold is off): a path cannot be flown".into())
+        }
+    }
+
     /// Why a paused mission cannot go on, if it cannot.
     pub(super) fn check_resume(&self) -> Result<(), String> {
         if self.mode == Mode::Hold && self.paused && self.run.is_some() {
-            Ok(())
+            self.position_held()
         } else {
             Err(format!("{}: no paused mission", self.mode.name()))
         }
@@ -117,7 +126,9 @@ impl Commander {
         why: &str,
         out: &mut Vec<Event>,
     ) {
-        let Some(home) = self.home_m else {
+        // Without a takeoff point or a fresh fix there is nowhere to fly back to (the path
+        // would be flown blind); a landing under way goes on.
+        let (Some(home), true, false) = (self.home_m, self.hold_xy, self.mode == Mode::Land) else {
             return self.begin_land(est, t_us, why, out);
         };
         if self.mode == Mode::Return {

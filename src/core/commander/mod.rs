@@ -472,6 +472,7 @@ impl Commander {
             Command::Pause if m != Mode::Mission => Err(format!("{}: no mission flying", m.name())),
             Command::Resume => self.check_resume(),
             Command::Return if m == Mode::Return => Err("already return".into()),
+            Command::Return if m == Mode::Land => Err("landing: a landing goes on".into()),
             Command::Hold(_) | Command::Land | Command::Return if !m.airborne() => {
                 Err(format!("{}: not in the air", m.name()))
             }

@@ -926,6 +926,14 @@ fn a_return_failsafe_flies_home_then_lands() {
         assert!(t < 60_000_000, "{:?}", modes(&ev));
     }
     assert!(modes(&ev).ends_with(&[Mode::Hold, Mode::Hold, Mode::Return, Mode::Land]));
+    // A landing goes on: `return` is refused while it lasts.
+    c.command(Command::Return, t, Ok(()), Some(&at(t, 1.0)), &mut ev);
+    assert_eq!(c.mode(), Mode::Land);
+    assert!(
+        refusals(&ev)
+            .last()
+            .is_some_and(|w| w.starts_with("landing"))
+    );
     let g = c.guidance();
     assert!(
         g.pos_m[0].abs() < 1e-6 && g.pos_m[1].abs() < 1e-6,
