@@ -13,7 +13,12 @@ root="${DESTDIR:-}"
 install -D -m 0755 "$bin" "$root/usr/local/bin/uquad"
 install -d -m 0755 "$root/etc/uquad"
 for f in "$top"/config/*; do
-    install -m 0644 "$f" "$root/etc/uquad/"
+    if [ -f "$f" ]; then install -m 0644 "$f" "$root/etc/uquad/"; fi
+done
+# Missions (`uquad fly --mission /etc/uquad/missions/square.toml`).
+install -d -m 0755 "$root/etc/uquad/missions"
+for f in "$top"/config/missions/*.toml; do
+    install -m 0644 "$f" "$root/etc/uquad/missions/"
 done
 # The installed profile talks to the board's devices through the stable names.
 sed -i -e 's|^device = ".*"|device = "/dev/uquad-imu"|' \

@@ -345,22 +345,7 @@ impl HeadingFrame {
 
 /// A world-frame vector in the body frame: R(ψ, φ, θ)ᵀ·v (ZYX angles, as the filter's).
 pub fn body_from_world(psi: f64, phi: f64, theta: f64, v: [f64; 3]) -> [f64; 3] {
-    let (sps, cps) = (sin(psi), cos(psi));
-    let (sph, cph) = (sin(phi), cos(phi));
-    let (sth, cth) = (sin(theta), cos(theta));
-    let r = [
-        [
-            cph * cth,
-            cth * sph * sps - cps * sth,
-            sps * sth + cps * cth * sph,
-        ],
-        [
-            cph * sth,
-            sth * sph * sps + cps * cth,
-            cps * sth * sph - cth * sps,
-        ],
-        [-sph, cph * sps, cph * cps],
-    ];
+    let r = crate::core::math::rotation_portable(psi, phi, theta);
     std::array::from_fn(|j| r[0][j] * v[0] + r[1][j] * v[1] + r[2][j] * v[2])
 }
 

@@ -12,7 +12,7 @@ use crate::core::ekf::{
     Ekf, EkfError, GPS_ROWS, GatedGroups, N_STATES, StateMatrix, TestRatios, UpdateOutcome, idx,
 };
 use crate::core::gps::GpsSample;
-use crate::core::math::{cos, sin};
+use crate::core::math::rotation_portable;
 use nalgebra::{SMatrix, SVector};
 
 /// The states a fix's horizontal rows correct, and its altitude row: the barometer owns the
@@ -115,22 +115,8 @@ impl Ekf {
                 h[(i, i)] = 1.0;
             }
         }
-        let (sps, cps) = (sin(self.x[idx::PSI]), cos(self.x[idx::PSI]));
-        let (sph, cph) = (sin(self.x[idx::PHI]), cos(self.x[idx::PHI]));
-        let (sth, cth) = (sin(self.x[idx::THETA]), cos(self.x[idx::THETA]));
-        let r = [
-            [
-                cph * cth,
-                cth * sph * sps - cps * sth,
-                sps * sth + cps * cth * sph,
-            ],
-            [
-                cph * sth,
-                sth * sph * sps + cps * cth,
-                cps * sth * sph - cth * sps,
-            ],
-        ];
-        for (row, rr) in r.iter().enumerate() {
+        let r = rotation_portable(self.x[idx::PSI], self.x[idx::PHI], self.x[idx::THETA]);
+        for (row, rr) in r.iter().take(2).enumerate() {
             if used[3 + row] {
                 for (j, v) in rr.iter().enumerate() {
                     h[(3 + row, idx::VQX + j)] = *v;

@@ -35,9 +35,22 @@ pub fn pow(x: f64, y: f64) -> f64 {
 /// With std's sin and cos: for the simulator's physics and the ground station's telemetry,
 /// never for a logged estimate.
 pub fn rotation(psi: f64, phi: f64, theta: f64) -> [[f64; 3]; 3] {
-    let (sps, cps) = psi.sin_cos();
-    let (sph, cph) = phi.sin_cos();
-    let (sth, cth) = theta.sin_cos();
+    rotation_of(psi.sin_cos(), phi.sin_cos(), theta.sin_cos())
+}
+
+/// [`rotation`] from this module's portable sine and cosine: for what a replay must give again
+/// on any platform (the controller's set point along a path, the filter's GPS velocity rows).
+pub fn rotation_portable(psi: f64, phi: f64, theta: f64) -> [[f64; 3]; 3] {
+    let sc = |a: f64| (sin(a), cos(a));
+    rotation_of(sc(psi), sc(phi), sc(theta))
+}
+
+/// The ZYX rotation from the sines and cosines of roll, pitch and yaw.
+fn rotation_of(
+    (sps, cps): (f64, f64),
+    (sph, cph): (f64, f64),
+    (sth, cth): (f64, f64),
+) -> [[f64; 3]; 3] {
     [
         [
             cph * cth,
