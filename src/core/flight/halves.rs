@@ -272,7 +272,10 @@ impl ControllerCore {
         }
         self.active_gains = key;
         let gains = *self.gain_table.get(key).unwrap_or(&self.profile_gains);
-        self.controller.set_gains(&gains);
+        // Between two kinds flown on the same gains nothing is swapped (nor rescaled).
+        if gains != self.controller.gains() {
+            self.controller.set_gains(&gains);
+        }
     }
 
     /// The err.log line for a change of position hold.
