@@ -306,7 +306,7 @@ fn the_quit_key_ends_the_run_in_any_mode_and_keys_wait_for_their_planner() {
     // An operator's command in the flight's records, as a replay reads it back.
     let arm = OperatorInput::Command(uquad::core::commander::Command::Arm, LinkSource::Console);
     b.estimator
-        .operator(arm, b.t_us, ArmCheck::Recorded(&ok), &mut b.out);
+        .operator(arm.clone(), b.t_us, ArmCheck::Recorded(&ok), &mut b.out);
     assert!(
         b.out
             .records

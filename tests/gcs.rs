@@ -290,3 +290,61 @@ fn the_link_runs_over_a_serial_radio() {
     };
     assert_eq!(ack.result, MavResult::MAV_RESULT_ACCEPTED);
 }
+
+/// A mission uploaded by a ground station (MISSION_COUNT, MISSION_REQUEST_INT,
+/// MISSION_ITEM_INT, MISSION_ACK), downloaded back, started with MISSION_START and followed
+/// with MISSION_CURRENT and MISSION_ITEM_REACHED; the upload is a file in the run folder,
+/// and the run replays to the same bytes.
+#[test]
+fn a_ground_station_uploads_a_mission_and_the_vehicle_flies_it() {
+    let flown = fly_with_client(&["mission"], &[]);
+    let (measured, r, run) = (&flown.measured, &flown.report, &flown.run);
+    assert_eq!(
+        measured["reached"],
+        serde_json::json!([0, 1, 2, 3, 4]),
+        "{measured}"
+    );
+    // Every item is current in its turn; the mission ends complete (MISSION_STATE 5).
+    let current: Vec<u64> = measured["current"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(u)
+        .collect();
+    for seq in 1..=4 {
+        assert!(current.contains(&seq), "{measured}");
+    }
+    assert!(current.windows(2).all(|w| w[0] <= w[1]), "{measured}");
+    assert!(
+        measured["states"].as_array().unwrap().contains(&5.into()),
+        "{measured}"
+    );
+    let modes: Vec<&str> = r["modes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|m| m["mode"].as_str().unwrap())
+        .collect();
+    assert_eq!(
+        modes,
+        [
+            "disarmed", "armed", "takeoff", "mission", "land", "disarmed"
+        ],
+        "{r}"
+    );
+    assert_eq!(r["deadline_misses"], 0, "{r}");
+    // The refused upload's file stays in the run folder; the flown one is recorded by name.
+    let mode_log = std::fs::read_to_string(run.join("mode.log")).unwrap();
+    assert!(mode_log.contains(" mission mission-2.toml\n"), "{mode_log}");
+    assert!(run.join("mission-1.toml").is_file());
+    let err_log = std::fs::read_to_string(run.join("err.log")).unwrap();
+    assert!(
+        err_log.contains("mission mission-2.toml loaded: 5 items"),
+        "{err_log}"
+    );
+    let out = replay_run(run);
+    for name in ["mode.log", "w.log", "x_hat.log"] {
+        let a = std::fs::read(run.join(name)).unwrap();
+        assert_eq!(a, std::fs::read(out.path().join(name)).unwrap(), "{name}");
+    }
+}

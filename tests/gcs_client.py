@@ -8,9 +8,12 @@ exits 0; on a failed expectation it prints why and exits 1.
 Scenarios:
   fly PARAM_COUNT  heartbeat, parameters, a refused arm, arm, takeoff to 1.5 m, land.
   link-loss        arm, takeoff, noise and a flood, then silence: the vehicle must land.
+  mission          a refused upload, an upload, its download, arm, MISSION_START: the items
+                   reached in order, MISSION_CURRENT following them, landed at the end.
 """
 
 import json
+import math
 import os
 import random
 import socket
@@ -339,6 +342,111 @@ def link_loss(s, started):
     return {"flood_frames": flood, "failsafe_after_s": round(landing_s, 2)}
 
 
+def upload(s, items):
+    """Uploads MISSION_ITEM_INTs as a ground station does; returns the MISSION_ACK."""
+    s.conn.mav.mission_count_send(1, 1, len(items), mav.MAV_MISSION_TYPE_MISSION)
+    end = time.time() + LONG
+    while time.time() < end:
+        m = s.pump()
+        if m is None:
+            continue
+        kind = m.get_type()
+        if kind in ("MISSION_REQUEST_INT", "MISSION_REQUEST"):
+            s.conn.mav.send(items[m.seq])
+        elif kind == "MISSION_ACK":
+            return m
+    fail("no MISSION_ACK of the upload")
+
+
+def download(s):
+    """The vehicle's mission, item by item."""
+    s.conn.mav.mission_request_list_send(1, 1, mav.MAV_MISSION_TYPE_MISSION)
+    count = s.wait("MISSION_COUNT", lambda m: m.get_type() == "MISSION_COUNT").count
+    items = []
+    for seq in range(count):
+        s.conn.mav.mission_request_int_send(1, 1, seq, mav.MAV_MISSION_TYPE_MISSION)
+        items.append(
+            s.wait(
+                f"MISSION_ITEM_INT {seq}",
+                lambda m, seq=seq: m.get_type() == "MISSION_ITEM_INT" and m.seq == seq,
+            )
+        )
+    s.conn.mav.mission_ack_send(1, 1, mav.MAV_MISSION_ACCEPTED, mav.MAV_MISSION_TYPE_MISSION)
+    return items
+
+
+def mission_items(s, lat, lon):
+    """Take off to 1.5 m, 4 m north, half a turn of radius 2 m clockwise around a point 2 m
+    east of there, back, land: in latitude and longitude, as ground stations send them."""
+    north = 1.0 / 111_195.0  # degrees of latitude per metre (the vehicle's sphere)
+    east = north / math.cos(math.radians(lat))
+    rel = mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
+
+    def item(seq, cmd, p1=0, p3=0, n_m=None, e_m=0.0, z=1.5, frame=rel):
+        x = y = 0
+        if n_m is not None:
+            x, y = round((lat + n_m * north) * 1e7), round((lon + e_m * east) * 1e7)
+        return s.conn.mav.mission_item_int_encode(
+            1, 1, seq, frame, cmd, int(seq == 0), 1, p1, 0, p3, 0, x, y, z,
+            mav.MAV_MISSION_TYPE_MISSION,
+        )
+
+    return [
+        item(0, mav.MAV_CMD_NAV_TAKEOFF),
+        item(1, mav.MAV_CMD_NAV_WAYPOINT, n_m=4.0),
+        item(2, mav.MAV_CMD_NAV_LOITER_TURNS, p1=0.5, p3=2.0, n_m=4.0, e_m=2.0),
+        item(3, mav.MAV_CMD_NAV_RETURN_TO_LAUNCH, frame=mav.MAV_FRAME_MISSION, z=0),
+        item(4, mav.MAV_CMD_NAV_LAND, frame=mav.MAV_FRAME_MISSION, z=0),
+    ]
+
+
+def mission(s):
+    s.wait("a heartbeat", lambda m: m.get_type() == "HEARTBEAT", 5.0)
+    fix = s.wait("a 3-D fix", lambda m: m.get_type() == "GPS_RAW_INT" and m.fix_type >= 3)
+    lat, lon = fix.lat / 1e7, fix.lon / 1e7
+    items = mission_items(s, lat, lon)
+    # A waypoint 500 m away: outside the fence, refused with the loader's words.
+    far = mission_items(s, lat + 500 / 111_195.0, lon)
+    far[0] = items[0]
+    ack = upload(s, far)
+    if ack.type == mav.MAV_MISSION_ACCEPTED:
+        fail("a mission outside the fence was accepted")
+    s.wait_text("outside fence.radius_m")
+    t0 = time.time()
+    ack = upload(s, items)
+    if ack.type != mav.MAV_MISSION_ACCEPTED:
+        fail(f"upload: MISSION_ACK {ack.type}; texts: {s.texts}")
+    upload_s = time.time() - t0
+    back = download(s)
+    if [i.command for i in back] != [i.command for i in items] or back[2].param3 != 2.0:
+        fail(f"download: {back}")
+    arm(s)
+    s.wait("ATTITUDE", lambda m: m.get_type() == "ATTITUDE")
+    s.command(mav.MAV_CMD_MISSION_START, [0] * 7)
+    reached, current, states = [], [], set()
+    end = time.time() + 120
+    while time.time() < end:
+        m = s.pump()
+        if m is None:
+            continue
+        kind = m.get_type()
+        if kind == "MISSION_ITEM_REACHED":
+            reached.append(m.seq)
+        elif kind == "MISSION_CURRENT":
+            if not current or current[-1] != m.seq:
+                current.append(m.seq)
+            states.add(m.mission_state)
+            if m.mission_state == mav.MISSION_STATE_COMPLETE and reached[-1:] == [4]:
+                break
+    landed_and_disarmed(s)
+    return {
+        "upload_s": round(upload_s, 3),
+        "reached": reached,
+        "current": current,
+        "states": sorted(states),
+    }
+
+
 def main():
     s = Station()
     print(f"port {s.port}", flush=True)
@@ -351,6 +459,8 @@ def main():
     run_dir = line[4:]
     if sys.argv[1] == "fly":
         out = fly(s, run_dir, started, int(sys.argv[2]))
+    elif sys.argv[1] == "mission":
+        out = mission(s)
     else:
         out = link_loss(s, started)
     print(json.dumps(out), flush=True)

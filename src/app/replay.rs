@@ -342,7 +342,7 @@ pub fn run_observed(
         raw_frames: raw.len(),
         ..ReplaySummary::default()
     };
-    let (inputs, halt) = recorded_inputs(run_dir)?;
+    let (inputs, halt) = recorded_inputs(run_dir, profile)?;
     let mut inputs = inputs.into_iter().peekable();
     for rec in &raw {
         let times = FrameTimes {
@@ -399,11 +399,24 @@ pub fn run_observed(
 /// none for runs without a mode.log (the 2012 flights, which started flying).
 type Recorded = (Vec<logs::mode_log::RecordedInput>, Option<(i64, String)>);
 
-fn recorded_inputs(run_dir: &Path) -> anyhow::Result<Recorded> {
+fn recorded_inputs(run_dir: &Path, profile: &Profile) -> anyhow::Result<Recorded> {
     let path = run_dir.join("mode.log");
+    // A ground station's mission is planned again from the file the link wrote.
+    let mut mission = |name: &str| {
+        // A name the link wrote: a file of the run folder, never a path out of it.
+        if name.is_empty() || name.contains('/') || name.starts_with('.') {
+            return Err(format!(
+                "mission file {name:?}: not a file of the run folder"
+            ));
+        }
+        let file = run_dir.join(name);
+        let text = std::fs::read_to_string(&file)
+            .map_err(|e| format!("cannot read the mission {}: {e}", file.display()))?;
+        profile.plan_mission(&file, &text).map(std::sync::Arc::new)
+    };
     match std::fs::read_to_string(&path) {
         Ok(text) => {
-            let inputs = logs::mode_log::read_inputs(&text)
+            let inputs = logs::mode_log::read_inputs(&text, &mut mission)
                 .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
             Ok((inputs, logs::mode_log::read_halt(&text)))
         }

@@ -246,7 +246,8 @@ impl SimThread {
     ) -> bool {
         self.operator.due(t_us, inputs);
         for input in inputs.drain(..) {
-            if self.operator_tx.try_send(input).is_err() {
+            if let Err(e) = self.operator_tx.try_send(input) {
+                let input = e.into_inner();
                 tracing::warn!("the flight took no operator input at {t_us} us: {input:?}");
             }
         }

@@ -5,7 +5,7 @@
 use crate::core::commander::Params;
 use crate::core::control::Integrators;
 use crate::core::lqr::{Mat4, Mat16};
-use crate::core::mission::{GainTable, Item, Limits, Mission, MissionRun, Next};
+use crate::core::mission::{GainTable, Item, Limits, Mission, MissionPlan, MissionRun, Next};
 use crate::core::path::PathPoint;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -22,6 +22,9 @@ pub struct MissionConfig {
     pub yaw_acc_rad_s2: f64,
     /// Speed of `return` (the item, the command and the failsafe action), m/s.
     pub return_m_s: f64,
+    /// Speed of a ground station's waypoints and orbits until a DO_CHANGE_SPEED item sets
+    /// one, m/s.
+    pub speed_m_s: f64,
     /// Fly straight lines and circles with gains designed about their trim (`uquad lqr
     /// --path`); false: the profile's gains everywhere.
     pub path_gains: bool,
@@ -34,6 +37,7 @@ impl Default for MissionConfig {
             yaw_rate_rad_s: 0.8,
             yaw_acc_rad_s2: 1.0,
             return_m_s: 1.0,
+            speed_m_s: 1.0,
             path_gains: true,
         }
     }
@@ -50,23 +54,40 @@ impl MissionConfig {
     }
 }
 
-/// A mission ready to fly: its items, the gains designed along its paths (before the flight,
-/// so the control path only swaps them in), and its file's text (kept in the run folder).
+/// A mission ready to fly (its items and the gains designed along its paths, before the
+/// flight, so the control path only swaps them in), its file and the file's text (kept in
+/// the run folder).
 #[derive(Debug, Clone)]
 pub struct LoadedMission {
     pub path: PathBuf,
     pub text: String,
-    pub mission: Mission,
-    pub gains: Arc<GainTable>,
+    pub plan: Arc<MissionPlan>,
     /// The planned duration of its path items flown from the takeoff point, s.
     pub nominal_s: f64,
 }
 
 impl super::Profile {
-    /// This profile with the mission in `path`, checked against it: missions need position
-    /// control (integrators x, y, z, θ); with `mission.path_gains` the gains of every
-    /// segment kind are designed now.
+    /// This profile with the mission in `path`, checked against it (see
+    /// [`Profile::plan_mission`](super::Profile::plan_mission)).
     pub fn with_mission(mut self, path: &Path) -> Result<super::Profile, String> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| format!("cannot read the mission {}: {e}", path.display()))?;
+        let plan = self.plan_mission(path, &text)?;
+        let nominal_s = nominal_s(&plan.mission, &self.config.commander_params());
+        self.mission = Some(Arc::new(LoadedMission {
+            path: path.to_path_buf(),
+            text,
+            plan: Arc::new(plan),
+            nominal_s,
+        }));
+        Ok(self)
+    }
+
+    /// The mission `text` (read from `path`, which names it in errors and gives the plan its
+    /// name) checked against this profile: missions need position control (integrators x, y,
+    /// z, θ); with `mission.path_gains` the gains of every segment kind are designed now.
+    /// Deterministic: a replay designs the same gains from the same text.
+    pub fn plan_mission(&self, path: &Path, text: &str) -> Result<MissionPlan, String> {
         let c = &self.config;
         let integrators = c.control.integrator_set();
         if integrators != Some(Integrators::XYZTheta) || c.control.states != 12 {
@@ -79,9 +100,7 @@ impl super::Profile {
             ));
         }
         let params = c.commander_params();
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| format!("cannot read the mission {}: {e}", path.display()))?;
-        let mission = parse_mission(path, &text, &params)?;
+        let mission = parse_mission(path, text, &params)?;
         let gains = if c.mission.path_gains {
             let q = Mat16::from_row_slice(&self.lqr_q);
             let r = Mat4::from_row_slice(&self.lqr_r);
@@ -97,15 +116,15 @@ impl super::Profile {
         } else {
             GainTable::default()
         };
-        let nominal_s = nominal_s(&mission, &params);
-        self.mission = Some(Arc::new(LoadedMission {
-            path: path.to_path_buf(),
-            text,
+        let name = path.file_name().map_or_else(
+            || path.display().to_string(),
+            |n| n.to_string_lossy().into_owned(),
+        );
+        Ok(MissionPlan {
+            name,
             mission,
             gains: Arc::new(gains),
-            nominal_s,
-        }));
-        Ok(self)
+        })
     }
 }
 

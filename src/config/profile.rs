@@ -76,10 +76,6 @@ impl Profile {
             c.control.original_timing,
             (c.control.gps_hold_timeout_s * 1e6).round() as i64,
         );
-        let core = match &self.mission {
-            Some(m) => core.with_gain_table(m.gains.clone()),
-            None => core,
-        };
         if c.control.torque_observer_s > 0.0 {
             core.with_torque_observer(c.control.torque_observer_s, c.motor.tau_s)
         } else {
@@ -91,7 +87,7 @@ impl Profile {
     pub fn commander(&self) -> crate::core::commander::Commander {
         let c = crate::core::commander::Commander::new(self.config.commander_params());
         match &self.mission {
-            Some(m) => c.with_mission(m.mission.clone()),
+            Some(m) => c.with_mission(m.plan.clone()),
             None => c,
         }
     }

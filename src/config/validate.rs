@@ -680,6 +680,7 @@ fn mission_rules(c: &Config) -> Vec<Check> {
             "rad/s²",
         ),
         in_range("mission.return_m_s", m.return_m_s, 0.05..=10.0, "m/s"),
+        in_range("mission.speed_m_s", m.speed_m_s, 0.05..=10.0, "m/s"),
     ]
 }
 

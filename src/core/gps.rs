@@ -308,6 +308,17 @@ pub fn offset_deg(from_deg: [f64; 2], offset_m: [f64; 2]) -> [f64; 2] {
     [lat + dlat_rad.to_degrees(), lon + dlon_rad.to_degrees()]
 }
 
+/// The offset (north, west; m) from `from_deg` to `to_deg` (latitude, longitude): the inverse
+/// of [`offset_deg`].
+pub fn offset_m(from_deg: [f64; 2], to_deg: [f64; 2]) -> [f64; 2] {
+    let dlat_rad = (to_deg[0] - from_deg[0]).to_radians();
+    let dlon_rad = (to_deg[1] - from_deg[1]).to_radians();
+    [
+        dlat_rad * EARTH_RADIUS_M,
+        -dlon_rad * EARTH_RADIUS_M * from_deg[0].to_radians().cos(),
+    ]
+}
+
 /// Latitude/longitude (degrees) to UTM, with the fractions 3/4, 5/3 and 35/27 evaluated as
 /// real numbers (the gpsd-era copy of the original truncated them to integers).
 pub fn deg_to_utm(lat_deg: f64, lon_deg: f64) -> Utm {

@@ -60,6 +60,16 @@ pub struct Mission {
     pub items: Vec<Item>,
 }
 
+/// A mission ready to fly: its items and the gains designed along its paths (before it is
+/// handed to the flight, so the control path only swaps them in). `name` is the file in the
+/// run folder it was read from, as mode.log records a ground station's upload.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct MissionPlan {
+    pub name: String,
+    pub mission: Mission,
+    pub gains: std::sync::Arc<GainTable>,
+}
+
 /// How missions are flown (`mission.*`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Limits {

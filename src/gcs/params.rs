@@ -118,6 +118,7 @@ pub const TABLE: &[(&str, &str)] = &[
     ("MIS_YAW_RATE", "mission.yaw_rate_rad_s"),
     ("MIS_YAW_ACC", "mission.yaw_acc_rad_s2"),
     ("MIS_RETURN_M_S", "mission.return_m_s"),
+    ("MIS_SPEED_M_S", "mission.speed_m_s"),
     ("MIS_PATH_GAINS", "mission.path_gains"),
 ];
 

@@ -40,6 +40,26 @@ pub struct Snapshot {
     pub health: Health,
     /// The control path's busy share of its period, in tenths of a percent.
     pub load_permille: u16,
+    /// Where the loaded mission is, if one is loaded.
+    pub mission: Option<MissionStatus>,
+}
+
+/// Where a mission is, in the ground station's numbering of its items.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MissionStatus {
+    pub seq: u16,
+    pub total: u16,
+    pub state: MissionState,
+}
+
+/// MISSION_CURRENT.
+pub fn mission_current(m: &MissionStatus) -> MavMessage {
+    MavMessage::MISSION_CURRENT(MISSION_CURRENT_DATA {
+        seq: m.seq,
+        total: m.total,
+        mission_state: m.state,
+        ..MISSION_CURRENT_DATA::DEFAULT
+    })
 }
 
 /// Which parts of the vehicle are well.
@@ -370,6 +390,7 @@ mod tests {
             home_m: None,
             health: Health::default(),
             load_permille: 0,
+            mission: None,
         }
     }
 

@@ -11,11 +11,17 @@
 //! 31000000 refused disarm | in the air (land): land first, or kill
 //! 2000000 beat gcs
 //! 2100000 key 101
+//! 2500000 mission mission-1.toml
 //! ```
+//!
+//! A ground station's mission is recorded by the name of the file the link wrote into the
+//! run folder; a replay plans it again from that file (the same gains, bit for bit).
 
 use crate::core::commander::{Command, Event, LinkSource, OperatorInput};
 use crate::core::control::ManualCommand;
+use crate::core::mission::MissionPlan;
 use std::fmt::Write;
+use std::sync::Arc;
 
 /// Appends an output line.
 pub fn write_event(out: &mut String, e: &Event) {
@@ -39,6 +45,7 @@ pub fn write_input(
     let _ = match input {
         OperatorInput::Beat(src) => writeln!(out, "{t_us} beat {}", src.name()),
         OperatorInput::Key(k) => writeln!(out, "{t_us} key {}", k.key()),
+        OperatorInput::Mission(plan) => writeln!(out, "{t_us} mission {}", plan.name),
         OperatorInput::Command(c, src) => {
             let _ = write!(out, "{t_us} in {} {c}", src.name());
             match verdict {
@@ -54,17 +61,20 @@ pub fn write_input(
 pub type RecordedInput = (i64, OperatorInput, Result<(), String>);
 
 /// The inputs of a mode.log, in order; output lines are skipped. A line that is not
-/// understood is an error naming its number.
-pub fn read_inputs(text: &str) -> Result<Vec<RecordedInput>, String> {
+/// understood is an error naming its number. `mission` gives the plan of a recorded
+/// mission's file name.
+pub fn read_inputs(
+    text: &str,
+    mission: &mut dyn FnMut(&str) -> Result<Arc<MissionPlan>, String>,
+) -> Result<Vec<RecordedInput>, String> {
     let mut inputs = Vec::new();
     for (n, line) in text.lines().enumerate() {
         let line = line.trim_end_matches('\r');
         if line.trim().is_empty() {
             continue;
         }
-        if let Some(i) = parse_input(line).map_err(|e| format!("line {}: {e}", n + 1))? {
-            inputs.push(i);
-        }
+        let input = parse_input(line, mission).map_err(|e| format!("line {}: {e}", n + 1))?;
+        inputs.extend(input);
     }
     Ok(inputs)
 }
@@ -80,7 +90,10 @@ pub fn read_halt(text: &str) -> Option<(i64, String)> {
     })
 }
 
-fn parse_input(line: &str) -> Result<Option<RecordedInput>, String> {
+fn parse_input(
+    line: &str,
+    mission: &mut dyn FnMut(&str) -> Result<Arc<MissionPlan>, String>,
+) -> Result<Option<RecordedInput>, String> {
     let mut parts = line.splitn(3, ' ');
     let t_us: i64 = parts
         .next()
@@ -97,6 +110,7 @@ fn parse_input(line: &str) -> Result<Option<RecordedInput>, String> {
             let k = rest.parse::<u8>().ok().and_then(ManualCommand::from_key);
             OperatorInput::Key(k.ok_or_else(|| format!("unknown key {rest:?}"))?)
         }
+        "mission" => OperatorInput::Mission(mission(rest)?),
         "in" => return parse_command(t_us, rest, source).map(Some),
         "mode" | "failsafe" | "refused" | "reached" => return Ok(None),
         _ => return Err(format!("unknown record {kind:?}")),
@@ -135,6 +149,11 @@ mod tests {
         write_input(&mut s, 8, &OperatorInput::Beat(LinkSource::Terminal), None);
         let key = OperatorInput::Key(ManualCommand::from_key(b'e').unwrap());
         write_input(&mut s, 9, &key, None);
+        let plan = Arc::new(MissionPlan {
+            name: "mission-1.toml".into(),
+            ..MissionPlan::default()
+        });
+        write_input(&mut s, 11, &OperatorInput::Mission(plan.clone()), None);
         write_event(
             &mut s,
             &Event::Mode {
@@ -149,17 +168,24 @@ mod tests {
             action: Action::Land,
         };
         write_event(&mut s, &fs);
-        let got = read_inputs(&s).unwrap();
+        let mut asked = Vec::new();
+        let mut resolve = |name: &str| {
+            asked.push(name.to_string());
+            Ok(plan.clone())
+        };
+        let got = read_inputs(&s, &mut resolve).unwrap();
         assert_eq!(
             got,
             vec![
-                (5, arm, Err("gps: no fix".to_string())),
+                (5, arm.clone(), Err("gps: no fix".to_string())),
                 (6, arm, Ok(())),
                 (7, takeoff, Ok(())),
                 (8, OperatorInput::Beat(LinkSource::Terminal), Ok(())),
                 (9, key, Ok(())),
+                (11, OperatorInput::Mission(plan.clone()), Ok(())),
             ]
         );
+        assert_eq!(asked, ["mission-1.toml"]);
         assert!(s.contains("10 failsafe link-loss land\n"), "{s}");
         let kill = Event::Mode {
             t_us: 12,
@@ -168,13 +194,17 @@ mod tests {
         };
         write_event(&mut s, &kill);
         assert_eq!(read_halt(&s), Some((12, "imu-timeout".to_string())));
-        assert_eq!(read_inputs(&s).unwrap().len(), 5, "a kill is an output");
+        let n = read_inputs(&s, &mut |_| Ok(plan.clone())).unwrap().len();
+        assert_eq!(n, 6, "a kill is an output");
     }
 
     #[test]
     fn a_line_not_understood_is_named() {
-        let e = read_inputs("5 beat gcs\nxx beat\n").unwrap_err();
+        let mut none = |name: &str| Err(format!("no file {name}"));
+        let e = read_inputs("5 beat gcs\nxx beat\n", &mut none).unwrap_err();
         assert!(e.starts_with("line 2:"), "{e}");
-        assert!(read_inputs("5 in gcs fly\n").is_err());
+        assert!(read_inputs("5 in gcs fly\n", &mut none).is_err());
+        let e = read_inputs("5 mission m.toml\n", &mut none).unwrap_err();
+        assert_eq!(e, "line 1: no file m.toml");
     }
 }

@@ -54,6 +54,8 @@ pub struct Live {
     /// The estimate's innovation test ratios, and the takeoff point (m), for a ground station.
     pub ratios: crate::core::ekf::TestRatios,
     pub home_m: Option<[f64; 3]>,
+    /// The mission item flown or paused at (as loaded).
+    pub mission_item: Option<usize>,
 }
 
 impl ControllerTask {
@@ -98,6 +100,7 @@ impl ControllerTask {
                 flying_steps: self.side.counts().flying_steps,
                 ratios: est.ratios,
                 home_m: est.guidance.home_m,
+                mission_item: est.guidance.mission_item,
             }));
         }
         let c = self.side.counts();

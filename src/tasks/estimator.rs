@@ -166,16 +166,29 @@ impl EstimatorTask {
         } else {
             ArmFacts::default()
         };
+        // A ground station's command or mission is acknowledged with its outcome.
+        let notice = match &input {
+            OperatorInput::Command(command, source @ LinkSource::Gcs) => {
+                Some((Some((*command, *source)), None))
+            }
+            OperatorInput::Mission(plan) => Some((None, Some(plan.name.clone()))),
+            _ => None,
+        };
         let action = self
             .side
             .operator(input, t_us, ArmCheck::Facts(&facts), &mut self.out);
-        // A ground station's command is acknowledged with its outcome.
-        if let OperatorInput::Command(command, source @ LinkSource::Gcs) = input {
+        if let Some(about) = notice {
             let refused = self.side.last_refusal().map(str::to_string);
-            self.out.notices.send(Notice::Outcome {
-                command,
-                source,
-                refused,
+            self.out.notices.send(match about {
+                (Some((command, source)), _) => Notice::Outcome {
+                    command,
+                    source,
+                    refused,
+                },
+                (None, name) => Notice::Mission {
+                    name: name.unwrap_or_default(),
+                    refused,
+                },
             });
         }
         match action {

@@ -20,6 +20,11 @@ pub enum Notice {
         source: LinkSource,
         refused: Option<String>,
     },
+    /// A ground station's mission (by its file's name) as the commander took it.
+    Mission {
+        name: String,
+        refused: Option<String>,
+    },
 }
 
 /// The sending side; cheap to clone. `Notices::default()` sends nowhere.

@@ -60,6 +60,11 @@ pub(super) fn spawn(
         control_cpu: i.control_cpu,
         stats: h.gcs_stats.clone().unwrap_or_default(),
         cancel: h.cancel.clone(),
+        missions: Some(gcs::MissionDesk {
+            profile: std::sync::Arc::new(profile.clone()),
+            run_dir: h.run_dir.clone(),
+            loaded: profile.mission.as_ref().map(|m| m.plan.clone()),
+        }),
     };
     let logs = h.logs.clone();
     tokio::spawn(async move {

@@ -1,6 +1,7 @@
 //! The operator's words: the commander's commands (`arm`, `takeoff [ALT_M]`, `hold [X Y Z]`,
-//! `land`, `disarm`, `kill`, and for missions `start`, `pause`, `resume`, `return`), where an input came from (the link sources the `link-loss`
-//! failsafe counts), a typed line as inputs, and what became of a manual key (spec 5.2).
+//! `land`, `disarm`, `kill`, and for missions `start`, `pause`, `resume`, `return`), where an
+//! input came from (the link sources the `link-loss` failsafe counts), a typed line as
+//! inputs, a ground station's uploaded mission, and what became of a manual key (spec 5.2).
 
 use super::Mode;
 use crate::core::control::ManualCommand;
@@ -141,11 +142,13 @@ pub enum KeyOutcome {
 }
 
 /// One input from the operator's side, as the flight applies and records it.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub enum OperatorInput {
     Command(Command, LinkSource),
     Beat(LinkSource),
     Key(ManualCommand),
+    /// A ground station's mission, its gains designed: it replaces the loaded one.
+    Mission(std::sync::Arc<crate::core::mission::MissionPlan>),
 }
 
 impl OperatorInput {

@@ -5,8 +5,9 @@
 //! the original's spec, whose path planner (5.1) only hovered.
 
 use super::{Commander, Event, Mode, Observation};
-use crate::core::mission::{Item, MissionRun, Next};
+use crate::core::mission::{Item, MissionPlan, MissionRun, Next};
 use crate::core::path::PathPoint;
+use std::sync::Arc;
 
 /// When the mission flew, for the report.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -20,15 +21,46 @@ pub struct MissionFigures {
 }
 
 impl Commander {
+    /// A ground station's mission, replacing the loaded one (its gains with it); refused
+    /// while a mission is flown (pause it first). A paused mission is dropped: the vehicle
+    /// holds where it is until `start`.
+    pub fn load_mission(&mut self, plan: Arc<MissionPlan>, t_us: i64, out: &mut Vec<Event>) {
+        let flying = self.mode == Mode::Mission
+            || (self.mode == Mode::Takeoff && self.mission_after_takeoff);
+        if flying {
+            return out.push(Event::Refusal {
+                t_us,
+                command: format!("mission {}", plan.name),
+                why: format!(
+                    "{}: a mission is being flown: pause it first",
+                    self.mode.name()
+                ),
+            });
+        }
+        if self.paused {
+            self.run = None;
+            self.paused = false;
+        }
+        self.items_done = 0;
+        self.gains = plan.gains.clone();
+        self.mission = Some(plan);
+    }
+
+    /// The item flown, or paused at.
+    pub(super) fn mission_item(&self) -> Option<usize> {
+        let flown = self.mode == Mode::Mission || (self.mode == Mode::Hold && self.paused);
+        self.run.as_ref().filter(|_| flown).map(MissionRun::item)
+    }
+
     /// Why `start` cannot be done now, if it cannot.
     pub(super) fn check_start(&self, est: Option<&Observation>) -> Result<(), String> {
-        let Some(mission) = &self.mission else {
+        let Some(plan) = &self.mission else {
             return Err(
                 "no mission loaded (uquad sim --mission FILE, uquad fly --mission FILE)".into(),
             );
         };
         match self.mode {
-            Mode::Armed => match mission.items.first() {
+            Mode::Armed => match plan.mission.items.first() {
                 Some(Item::Takeoff { .. }) => self.estimator_ready(est),
                 _ => Err("the mission does not begin with a takeoff: take off, then start".into()),
             },
@@ -67,8 +99,8 @@ impl Commander {
         why: &str,
         out: &mut Vec<Event>,
     ) {
-        let Some(mission) = &self.mission else { return };
-        match (self.mode, mission.items.first()) {
+        let Some(plan) = &self.mission else { return };
+        match (self.mode, plan.mission.items.first()) {
             (Mode::Armed, Some(&Item::Takeoff { height_m })) => {
                 self.begin_takeoff(o, height_m, t_us, why, out);
                 self.mission_after_takeoff = true;
@@ -88,9 +120,10 @@ impl Commander {
         why: &str,
         out: &mut Vec<Event>,
     ) {
-        let (Some(mission), Some(home)) = (self.mission.clone(), self.home_m) else {
+        let (Some(plan), Some(home)) = (&self.mission, self.home_m) else {
             return;
         };
+        let mission = plan.mission.clone();
         let run = MissionRun::new(mission, self.p.mission, home, first, self.here());
         self.run = Some(run);
         self.items_done = first;
@@ -189,7 +222,11 @@ impl Commander {
                 self.yaw_rad = Some(point.yaw_rad);
                 self.path = Some((point, segment, gains));
             }
-            Next::Land { .. } => {
+            Next::Land { item } => {
+                // A mission's landing item is reached at its touchdown.
+                if self.mode == Mode::Mission {
+                    self.landing_item = Some(item);
+                }
                 let why = format!("{}: land", self.mode.name());
                 self.begin_land(None, o.t_us, &why, out);
             }

@@ -28,9 +28,10 @@ use profile::{BRAKE_SHARE, Profile};
 
 use crate::core::control::{Dir, ManualCommand};
 use crate::core::ekf::TestRatios;
-use crate::core::mission::{GainKey, Mission, MissionRun};
+use crate::core::mission::{GainKey, GainTable, MissionPlan, MissionRun};
 use crate::core::model::GRAVITY_M_S2;
 use crate::core::path::{PathPoint, Segment};
+use std::sync::Arc;
 
 /// The vehicle's mode; [`Mode::name`] is what logs, the console and reports show.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -194,6 +195,8 @@ pub struct Guidance {
     pub path: Option<(PathPoint, Segment, GainKey)>,
     /// The heading to hold, rad (unwrapped); none: the calibration's.
     pub yaw_rad: Option<f64>,
+    /// The mission item flown (or paused), 0-based as loaded.
+    pub mission_item: Option<usize>,
 }
 
 impl Guidance {
@@ -208,6 +211,7 @@ impl Guidance {
         home_m: None,
         path: None,
         yaw_rad: None,
+        mission_item: None,
     };
 }
 
@@ -261,14 +265,18 @@ pub struct Commander {
     touchdown: Option<Touchdown>,
     /// Steps since the takeoff began (its spool-up).
     takeoff_steps: u32,
-    /// The mission loaded, its run (kept while paused), and what it measured.
-    mission: Option<Mission>,
+    /// The mission loaded, its run (kept while paused), and what it measured; the loaded
+    /// mission's gains (none designed: an empty table), which each estimate hands the
+    /// controller.
+    mission: Option<Arc<MissionPlan>>,
+    gains: Arc<GainTable>,
     run: Option<MissionRun>,
     paused: bool,
     /// `start` from the ground: the mission follows the takeoff.
     mission_after_takeoff: bool,
-    /// Items of the mission reported done.
+    /// Items of the mission reported done; the mission's landing item, while it lands.
     items_done: usize,
+    landing_item: Option<usize>,
     mission_figures: MissionFigures,
     /// The mission's set point this step.
     path: Option<(PathPoint, Segment, GainKey)>,
@@ -303,10 +311,12 @@ impl Commander {
             touchdown: None,
             takeoff_steps: 0,
             mission: None,
+            gains: Arc::default(),
             run: None,
             paused: false,
             mission_after_takeoff: false,
             items_done: 0,
+            landing_item: None,
             mission_figures: MissionFigures::default(),
             path: None,
             yaw_rad: None,
@@ -315,9 +325,15 @@ impl Commander {
     }
 
     /// The mission `start` flies.
-    pub fn with_mission(mut self, mission: Mission) -> Self {
-        self.mission = Some(mission);
+    pub fn with_mission(mut self, plan: Arc<MissionPlan>) -> Self {
+        self.gains = plan.gains.clone();
+        self.mission = Some(plan);
         self
+    }
+
+    /// The gains designed along the loaded mission's paths.
+    pub fn gains(&self) -> &Arc<GainTable> {
+        &self.gains
     }
 
     pub fn mission_figures(&self) -> MissionFigures {
@@ -679,6 +695,7 @@ impl Commander {
             home_m: self.home_m,
             path: self.path,
             yaw_rad: self.yaw_rad,
+            mission_item: self.mission_item(),
         }
     }
 
@@ -695,6 +712,11 @@ impl Commander {
                 let reached = self.profile.z_m == self.target_m[2]
                     && (o.pos_m[2] - self.target_m[2]).abs() <= p.takeoff_tolerance_m;
                 if reached && self.mission_after_takeoff {
+                    out.push(Event::Reached {
+                        t_us: o.t_us,
+                        item: 0,
+                        name: "takeoff",
+                    });
                     self.enter_mission(1, o.t_us, "takeoff height reached", out);
                 } else if reached {
                     self.set_mode(Mode::Hold, o.t_us, "takeoff height reached", out);
@@ -751,6 +773,13 @@ impl Commander {
                     v_m_s: self.descent.peak_m_s(),
                     from_takeoff_m: (o.pos_m[0] - home[0]).hypot(o.pos_m[1] - home[1]),
                 });
+                if let Some(item) = self.landing_item.take() {
+                    out.push(Event::Reached {
+                        t_us: o.t_us,
+                        item,
+                        name: "land",
+                    });
+                }
                 self.disarm(o.t_us, "touchdown", out);
                 return Some(EscRequest::Stop);
             }

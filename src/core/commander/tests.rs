@@ -751,6 +751,16 @@ fn targets_outside_the_bounds_or_the_fence_are_refused() {
     assert_eq!(c.mode(), Mode::Armed);
 }
 
+fn plan(
+    mission: crate::core::mission::Mission,
+) -> std::sync::Arc<crate::core::mission::MissionPlan> {
+    std::sync::Arc::new(crate::core::mission::MissionPlan {
+        name: "test.toml".into(),
+        mission,
+        gains: std::sync::Arc::default(),
+    })
+}
+
 fn out_and_back() -> crate::core::mission::Mission {
     use crate::core::mission::Item;
     crate::core::mission::Mission {
@@ -779,7 +789,7 @@ fn reached(ev: &[Event]) -> Vec<usize> {
 #[test]
 fn start_flies_the_mission_from_the_ground_to_its_landing() {
     let (c, mut ev) = armed();
-    let mut c = c.with_mission(out_and_back());
+    let mut c = c.with_mission(plan(out_and_back()));
     c.command(
         Command::Start,
         10_000,
@@ -810,7 +820,8 @@ fn start_flies_the_mission_from_the_ground_to_its_landing() {
             Mode::Land
         ]
     );
-    assert_eq!(reached(&ev), [1, 2, 3]);
+    // The takeoff is reached as the mission's first item; the landing at its touchdown.
+    assert_eq!(reached(&ev), [0, 1, 2, 3]);
     assert!((far - 3.0).abs() < 1e-9, "{far}");
     // Landing above the takeoff point, the mission's set point left at rest.
     let g = c.guidance();
@@ -827,7 +838,7 @@ fn start_flies_the_mission_from_the_ground_to_its_landing() {
 #[test]
 fn pause_holds_where_the_mission_got_to_and_resume_goes_on() {
     let (c, mut ev) = armed();
-    let mut c = c.with_mission(out_and_back());
+    let mut c = c.with_mission(plan(out_and_back()));
     c.command(
         Command::Start,
         10_000,
@@ -853,7 +864,7 @@ fn pause_holds_where_the_mission_got_to_and_resume_goes_on() {
         follow(&mut c, t, t, &mut ev);
         t += STEP_US;
     }
-    assert_eq!(reached(&ev), [1, 2, 3]);
+    assert_eq!(reached(&ev), [0, 1, 2, 3]);
     // Resume twice, pause outside a mission: refused with the reason.
     c.command(Command::Resume, t, Ok(()), Some(&at(t, 1.5)), &mut ev);
     c.command(Command::Pause, t, Ok(()), Some(&at(t, 1.5)), &mut ev);
@@ -874,7 +885,7 @@ fn start_is_refused_without_a_mission_or_without_its_takeoff() {
     let mut m = out_and_back();
     m.items.remove(0);
     let (c2, _) = armed();
-    let mut c2 = c2.with_mission(m);
+    let mut c2 = c2.with_mission(plan(m));
     c2.command(
         Command::Start,
         10_000,

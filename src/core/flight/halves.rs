@@ -47,8 +47,10 @@ pub struct Estimate {
     pub gps_used: bool,
     pub dt_clamped: bool,
     pub ekf_error: Option<EkfError>,
-    /// The commander's guidance for this step's control.
+    /// The commander's guidance for this step's control, and the gains designed along its
+    /// mission's paths (a new mission's reach the controller with its first step).
     pub guidance: Guidance,
+    pub gains: Option<std::sync::Arc<GainTable>>,
     /// A manual key for the planner, applied before this step's control.
     pub manual: Option<ManualCommand>,
     /// Zero and disable the ESCs instead of commanding them (disarmed on the ground).
@@ -155,6 +157,7 @@ impl EstimatorCore {
             dt_clamped: report.dt_clamped,
             ekf_error: result.err(),
             guidance: Guidance::OFF,
+            gains: None,
             manual: None,
             stop_escs: false,
             ratios: report.ratios,
@@ -258,17 +261,17 @@ impl ControllerCore {
         self
     }
 
-    /// Flies the segments of a mission with these gains (designed before the flight; the
-    /// control path only swaps them in at a segment's start).
-    pub fn with_gain_table(mut self, table: std::sync::Arc<GainTable>) -> Self {
-        self.gain_table = table;
-        self
-    }
-
-    /// Swaps in the gains the guidance asks for (the profile's when none were designed).
-    fn swap_gains(&mut self, key: GainKey) {
+    /// Swaps in the gains the guidance asks for (the profile's when none were designed), at
+    /// a segment's start: a new table (a new mission's) is only taken then, the gains flown
+    /// kept until it.
+    fn swap_gains(&mut self, table: Option<&std::sync::Arc<GainTable>>, key: GainKey) {
         if key == self.active_gains {
             return;
+        }
+        if let Some(t) = table
+            && !std::sync::Arc::ptr_eq(t, &self.gain_table)
+        {
+            self.gain_table = t.clone();
         }
         self.active_gains = key;
         let gains = *self.gain_table.get(key).unwrap_or(&self.profile_gains);
@@ -359,7 +362,8 @@ impl ControllerCore {
             .step
             .saturating_sub(*self.ramp_from.get_or_insert(est.step))
             + 1;
-        self.swap_gains(est.guidance.path.map_or(GainKey::Profile, |p| p.2));
+        let key = est.guidance.path.map_or(GainKey::Profile, |p| p.2);
+        self.swap_gains(est.gains.as_ref(), key);
         let (sp, mass_kg) = self.guided_set_point(est);
         let limits = MotorLimits::new(mass_kg, self.make_planner.w_max_rad_s);
         let t_s = self.period_us(t_ctrl_us) as f64 / 1e6;

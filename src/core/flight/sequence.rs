@@ -351,10 +351,10 @@ impl EstimatorSide {
         out: &mut impl Outputs,
     ) -> OperatorAction {
         self.start(out);
-        let verdict = self.arm_verdict(input, arm);
+        let verdict = self.arm_verdict(&input, arm);
         out.record(FlightRecord::Operator {
             t_us,
-            input,
+            input: input.clone(),
             verdict: verdict.clone(),
         });
         let request = match input {
@@ -379,6 +379,10 @@ impl EstimatorSide {
                 self.commander
                     .command(cmd, t_us, v, o.as_ref(), &mut self.events)
             }
+            OperatorInput::Mission(plan) => {
+                self.load_mission(plan, t_us, out);
+                None
+            }
         };
         self.last_refusal = self.events.iter().find_map(|e| match e {
             commander::Event::Refusal { why, .. } => Some(why.clone()),
@@ -392,9 +396,29 @@ impl EstimatorSide {
         }
     }
 
+    /// A ground station's mission: the commander's, which may refuse it; noted when taken.
+    fn load_mission(
+        &mut self,
+        plan: std::sync::Arc<crate::core::mission::MissionPlan>,
+        t_us: i64,
+        out: &mut impl Outputs,
+    ) {
+        let note = format!(
+            "mission {} loaded: {} items, gains for {} path kinds",
+            plan.name,
+            plan.mission.items.len(),
+            plan.gains.len()
+        );
+        let before = self.events.len();
+        self.commander.load_mission(plan, t_us, &mut self.events);
+        if self.events.len() == before {
+            out.record(FlightRecord::Note(note));
+        }
+    }
+
     /// An `arm`'s pre-arm verdict: the facts' (the IMU's settling is this side's own), or the
     /// one a replay recorded; none for other inputs.
-    fn arm_verdict(&self, input: OperatorInput, arm: ArmCheck<'_>) -> Option<Result<(), String>> {
+    fn arm_verdict(&self, input: &OperatorInput, arm: ArmCheck<'_>) -> Option<Result<(), String>> {
         if !matches!(input, OperatorInput::Command(commander::Command::Arm, _)) {
             return None;
         }
@@ -641,6 +665,7 @@ impl EstimatorSide {
         let (guidance, request) = self.commander.on_estimate(&o, &mut self.events);
         self.record_events(out);
         est.guidance = guidance;
+        est.gains = Some(self.commander.gains().clone());
         est.manual = self.keys.pop_front();
         est.stop_escs = self.esc_request(request, est.t_us, out);
     }

@@ -14,16 +14,20 @@
 //! - `commands`: commands to the commander and their acknowledgements;
 //! - `streams`: the periodic messages and requests for one;
 //! - `params`: the parameter protocol; `store`: keeping a set value;
+//! - `mission`: the mission protocol (upload, download, progress); `mission_state`: its state;
 //! - `link`: the UDP socket or the serial radio.
 
 mod commands;
 mod link;
+mod mission;
+mod mission_state;
 mod params;
 mod state;
 mod store;
 mod streams;
 
 pub use link::Link;
+pub use mission_state::MissionDesk;
 pub use state::GcsContext;
 pub use store::ParamStore;
 
@@ -64,6 +68,7 @@ pub async fn run(mut link: Link, ctx: GcsContext) {
     let streams = streams::default_streams(&ctx.cfg, std::time::Instant::now());
     let mut g = state::Gcs::new(ctx, link.decoder(), streams, link.params_per_tick());
     let mut notices = g.take_notices();
+    let mut designed = g.missions.take_designed();
     let mut buf = vec![0u8; 4096];
     let mut tick = tokio::time::interval(TICK);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
@@ -76,6 +81,7 @@ pub async fn run(mut link: Link, ctx: GcsContext) {
             _ = cancel.cancelled() => break,
             _ = tick.tick() => g.timed(|g| g.on_tick(&mut link)),
             Some(n) = notices.recv() => g.timed(|g| g.on_notice(n, &mut link)),
+            Some(d) = designed.recv() => g.timed(|g| g.on_designed(d, &mut link)),
             r = link.recv(&mut buf) => match r {
                 Ok((n, from)) => g.timed(|g| g.on_bytes(&buf[..n], from, &mut link)),
                 // A datagram refused on the way (ICMP): nothing to read, go on.

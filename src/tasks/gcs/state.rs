@@ -53,6 +53,8 @@ pub struct GcsContext {
     pub control_cpu: Option<libc::clockid_t>,
     pub stats: GcsStats,
     pub cancel: CancellationToken,
+    /// Plans ground stations' missions (none: uploads are refused).
+    pub missions: Option<super::mission_state::MissionDesk>,
 }
 
 /// Counts what arrives in the current second.
@@ -131,6 +133,7 @@ pub struct Gcs {
     fresh_bytes: bool,
     cpu_ns: u64,
     pub(super) report: GcsReport,
+    pub(super) missions: super::mission_state::Missions,
 }
 
 impl Gcs {
@@ -143,6 +146,8 @@ impl Gcs {
         let now = Instant::now();
         let encoder = Encoder::new(ctx.cfg.system_id, COMPONENT_ID);
         let control_cpu_ns = ctx.control_cpu.map_or(0, super::clock_ns);
+        let mut ctx = ctx;
+        let missions = super::mission_state::Missions::new(ctx.missions.take());
         Gcs {
             ctx,
             decoder,
@@ -174,6 +179,7 @@ impl Gcs {
             fresh_bytes: false,
             cpu_ns: 0,
             report: GcsReport::default(),
+            missions,
         }
     }
 
@@ -296,6 +302,32 @@ impl Gcs {
                 let id = p.param_id.to_str().unwrap_or("").to_string();
                 self.on_param_set(&id, p.param_value, link);
             }
+            m => self.on_mission_message(m, from, link),
+        }
+    }
+
+    /// The mission protocol's messages addressed to this vehicle (older ground stations'
+    /// superseded MISSION_ITEM and MISSION_REQUEST too).
+    #[allow(deprecated)]
+    fn on_mission_message(&mut self, m: MavMessage, from: (u8, u8), link: &mut Link) {
+        use crate::gcs::mission::item_int;
+        let Some((system, component)) = mission_target(&m) else {
+            return;
+        };
+        if !self.for_us(system, component) {
+            return;
+        }
+        match m {
+            MavMessage::MISSION_COUNT(c) => self.on_mission_count(c, from, link),
+            MavMessage::MISSION_ITEM_INT(i) => self.on_mission_item(i, from, link),
+            MavMessage::MISSION_ITEM(i) => self.on_mission_item(item_int(&i), from, link),
+            MavMessage::MISSION_REQUEST_LIST(r) => self.on_mission_list(from, r.mission_type, link),
+            MavMessage::MISSION_REQUEST_INT(r) => self.on_mission_request(r.seq, from, link),
+            MavMessage::MISSION_REQUEST(r) => self.on_mission_request(r.seq, from, link),
+            MavMessage::MISSION_CLEAR_ALL(_) => {
+                let why = "mission clear: not supported (upload another mission)";
+                self.mission_refuse(from, MavMissionResult::MAV_MISSION_DENIED, why, link);
+            }
             _ => {}
         }
     }
@@ -329,6 +361,9 @@ impl Gcs {
                 refused,
             } => self.on_outcome(command, refused.is_some(), link),
             Notice::Outcome { .. } => {}
+            Notice::Mission { name, refused } => {
+                self.on_mission_verdict(&name, refused.is_some(), link)
+            }
             Notice::Event(e) => self.on_event(e, link),
         }
     }
@@ -353,7 +388,10 @@ impl Gcs {
                 MavSeverity::MAV_SEVERITY_CRITICAL
             }
             Event::Refusal { .. } => MavSeverity::MAV_SEVERITY_WARNING,
-            Event::Reached { .. } => MavSeverity::MAV_SEVERITY_INFO,
+            Event::Reached { item, .. } => {
+                self.on_item_reached(item, link);
+                MavSeverity::MAV_SEVERITY_INFO
+            }
         };
         self.text(severity, &text, link);
     }
@@ -380,6 +418,8 @@ impl Gcs {
             self.check_health(now, link);
         }
         self.expire_pending(now, link);
+        self.mission_timers(now, link);
+        self.mission_changed(link);
         self.send_params(link);
         self.send_due(now, link);
         self.unstick_stream(link);
@@ -460,6 +500,23 @@ impl Gcs {
             home_m: live.and_then(|l| l.home_m),
             health: self.health,
             load_permille: self.load_permille,
+            mission: live
+                .and_then(|l| self.mission_status(l.mission_item, l.mode == Mode::Mission)),
         }
     }
+}
+
+/// The system and component a mission message is for.
+#[allow(deprecated)]
+fn mission_target(m: &MavMessage) -> Option<(u8, u8)> {
+    Some(match m {
+        MavMessage::MISSION_COUNT(c) => (c.target_system, c.target_component),
+        MavMessage::MISSION_ITEM_INT(i) => (i.target_system, i.target_component),
+        MavMessage::MISSION_ITEM(i) => (i.target_system, i.target_component),
+        MavMessage::MISSION_REQUEST_LIST(r) => (r.target_system, r.target_component),
+        MavMessage::MISSION_REQUEST_INT(r) => (r.target_system, r.target_component),
+        MavMessage::MISSION_REQUEST(r) => (r.target_system, r.target_component),
+        MavMessage::MISSION_CLEAR_ALL(r) => (r.target_system, r.target_component),
+        _ => return None,
+    })
 }

@@ -11,7 +11,7 @@ use mavlink::dialects::common::*;
 use std::time::{Duration, Instant};
 
 /// The messages the link can send, by id.
-const KNOWN: [u32; 10] = [
+const KNOWN: [u32; 11] = [
     HEARTBEAT_DATA::ID,
     SYS_STATUS_DATA::ID,
     GPS_RAW_INT_DATA::ID,
@@ -22,6 +22,7 @@ const KNOWN: [u32; 10] = [
     EXTENDED_SYS_STATE_DATA::ID,
     ESTIMATOR_STATUS_DATA::ID,
     AUTOPILOT_VERSION_DATA::ID,
+    MISSION_CURRENT_DATA::ID,
 ];
 
 /// Message `id` from the snapshot; none when it has nothing to say yet (no estimate, no fix,
@@ -38,6 +39,7 @@ fn build(id: u32, s: &Snapshot, system_id: u8) -> Option<MavMessage> {
         EXTENDED_SYS_STATE_DATA::ID => Some(tm::extended_sys_state(s)),
         ESTIMATOR_STATUS_DATA::ID => tm::estimator_status(s),
         AUTOPILOT_VERSION_DATA::ID => Some(tm::autopilot_version(system_id)),
+        MISSION_CURRENT_DATA::ID => s.mission.as_ref().map(tm::mission_current),
         _ => None,
     }
 }
@@ -52,6 +54,7 @@ pub(super) fn default_streams(cfg: &GcsConfig, now: Instant) -> Vec<Stream> {
         (ESTIMATOR_STATUS_DATA::ID, second),
         (GPS_RAW_INT_DATA::ID, second),
         (HOME_POSITION_DATA::ID, 5 * second),
+        (MISSION_CURRENT_DATA::ID, second),
         (ATTITUDE_DATA::ID, fast),
         (LOCAL_POSITION_NED_DATA::ID, fast),
         (GLOBAL_POSITION_INT_DATA::ID, fast),
