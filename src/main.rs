@@ -70,8 +70,28 @@ In --realtime a ground station can watch and fly it over MAVLink 2 (gcs.*): tele
 UDP 127.0.0.1:14550, where QGroundControl and MAVProxy listen."
     )]
     Sim(SimArgs),
-    /// Plot a run's altitude, attitude and motor speeds over time (SVG).
+    /// Plot a run: altitude, attitude, motor speeds, its track, modes (PNG or SVG).
+    #[command(
+        long_about = "Plot a run folder (ours, or the original's x_hat.log and w.log): altitude, \
+roll and pitch, yaw and the motor speeds over time, each estimate with its set point (dashed), \
+and the horizontal track flown against the planned one, east and north on one scale. Mode \
+changes (grey) and failsafes (red) are marked on every panel. The format follows the output's \
+extension: .png (default RUN_DIR/plot.png; text in the embedded DejaVu Sans, the same on every \
+machine) or .svg."
+    )]
     Plot(PlotArgs),
+    /// Export a run for Flight Review, PlotJuggler, pyulog (ULog) or spreadsheets (CSV).
+    #[command(
+        long_about = "Export a run folder (ours, or the original's) for the tools people use. \
+--format ulog writes one ULog file (PX4's log format) with PX4's topic and field names: \
+vehicle_attitude, vehicle_local_position, vehicle_local_position_setpoint, \
+vehicle_attitude_setpoint, actuator_outputs (motor speeds, rad/s), sensor_combined, \
+vehicle_air_data, vehicle_gps_position, estimator_status (the innovation test ratios), \
+vehicle_status (modes and failsafes), north-east-down; the run's configuration as parameters \
+(the ids `uquad params` lists); mode.log's events and err.log's lines as logged messages. \
+--format csv writes a folder with one file per stream, each column's unit in its header."
+    )]
+    Export(ExportArgs),
     /// Attach to a running fly or sim: live events, statistics, manual commands.
     #[command(
         long_about = "Attach to a running `uquad fly` or `uquad sim --realtime` through its console \
@@ -225,10 +245,22 @@ struct SimArgs {
 }
 
 #[derive(clap::Args, Debug)]
+struct ExportArgs {
+    /// A run folder: ours (logs/<run-id>) or the original's (x_hat.log, w.log).
+    run_dir: PathBuf,
+    /// ulog: one file; csv: a folder of files, one per stream.
+    #[arg(long, value_enum)]
+    format: uquad::app::export::Format,
+    /// The file (ulog, e.g. run.ulg) or folder (csv) to write.
+    #[arg(long, value_name = "PATH")]
+    out: PathBuf,
+}
+
+#[derive(clap::Args, Debug)]
 struct PlotArgs {
     /// A run folder: ours (logs/<run-id>) or the original's (x_hat.log, w.log).
     run_dir: PathBuf,
-    /// Output file (.svg; default RUN_DIR/plot.svg).
+    /// Output file, .png or .svg (default RUN_DIR/plot.png).
     #[arg(long, value_name = "FILE")]
     out: Option<PathBuf>,
 }
@@ -422,6 +454,7 @@ fn main() -> ExitCode {
         Command::Fly(a) => a.run(),
         Command::Sim(a) => a.run(),
         Command::Plot(a) => a.run(),
+        Command::Export(a) => a.run(),
         Command::Console(a) => a.run(),
         Command::Params(a) => a.run(),
         Command::Gps(a) => a.run(),
@@ -564,6 +597,16 @@ impl SimArgs {
             write_json(&summary.report(), &path)?;
         }
         Ok(exit_code(&summary.fly))
+    }
+}
+
+impl ExportArgs {
+    fn run(self) -> anyhow::Result<ExitCode> {
+        let files = uquad::app::export::run(&self.run_dir, self.format, &self.out)?;
+        for f in files {
+            println!("{}", f.display());
+        }
+        Ok(ExitCode::SUCCESS)
     }
 }
 

@@ -20,15 +20,6 @@ fn fast(args: &[&str]) -> (bool, Value, tempfile::TempDir) {
     (status.success(), r, logs)
 }
 
-fn modes(r: &Value) -> Vec<String> {
-    let list = r["modes"]
-        .as_array()
-        .unwrap_or_else(|| panic!("no modes: {r}"));
-    list.iter()
-        .map(|m| m["mode"].as_str().unwrap().to_string())
-        .collect()
-}
-
 /// When mode `name` was entered first, s.
 fn mode_at(r: &Value, name: &str) -> f64 {
     let list = r["modes"].as_array().unwrap();
@@ -73,7 +64,11 @@ fn assert_escs_stopped(r: &Value) {
 fn assert_landed(ok: bool, r: &Value, v_max_m_s: f64) {
     assert!(ok, "{r}");
     assert!(r["halt"].is_null(), "{r}");
-    assert_eq!(modes(r).last().map(String::as_str), Some("disarmed"), "{r}");
+    assert_eq!(
+        report_modes(r).last().map(String::as_str),
+        Some("disarmed"),
+        "{r}"
+    );
     assert_eq!(r["esc"]["stop_reason"], "disarmed", "{r}");
     let v = r["touchdown"]["v_m_s"].as_f64().unwrap_or(f64::NAN);
     assert!(v <= v_max_m_s, "touchdown at {v} m/s: {r}");
@@ -84,7 +79,7 @@ fn assert_landed(ok: bool, r: &Value, v_max_m_s: f64) {
 fn the_main_job_flies_the_whole_cycle_and_lands_softly() {
     let (ok, r, _logs) = fast(&[]);
     let want = ["disarmed", "armed", "takeoff", "hold", "land", "disarmed"];
-    assert_eq!(modes(&r), want, "{r}");
+    assert_eq!(report_modes(&r), want, "{r}");
     assert_landed(ok, &r, 0.5);
     let climb = r["takeoff"]["target_m"].as_f64().unwrap();
     let over = r["takeoff"]["overshoot_m"].as_f64().unwrap();
@@ -148,7 +143,7 @@ fn arming_is_refused_with_the_failing_check_named() {
     let (ok, r, _logs) = fast(&["--duration", "12", "--inject", "gps-loss@0"]);
     assert!(ok, "{r}");
     assert!(refusal(&r, "arm").starts_with("gps: no fix"), "{r}");
-    assert_eq!(modes(&r), ["disarmed"], "{r}");
+    assert_eq!(report_modes(&r), ["disarmed"], "{r}");
     assert_eq!(r["esc"]["commands"], 0, "{r}");
 
     let (ok, r, _logs) = fast(&["--duration", "12", "--inject", "esc-nack@0"]);
@@ -158,7 +153,7 @@ fn arming_is_refused_with_the_failing_check_named() {
         "esc: no acknowledgement from 0x69, 0x6b, 0x6a, 0x68",
         "{r}"
     );
-    assert_eq!(modes(&r), ["disarmed"], "{r}");
+    assert_eq!(report_modes(&r), ["disarmed"], "{r}");
     assert!(
         r["halt"].is_null(),
         "the probes are no watchdog matter: {r}"
@@ -175,7 +170,7 @@ fn an_implausible_calibration_refuses_the_arming_after_all() {
         refusal(&r, "arm").starts_with("calibration: gyro offset 0.49"),
         "{r}"
     );
-    assert_eq!(modes(&r), ["disarmed", "armed", "disarmed"], "{r}");
+    assert_eq!(report_modes(&r), ["disarmed", "armed", "disarmed"], "{r}");
     assert!(r["error"].as_str().unwrap().contains("calibration"), "{r}");
     assert_escs_stopped(&r);
 }
@@ -191,15 +186,15 @@ fn disarm_in_the_air_is_refused_and_kill_halts() {
     );
     assert_eq!(r["halt"]["reason"], "kill", "{r}");
     assert_eq!(r["halt"]["confirmed"], true, "{r}");
-    assert_eq!(modes(&r).last().map(String::as_str), Some("kill"), "{r}");
+    assert_eq!(
+        report_modes(&r).last().map(String::as_str),
+        Some("kill"),
+        "{r}"
+    );
     assert_escs_stopped(&r);
     // The replay has no watchdog: it takes the halt from mode.log, to the same bytes.
     let run = Path::new(r["run_dir"].as_str().unwrap()).to_path_buf();
-    let out = replay_run(&run);
-    for name in ["mode.log", "w.log", "x_hat.log"] {
-        let a = std::fs::read(run.join(name)).unwrap();
-        assert_eq!(a, std::fs::read(out.path().join(name)).unwrap(), "{name}");
-    }
+    assert_replays_same(&run, &["mode.log", "w.log", "x_hat.log"]);
 }
 
 /// Waits until a console line contains `text`.
@@ -276,7 +271,7 @@ fn a_console_arms_takes_off_and_lands_after_a_refusal() {
         serde_json::from_str(&std::fs::read_to_string(dir.path().join("report.json")).unwrap())
             .unwrap();
     let want = ["disarmed", "armed", "takeoff", "hold", "land", "disarmed"];
-    assert_eq!(modes(&r), want, "{r}");
+    assert_eq!(report_modes(&r), want, "{r}");
     assert!(
         refusal(&r, "arm").starts_with("log: cannot write in"),
         "{r}"

@@ -51,11 +51,17 @@ fn two_consoles_watch_and_steer_a_running_flight() {
     let _silent = UnixStream::connect(&sock).unwrap();
     let mut a_write = a.try_clone().unwrap();
     let (a_lines, b_lines) = (reader(a), reader(b));
-    // Once the flight is under way (the stats show control steps), raise the set point.
-    while max_step(&a_lines) < 150 {
+    // Once the flight is under way (the stats show control steps) and holding (the key moves
+    // a hold's height only; a takeoff ignores it), raise the set point.
+    let holding = |lines: &Mutex<Vec<String>>| {
+        let lines = lines.lock().unwrap();
+        lines.iter().any(|l| l.contains("mode hold"))
+    };
+    while max_step(&a_lines) < 150 || !holding(&a_lines) {
         assert!(
             t0.elapsed() < Duration::from_secs(16),
-            "the flight did not start"
+            "the flight did not start and hold: {:?}",
+            a_lines.lock().unwrap()
         );
         std::thread::sleep(Duration::from_millis(50));
     }

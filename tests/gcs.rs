@@ -122,12 +122,7 @@ fn a_ground_station_sets_a_parameter_arms_takes_off_and_lands() {
         measured["alt_err_max_m"].as_f64().unwrap() <= 0.2,
         "{measured}"
     );
-    let modes: Vec<&str> = r["modes"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|m| m["mode"].as_str().unwrap())
-        .collect();
+    let modes = report_modes(r);
     assert_eq!(
         modes,
         // The second hold is DO_SET_MODE's.
@@ -158,11 +153,7 @@ fn a_ground_station_sets_a_parameter_arms_takes_off_and_lands() {
         "{mode_log}"
     );
     // The set parameter did not change the flight: its replay is the same, byte for byte.
-    let out = replay_run(run);
-    for name in ["mode.log", "w.log", "x_hat.log"] {
-        let a = std::fs::read(run.join(name)).unwrap();
-        assert_eq!(a, std::fs::read(out.path().join(name)).unwrap(), "{name}");
-    }
+    assert_replays_same(run, &["mode.log", "w.log", "x_hat.log"]);
 }
 
 /// `uquad params` prints the mapping a ground station sees, with the kept values applied.
@@ -319,12 +310,7 @@ fn a_ground_station_uploads_a_mission_and_the_vehicle_flies_it() {
         measured["states"].as_array().unwrap().contains(&5.into()),
         "{measured}"
     );
-    let modes: Vec<&str> = r["modes"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|m| m["mode"].as_str().unwrap())
-        .collect();
+    let modes = report_modes(r);
     assert_eq!(
         modes,
         [
@@ -342,9 +328,5 @@ fn a_ground_station_uploads_a_mission_and_the_vehicle_flies_it() {
         err_log.contains("mission mission-2.toml loaded: 5 items"),
         "{err_log}"
     );
-    let out = replay_run(run);
-    for name in ["mode.log", "w.log", "x_hat.log"] {
-        let a = std::fs::read(run.join(name)).unwrap();
-        assert_eq!(a, std::fs::read(out.path().join(name)).unwrap(), "{name}");
-    }
+    assert_replays_same(run, &["mode.log", "w.log", "x_hat.log"]);
 }

@@ -15,15 +15,6 @@ fn mission(file: &str, args: &[&str]) -> (bool, Value, tempfile::TempDir) {
     (status.success(), r, logs)
 }
 
-fn modes(r: &Value) -> Vec<&str> {
-    r["modes"]
-        .as_array()
-        .unwrap_or_else(|| panic!("no modes: {r}"))
-        .iter()
-        .map(|m| m["mode"].as_str().unwrap())
-        .collect()
-}
-
 /// Flown from takeoff to touchdown, near its planned duration, on track; the run replays to
 /// the same bytes. Returns the report.
 fn flies(file: &str, items: usize) -> Value {
@@ -32,7 +23,7 @@ fn flies(file: &str, items: usize) -> Value {
     let want = [
         "disarmed", "armed", "takeoff", "mission", "land", "disarmed",
     ];
-    assert_eq!(modes(&r), want, "{r}");
+    assert_eq!(report_modes(&r), want, "{r}");
     assert!(r["halt"].is_null() && r["deadline_misses"] == 0, "{r}");
     let f = |k: &str| r[k].as_f64().unwrap_or_else(|| panic!("no {k}: {r}"));
     // The estimate follows the path within 0.5 m; the truth within the simulated receiver's
@@ -55,11 +46,7 @@ fn flies(file: &str, items: usize) -> Value {
     assert_eq!(reached, (0..items).collect::<Vec<_>>(), "{mode_log}");
     // The run folder keeps the mission; the replay flies it again to the same bytes.
     assert!(run.join("mission.toml").is_file());
-    let out = replay_run(&run);
-    for name in ["mode.log", "w.log", "x_hat.log", "int.log"] {
-        let a = std::fs::read(run.join(name)).unwrap();
-        assert_eq!(a, std::fs::read(out.path().join(name)).unwrap(), "{name}");
-    }
+    assert_replays_same(&run, &["mode.log", "w.log", "x_hat.log", "int.log"]);
     r
 }
 

@@ -1,108 +1,142 @@
-//! `uquad plot` of the original's 2012 flight and of a simulated run.
+//! `uquad plot` of the original's 2012 flight and of a simulated run: what is drawn (the
+//! figure's content, read from the run folder) and the files written (PNG and SVG).
 
 mod common;
 use common::*;
+use std::path::Path;
 
-/// Checks a written SVG: one polyline per expected series, each with many points and finite
-/// coordinates, and every series named in a legend.
-fn check_svg(path: &std::path::Path) {
+/// A PNG's width and height, from its header.
+fn png_size(path: &Path) -> (u32, u32) {
+    let b = std::fs::read(path).unwrap();
+    assert_eq!(
+        &b[..8],
+        b"\x89PNG\r\n\x1a\n",
+        "{} is not a PNG",
+        path.display()
+    );
+    assert_eq!(&b[12..16], b"IHDR");
+    let be = |i: usize| u32::from_be_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
+    (be(16), be(20))
+}
+
+/// Plots `run` into `name` in a fresh folder; returns the file and its folder.
+fn plot(run: &Path, name: &str) -> (std::path::PathBuf, tempfile::TempDir) {
+    let out = tempfile::tempdir().unwrap();
+    let file = out.path().join(name);
+    let o = uquad(
+        &root(),
+        &[
+            "plot",
+            run.to_str().unwrap(),
+            "--out",
+            file.to_str().unwrap(),
+        ],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    (file, out)
+}
+
+/// Every panel is titled and every axis named with its unit.
+fn check_svg(path: &Path) {
     let svg = std::fs::read_to_string(path).unwrap();
-    assert!(svg.starts_with("<svg xmlns=\"http://www.w3.org/2000/svg\""));
-    assert!(svg.trim_end().ends_with("</svg>"));
-    let expected = [
-        "z",
-        "roll psi",
-        "pitch phi",
-        "yaw theta",
-        "m0",
-        "m1",
-        "m2",
-        "m3",
-    ];
-    let lines: Vec<&str> = svg.lines().filter(|l| l.starts_with("<polyline")).collect();
-    assert_eq!(lines.len(), expected.len());
-    for (line, name) in lines.iter().zip(expected) {
-        assert!(
-            line.contains(&format!("data-series=\"{name}\"")),
-            "{line:.80}"
-        );
-        let points = line
-            .split("points=\"")
-            .nth(1)
-            .unwrap()
-            .trim_end_matches("\"/>");
-        let n = points.split_whitespace().count();
-        assert!(n > 500, "{name}: {n} points");
-        for p in points.split_whitespace() {
-            let (x, y) = p.split_once(',').unwrap();
-            let (x, y): (f64, f64) = (x.parse().unwrap(), y.parse().unwrap());
-            assert!(x.is_finite() && y.is_finite());
-        }
-        // The legend entry: the name drawn as glyph pixels (a path of squares), titled.
-        let title = format!("<title>{name}</title></path>");
-        let legend = svg
-            .lines()
-            .find(|l| l.starts_with("<line") && l.contains(&title))
-            .unwrap_or_else(|| panic!("legend for {name}"));
-        assert!(legend.matches('M').count() >= 3 * name.len(), "{legend}");
+    assert!(svg.contains("<svg"), "{svg:.200}");
+    // The texts: what each <text> element holds.
+    let texts: Vec<&str> = svg
+        .split("<text")
+        .skip(1)
+        .filter_map(|t| t.split_once('>')?.1.split_once("</text>"))
+        .map(|(inner, _)| inner.trim())
+        .collect();
+    for text in [
+        "altitude",
+        "roll and pitch",
+        "yaw",
+        "motor speeds",
+        "horizontal track",
+        "time (s)",
+        "z (m, up)",
+        "angle (rad)",
+        "θ (rad)",
+        "ω (rad/s)",
+        "east (m)",
+        "north (m)",
+        "motor 3",
+    ] {
+        assert!(texts.contains(&text), "no text {text:?} in {texts:?}");
     }
-    // No typeset text: nothing for a viewer to find a font for.
-    assert!(!svg.contains("<text") && !svg.contains("font-family"));
-    assert_eq!(svg.matches('<').count(), svg.matches('>').count());
 }
 
 #[test]
 fn plots_the_2012_flight() {
-    let out = tempfile::tempdir().unwrap();
-    let svg = out.path().join("flight.svg");
-    let o = uquad(
-        &root(),
-        &[
-            "plot",
-            flight_dir().to_str().unwrap(),
-            "--out",
-            svg.to_str().unwrap(),
-        ],
+    let fig = uquad::app::plot::figure(&flight_dir()).unwrap();
+    let names: Vec<Vec<&str>> = fig
+        .panels
+        .iter()
+        .map(|p| p.series.iter().map(|s| s.name.as_str()).collect())
+        .collect();
+    // The original logged no set points and no modes.
+    assert_eq!(
+        names,
+        [
+            vec!["z"],
+            vec!["roll ψ", "pitch φ"],
+            vec!["yaw θ"],
+            vec!["motor 0", "motor 1", "motor 2", "motor 3"]
+        ]
     );
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        fig.panels
+            .iter()
+            .all(|p| p.series.iter().all(|s| s.points.len() > 500))
+    );
+    assert!(fig.marks.is_empty() && fig.track.len() == 1);
+    let (png, _dir) = plot(&flight_dir(), "flight.png");
+    assert_eq!(png_size(&png), (1600, 1200));
+    let (svg, _dir) = plot(&flight_dir(), "flight.svg");
     check_svg(&svg);
-    // PNG is refused with the reason, nothing written.
-    let png = out.path().join("flight.png");
+    // Another extension is refused with the reason, nothing written.
+    let jpg = _dir.path().join("flight.jpg");
     let o = uquad(
         &root(),
         &[
             "plot",
             flight_dir().to_str().unwrap(),
             "--out",
-            png.to_str().unwrap(),
+            jpg.to_str().unwrap(),
         ],
     );
     assert!(!o.status.success());
-    assert!(String::from_utf8_lossy(&o.stderr).contains("only SVG"));
-    assert!(!png.exists());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("flight.jpg") && err.contains(".png or .svg"),
+        "{err}"
+    );
+    assert!(!jpg.exists());
 }
 
 #[test]
-fn plots_a_sim_run() {
+fn plots_a_sim_run_with_its_set_points_modes_and_track() {
     let logs = tempfile::tempdir().unwrap();
-    let o = uquad(
-        &root(),
-        &[
-            "sim",
-            "--duration",
-            "20",
-            "--log-dir",
-            logs.path().to_str().unwrap(),
-        ],
+    let run = sim_run(logs.path(), &[]);
+    let fig = uquad::app::plot::figure(&run).unwrap();
+    for p in &fig.panels[..3] {
+        let set: Vec<_> = p.series.iter().filter(|s| s.setpoint).collect();
+        assert!(
+            !set.is_empty() && set.iter().all(|s| s.points.len() > 500),
+            "{}",
+            p.title
+        );
+    }
+    let labels: Vec<&str> = fig.marks.iter().map(|m| m.label.as_str()).collect();
+    assert_eq!(
+        labels,
+        ["disarmed", "armed", "takeoff", "hold", "land", "disarmed"]
     );
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let run = std::fs::read_dir(logs.path())
-        .unwrap()
-        .next()
-        .unwrap()
-        .unwrap()
-        .path();
+    assert_eq!(fig.track.len(), 2, "flown and planned");
+    // The default output is RUN_DIR/plot.png.
     let o = uquad(&root(), &["plot", run.to_str().unwrap()]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    check_svg(&run.join("plot.svg"));
+    assert_eq!(png_size(&run.join("plot.png")), (1600, 1200));
+    let (svg, _dir) = plot(&run, "run.svg");
+    check_svg(&svg);
 }

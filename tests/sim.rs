@@ -66,12 +66,7 @@ fn hovers_with_the_2012_gains() {
 fn a_sim_run_replays_to_identical_bytes() {
     // The whole cycle as the main job flies it: disarmed, arm, takeoff, hold, land, touchdown.
     let (report, _logs) = sim(&["--seed", "7"]);
-    let modes: Vec<&str> = report["modes"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|m| m["mode"].as_str().unwrap())
-        .collect();
+    let modes = report_modes(&report);
     assert_eq!(
         modes,
         ["disarmed", "armed", "takeoff", "hold", "land", "disarmed"],

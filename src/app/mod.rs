@@ -1,9 +1,10 @@
 //! Composition roots: each mode wires the pure core to its edges (`fly`, `sim_fast`,
-//! `sim_realtime`, `replay`, `plot`, `lqr`, `gps`), and what the modes share: the flight's two
-//! sides as a profile builds them (`flight`), the run folder (`run_dir`), the simulation
-//! options (`sim`) and the reports (`report`).
+//! `sim_realtime`, `replay`, `plot`, `export`, `lqr`, `gps`), and what the modes share: the
+//! flight's two sides as a profile builds them (`flight`), the run folder (`run_dir`) and its
+//! streams read back (`run_logs`), the simulation options (`sim`) and the reports (`report`).
 
 pub mod commander_report;
+pub mod export;
 pub mod flight;
 pub mod fly;
 pub mod gps;
@@ -12,6 +13,7 @@ pub mod plot;
 pub mod replay;
 pub mod report;
 pub mod run_dir;
+pub mod run_logs;
 pub mod sim;
 pub mod sim_fast;
 pub mod sim_realtime;

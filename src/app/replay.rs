@@ -59,12 +59,13 @@ struct Records {
     /// Time and integrators; only the first `n_int` values are meaningful.
     int: Vec<(i64, [f64; 4])>,
     n_int: usize,
+    setpoint: Vec<(i64, [f64; 6])>,
     /// The mode stream, formatted as it goes (a few lines).
     mode: String,
 }
 
 impl Outputs for Records {
-    /// Keeps the five streams a replay writes; the others (imu_raw, gps, err) are the run's.
+    /// Keeps the streams a replay writes; the others (imu_raw, gps, err) are the run's.
     fn record(&mut self, r: FlightRecord) {
         match r {
             FlightRecord::KalmanIn {
@@ -85,6 +86,7 @@ impl Outputs for Records {
                 gated,
             }),
             FlightRecord::Command { t_us, w_rad_s } => self.w.push((t_us, w_rad_s)),
+            FlightRecord::Setpoint { t_us, sp } => self.setpoint.push((t_us, sp)),
             FlightRecord::Int { t_us, x_int, n_int } => {
                 self.n_int = n_int;
                 self.int.push((t_us, x_int));
@@ -104,7 +106,7 @@ impl Outputs for Records {
 }
 
 impl Records {
-    /// Formats and writes the five logs into `out_dir` concurrently.
+    /// Formats and writes the logs into `out_dir` concurrently.
     fn write(&self, out_dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
         let kalman_in = || {
             let mut s = String::with_capacity(self.kalman_in.len() * 160);
@@ -141,13 +143,21 @@ impl Records {
             }
             s
         };
+        let setpoint = || {
+            let mut s = String::with_capacity(self.setpoint.len() * 130);
+            for (t, v) in &self.setpoint {
+                logs::write_values_row(&mut s, Some(*t), v);
+            }
+            s
+        };
         let mode = || self.mode.clone();
-        let jobs: [(&str, &(dyn Fn() -> String + Sync)); 6] = [
+        let jobs: [(&str, &(dyn Fn() -> String + Sync)); 7] = [
             ("kalman_in.log", &kalman_in),
             ("x_hat.log", &x_hat),
             ("innov.log", &innov),
             ("w.log", &w),
             ("int.log", &int),
+            ("setpoint.log", &setpoint),
             ("mode.log", &mode),
         ];
         std::thread::scope(|scope| {

@@ -179,8 +179,8 @@ pub fn attitude(s: &Snapshot) -> Option<MavMessage> {
     }))
 }
 
-/// Position and velocity, north-east-down, m and m/s.
-fn ned(x: &[f64; 15]) -> ([f64; 3], [f64; 3]) {
+/// Position and velocity, north-east-down, m and m/s (also the ULog export's).
+pub fn ned(x: &[f64; 15]) -> ([f64; 3], [f64; 3]) {
     let r = crate::core::math::rotation(x[3], x[4], x[5]);
     let v: [f64; 3] = std::array::from_fn(|i| r[i][0] * x[6] + r[i][1] * x[7] + r[i][2] * x[8]);
     ([x[0], -x[1], -x[2]], [v[0], -v[1], -v[2]])

@@ -442,11 +442,16 @@ pub fn write_values_row(out: &mut String, t_us: Option<i64>, values: &[f64]) {
 
 /// A time-stamped row of four values (`w.log`: motor speeds m0..m3; `int.log`: integrators).
 pub fn parse_time_and_4(f: &[&str]) -> Result<(i64, [f64; 4]), String> {
-    if f.len() != 5 {
-        return Err(format!("expected 5 columns, found {}", f.len()));
+    parse_time_and::<4>(f)
+}
+
+/// A time-stamped row of `N` values (`setpoint.log`: 6).
+pub fn parse_time_and<const N: usize>(f: &[&str]) -> Result<(i64, [f64; N]), String> {
+    if f.len() != N + 1 {
+        return Err(format!("expected {} columns, found {}", N + 1, f.len()));
     }
     let t = time_field(f, 0, "time")?;
-    let mut v = [0.0; 4];
+    let mut v = [0.0; N];
     for (i, slot) in v.iter_mut().enumerate() {
         *slot = field(f, i + 1, "value")?;
     }

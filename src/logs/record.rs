@@ -19,11 +19,12 @@ pub enum Stream {
     Gps,
     Err,
     Mode,
+    Setpoint,
 }
 
 impl Stream {
     /// How many streams there are.
-    pub const COUNT: usize = 9;
+    pub const COUNT: usize = 10;
 
     pub const ALL: [Stream; Stream::COUNT] = [
         Stream::ImuRaw,
@@ -35,6 +36,7 @@ impl Stream {
         Stream::Gps,
         Stream::Err,
         Stream::Mode,
+        Stream::Setpoint,
     ];
 
     /// The file's name without `.log`, and the name reports use.
@@ -49,6 +51,7 @@ impl Stream {
             Stream::Gps => "gps",
             Stream::Err => "err",
             Stream::Mode => "mode",
+            Stream::Setpoint => "setpoint",
         }
     }
 
@@ -118,6 +121,7 @@ impl Record {
                 FlightRecord::XHat(_) => Stream::XHat,
                 FlightRecord::Innov { .. } => Stream::Innov,
                 FlightRecord::Command { .. } => Stream::W,
+                FlightRecord::Setpoint { .. } => Stream::Setpoint,
                 FlightRecord::Int { .. } => Stream::Int,
                 FlightRecord::FakeGps(_) | FlightRecord::GpsFix { .. } => Stream::Gps,
                 FlightRecord::Halt(_) | FlightRecord::Note(_) => Stream::Err,
@@ -165,6 +169,7 @@ impl Record {
             FlightRecord::Int { t_us, x_int, n_int } => {
                 format::write_values_row(out, Some(*t_us), &x_int[..*n_int])
             }
+            FlightRecord::Setpoint { t_us, sp } => format::write_values_row(out, Some(*t_us), sp),
             FlightRecord::FakeGps(t_us) => {
                 out.push_str(&format::fmt_time_us(*t_us));
                 out.push_str("\t\n");
@@ -227,7 +232,7 @@ mod tests {
         n[Stream::XHat] = 3;
         n[Stream::Err] = 1;
         n[Stream::Innov] = 2;
-        assert_eq!(n.0, [0, 0, 3, 2, 0, 0, 0, 1, 0]);
+        assert_eq!(n.0, [0, 0, 3, 2, 0, 0, 0, 1, 0, 0]);
         assert_eq!(n.total(), 6);
         for s in Stream::ALL {
             assert_eq!(Stream::from_name(s.name()), Some(s));
@@ -235,7 +240,7 @@ mod tests {
         let json = serde_json::to_string(&n).unwrap();
         assert_eq!(
             json,
-            r#"{"imu_raw":0,"kalman_in":0,"x_hat":3,"innov":2,"w":0,"int":0,"gps":0,"err":1,"mode":0}"#
+            r#"{"imu_raw":0,"kalman_in":0,"x_hat":3,"innov":2,"w":0,"int":0,"gps":0,"err":1,"mode":0,"setpoint":0}"#
         );
     }
 }

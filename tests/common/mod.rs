@@ -223,6 +223,36 @@ pub fn replay_run(run: &Path) -> tempfile::TempDir {
     out
 }
 
+/// [`replay_run`], whose `names` must be the run's own bytes.
+pub fn assert_replays_same(run: &Path, names: &[&str]) -> tempfile::TempDir {
+    let out = replay_run(run);
+    for name in names {
+        let a = std::fs::read(run.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let b = std::fs::read(out.path().join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert!(a == b, "{name}: the replay differs from the run");
+    }
+    out
+}
+
+/// `uquad sim --log-dir LOGS ARGS` (the main job), which must succeed; its run folder.
+pub fn sim_run(logs: &Path, args: &[&str]) -> PathBuf {
+    let mut all = vec!["sim", "--log-dir", logs.to_str().expect("utf-8 path")];
+    all.extend_from_slice(args);
+    let o = uquad(&root(), &all);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    run_dir(logs)
+}
+
+/// The modes a report lists, in order.
+pub fn report_modes(r: &serde_json::Value) -> Vec<String> {
+    let list = r["modes"]
+        .as_array()
+        .unwrap_or_else(|| panic!("no modes: {r}"));
+    list.iter()
+        .map(|m| m["mode"].as_str().unwrap_or("?").to_string())
+        .collect()
+}
+
 /// [`replay_2012`], which must succeed; returns the output folder.
 pub fn replay_ok(run: &Path, extra: &[&str]) -> tempfile::TempDir {
     let (o, out) = replay_2012(run, extra);

@@ -184,6 +184,8 @@ pub struct ControlOut {
     pub saturated: bool,
     /// The horizontal position was held (a GPS fix fused lately).
     pub position_hold: bool,
+    /// The set point flown: x, y, z (m), ψ, φ, θ (rad); none while the control law rests.
+    pub setpoint: Option<[f64; 6]>,
 }
 
 /// The controller half: planner, controller, flight ramp and saturation, and the EKF input.
@@ -345,6 +347,7 @@ impl ControllerCore {
             n_int,
             saturated: false,
             position_hold: false,
+            setpoint: None,
         }
     }
 
@@ -402,6 +405,7 @@ impl ControllerCore {
             n_int,
             saturated,
             position_hold,
+            setpoint: Some(std::array::from_fn(|i| sp.x[i])),
         }
     }
 

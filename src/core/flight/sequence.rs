@@ -64,6 +64,8 @@ pub enum FlightRecord {
     },
     /// The motor speeds sent (w).
     Command { t_us: i64, w_rad_s: [f64; 4] },
+    /// The set point a control step flew (setpoint): x, y, z (m), ψ, φ, θ (rad).
+    Setpoint { t_us: i64, sp: [f64; 6] },
     /// A fake-GPS sample was produced after the command at this time (gps).
     FakeGps(i64),
     /// A live fix fused by the step after `t_us` (gps).
@@ -850,6 +852,12 @@ impl ControllerSide {
             t_us: c.t_cmd_us,
             w_rad_s: c.w_sent,
         });
+        if let Some(sp) = c.setpoint {
+            out.record(FlightRecord::Setpoint {
+                t_us: c.t_ctrl_us,
+                sp,
+            });
+        }
         command
     }
 }

@@ -1,0 +1,135 @@
+//! `uquad export`: the 2012 flight and a simulated run as ULog, read back by pyulog (installed
+//! by the test command, `tests/run.sh`; `UQUAD_PYTHON` names its python) and compared with
+//! the text logs; and as CSV, read back by Python's csv module.
+
+mod common;
+use common::*;
+use serde_json::Value;
+use std::path::Path;
+
+fn python() -> String {
+    std::env::var("UQUAD_PYTHON").unwrap_or_else(|_| "python3".into())
+}
+
+/// Exports `run` as `format` into `out`, which must succeed.
+fn export(run: &Path, format: &str, out: &Path) {
+    let o = uquad(
+        &root(),
+        &[
+            "export",
+            run.to_str().unwrap(),
+            "--format",
+            format,
+            "--out",
+            out.to_str().unwrap(),
+        ],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+/// `script` with `args` under the python that has pyulog; its JSON line.
+fn python_json(script: &str, args: &[&Path]) -> Value {
+    let o = std::process::Command::new(python())
+        .arg(root().join("tests").join(script))
+        .args(args)
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {}: {e}", python()));
+    assert!(
+        o.status.success(),
+        "{script} failed (pyulog missing? run tests/run.sh, or set UQUAD_PYTHON): {}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let out = String::from_utf8_lossy(&o.stdout);
+    serde_json::from_str(out.lines().last().unwrap_or("{}")).unwrap()
+}
+
+/// The ULog of `run` read back by pyulog: every compared column equal to the text logs'.
+fn ulog_of(run: &Path) -> Value {
+    let dir = tempfile::tempdir().unwrap();
+    let ulg = dir.path().join("run.ulg");
+    export(run, "ulog", &ulg);
+    let v = python_json("ulog_check.py", &[&ulg, run]);
+    eprintln!("pyulog read: {v}");
+    for (column, d) in v["diff"].as_object().unwrap() {
+        assert_eq!(
+            d.as_f64(),
+            Some(0.0),
+            "{column} differs from the text log: {v}"
+        );
+    }
+    assert_eq!(v["sys_name"], "uquad", "{v}");
+    v
+}
+
+fn topics(v: &Value) -> Vec<&str> {
+    v["topics"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t.as_str().unwrap())
+        .collect()
+}
+
+#[test]
+fn the_2012_flight_exports_to_a_ulog_pyulog_reads() {
+    let v = ulog_of(&flight_dir());
+    for t in [
+        "vehicle_attitude",
+        "vehicle_local_position",
+        "actuator_outputs",
+        "sensor_combined",
+        "vehicle_air_data",
+    ] {
+        assert!(topics(&v).contains(&t), "{t}: {v}");
+    }
+    assert_eq!(v["rows"]["vehicle_local_position"], 1121, "{v}");
+    // The original's err.log lines are logged messages; it had no configuration file.
+    assert!(v["messages"].as_array().unwrap().len() > 2, "{v}");
+    assert_eq!(v["params"], 0);
+}
+
+#[test]
+fn a_sim_run_exports_to_ulog_and_csv() {
+    let logs = tempfile::tempdir().unwrap();
+    let run = sim_run(logs.path(), &[]);
+    let v = ulog_of(&run);
+    for t in [
+        "vehicle_local_position_setpoint",
+        "vehicle_attitude_setpoint",
+        "vehicle_gps_position",
+        "estimator_status",
+        "vehicle_status",
+    ] {
+        assert!(topics(&v).contains(&t), "{t}: {v}");
+    }
+    // Disarmed, armed, takeoff, hold, land, disarmed.
+    assert_eq!(v["rows"]["vehicle_status"], 6, "{v}");
+    assert_eq!(v["params"], uquad::gcs::params::TABLE.len(), "{v}");
+    let messages: Vec<&str> = v["messages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|m| m.as_str().unwrap())
+        .collect();
+    assert!(messages.contains(&"mode armed command arm"), "{messages:?}");
+    let out = tempfile::tempdir().unwrap();
+    export(&run, "csv", out.path());
+    let c = python_json("csv_check.py", &[out.path(), &run]);
+    eprintln!("csv read: {c}");
+    assert_eq!(
+        c["files"],
+        serde_json::json!([
+            "gps",
+            "innov",
+            "kalman_in",
+            "mode",
+            "setpoint",
+            "w",
+            "x_hat"
+        ]),
+        "{c}"
+    );
+    assert_eq!(c["x_hat_z_diff"], 0.0, "{c}");
+    assert_eq!(c["headers_without_unit"], serde_json::json!([]), "{c}");
+}
