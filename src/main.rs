@@ -87,7 +87,7 @@ machine) or .svg."
 vehicle_attitude, vehicle_local_position, vehicle_local_position_setpoint, \
 vehicle_attitude_setpoint, actuator_outputs (motor speeds, rad/s), sensor_combined, \
 vehicle_air_data, vehicle_gps_position, estimator_status (the innovation test ratios), \
-vehicle_status (modes and failsafes), north-east-down; the run's configuration as parameters \
+vehicle_status (modes and failsafes), uquad_imu_raw (the IMU frames in counts), north-east-down; the run's configuration as parameters \
 (the ids `uquad params` lists); mode.log's events and err.log's lines as logged messages. \
 --format csv writes a folder with one file per stream, each column's unit in its header."
     )]

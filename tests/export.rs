@@ -80,6 +80,7 @@ fn the_2012_flight_exports_to_a_ulog_pyulog_reads() {
         "actuator_outputs",
         "sensor_combined",
         "vehicle_air_data",
+        "uquad_imu_raw",
     ] {
         assert!(topics(&v).contains(&t), "{t}: {v}");
     }
@@ -121,6 +122,7 @@ fn a_sim_run_exports_to_ulog_and_csv() {
         c["files"],
         serde_json::json!([
             "gps",
+            "imu_raw",
             "innov",
             "kalman_in",
             "mode",

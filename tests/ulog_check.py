@@ -76,6 +76,10 @@ def main():
         diff[f"actuator_outputs.output[{m}]"] = worst(
             list(data["actuator_outputs"][f"output[{m}]"]), [float(r[m + 1]) for r in w]
         )
+    raw = rows(os.path.join(run, "imu_raw.log"))
+    diff["uquad_imu_raw.acc_counts[2]"] = worst(
+        [float(v) for v in data["uquad_imu_raw"]["acc_counts[2]"]], [float(r[5]) for r in raw]
+    )
     if sp:
         lps = data["vehicle_local_position_setpoint"]
         diff["local_position_setpoint.z"] = worst(list(lps["z"]), [-float(r[3]) for r in sp])

@@ -2,7 +2,7 @@
 //! export`): ours, or the original's (which have no setpoint, innov, mode or config). A
 //! stream that is missing is empty; one that cannot be read or parsed is an error naming it.
 
-use crate::logs::{self, GpsLogRecord, InnovRecord, KalmanInRecord, Parsed};
+use crate::logs::{self, GpsLogRecord, ImuRawRecord, InnovRecord, KalmanInRecord, Parsed};
 use anyhow::{Context, bail};
 use std::path::{Path, PathBuf};
 
@@ -10,6 +10,7 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, Clone, Default)]
 pub struct RunLogs {
     pub dir: PathBuf,
+    pub imu_raw: Vec<ImuRawRecord>,
     pub kalman_in: Vec<KalmanInRecord>,
     pub x_hat: Vec<[f64; 15]>,
     pub innov: Vec<InnovRecord>,
@@ -58,6 +59,7 @@ impl RunLogs {
         }
         Ok(RunLogs {
             dir: dir.to_path_buf(),
+            imu_raw: read(dir, "imu_raw.log", ImuRawRecord::parse_fields)?,
             kalman_in: read(dir, "kalman_in.log", KalmanInRecord::parse_fields)?,
             x_hat,
             innov: read(dir, "innov.log", InnovRecord::parse_fields)?,

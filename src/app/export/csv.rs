@@ -2,7 +2,7 @@
 //! (`name [unit]`), numbers in the shortest form that reads back to the same double.
 
 use crate::app::run_logs::RunLogs;
-use crate::logs::{GpsLogRecord, InnovRecord};
+use crate::logs::{GpsLogRecord, ImuRawRecord, InnovRecord};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -81,6 +81,22 @@ const GPS: &[&str] = &[
     "longitude [deg]",
 ];
 const MODE: &[&str] = &["t [s]", "record [text]", "what [text]"];
+const IMU_RAW: &[&str] = &[
+    "t [s]",
+    "t frame [s]",
+    "frame dt [us]",
+    "acc x [counts]",
+    "acc y [counts]",
+    "acc z [counts]",
+    "gyro x [counts]",
+    "gyro y [counts]",
+    "gyro z [counts]",
+    "mag x [counts]",
+    "mag y [counts]",
+    "mag z [counts]",
+    "temperature [0.1 degC]",
+    "pressure [Pa]",
+];
 
 fn num(v: f64) -> String {
     format!("{v}")
@@ -123,6 +139,13 @@ fn tables(run: &RunLogs) -> Vec<(&'static str, Table)> {
         })
         .collect();
     let mut out = vec![
+        (
+            "imu_raw",
+            Table {
+                header: IMU_RAW,
+                rows: run.imu_raw.iter().map(raw_row).collect(),
+            },
+        ),
         (
             "x_hat",
             Table {
@@ -175,6 +198,20 @@ fn tables(run: &RunLogs) -> Vec<(&'static str, Table)> {
     ];
     out.retain(|(_, t)| !t.rows.is_empty());
     out
+}
+
+fn raw_row(r: &ImuRawRecord) -> Vec<String> {
+    let f = &r.frame;
+    let mut cells = vec![secs(r.t_main_us), secs(r.t_frame_us), f.t_us.to_string()];
+    let counts = f
+        .acc
+        .iter()
+        .chain(&f.gyro)
+        .chain(&f.magn)
+        .chain([&f.temp_dc]);
+    cells.extend(counts.map(|c| c.to_string()));
+    cells.push(f.pres_pa.to_string());
+    cells
 }
 
 fn innov_row(r: &InnovRecord) -> Vec<String> {
@@ -261,7 +298,7 @@ mod tests {
 
     #[test]
     fn every_header_names_a_unit() {
-        for h in [X_HAT, KALMAN_IN, W, SETPOINT, INNOV, GPS, MODE] {
+        for h in [IMU_RAW, X_HAT, KALMAN_IN, W, SETPOINT, INNOV, GPS, MODE] {
             assert!(
                 h.iter().all(|c| c.ends_with(']') && c.contains(" [")),
                 "{h:?}"

@@ -13,6 +13,19 @@ type Result = std::result::Result<(), String>;
 
 /// The topics: name and fields after the timestamp.
 const TOPICS: &[(&str, Fields)] = &[
+    // The IMU's frames as they came (counts of the ADXL345, ITG-3200 and HMC5843; the
+    // BMP085's 0.1 °C and Pa): no PX4 topic carries raw counts of these chips.
+    (
+        "uquad_imu_raw",
+        &[
+            ("frame_dt_us", U32, 1),
+            ("acc_counts", I32, 3),
+            ("gyro_counts", I32, 3),
+            ("mag_counts", I32, 3),
+            ("temp_decidegc", I32, 1),
+            ("pressure_pa", U32, 1),
+        ],
+    ),
     ("vehicle_attitude", &[("q", F32, 4)]),
     (
         "vehicle_local_position",
@@ -128,6 +141,7 @@ pub fn build(run: &RunLogs, params: &[(String, f64)]) -> std::result::Result<Vec
         ];
         u.data("actuator_outputs", ts(*t), &out)?;
     }
+    raw(&mut u, run)?;
     sensors(&mut u, run)?;
     gps(&mut u, run)?;
     modes(&mut u, run)?;
@@ -182,6 +196,23 @@ fn setpoints(u: &mut Ulog, run: &RunLogs) -> Result {
         u.data("vehicle_local_position_setpoint", ts(*t), &pos)?;
         let att = [V::F64(sp[3]), V::F64(-sp[4]), V::F64(-sp[5])];
         u.data("vehicle_attitude_setpoint", ts(*t), &att)?;
+    }
+    Ok(())
+}
+
+fn raw(u: &mut Ulog, run: &RunLogs) -> Result {
+    for r in &run.imu_raw {
+        let f = &r.frame;
+        let mut v = vec![V::U32(f.t_us)];
+        v.extend(
+            f.acc
+                .iter()
+                .chain(&f.gyro)
+                .chain(&f.magn)
+                .map(|&c| V::I32(i32::from(c))),
+        );
+        v.extend([V::I32(i32::from(f.temp_dc)), V::U32(f.pres_pa)]);
+        u.data("uquad_imu_raw", ts(r.t_main_us), &v)?;
     }
     Ok(())
 }
