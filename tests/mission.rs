@@ -47,7 +47,33 @@ fn flies(file: &str, items: usize) -> Value {
     // The run folder keeps the mission; the replay flies it again to the same bytes.
     assert!(run.join("mission.toml").is_file());
     assert_replays_same(&run, &["mode.log", "w.log", "x_hat.log", "int.log"]);
+    motors_calm(&run, &r);
     r
+}
+
+/// While the mission flies the motors move smoothly and stay off their lower limit: a torque
+/// observer faster than its inputs' noise once made them chatter by 6 rad/s a step, touching
+/// w_min, with the receiver's errors.
+fn motors_calm(run: &Path, r: &Value) {
+    let t = |i: usize| r["modes"][i]["t_s"].as_f64().unwrap();
+    // From the mission's start to the landing: modes 3 and 4.
+    let (from, to) = (t(3) + 1.0, t(4));
+    let w: Vec<Vec<f64>> = numbers(&run.join("w.log"))
+        .into_iter()
+        .filter(|row| row[0] > from && row[0] < to)
+        .collect();
+    assert!(w.len() > 1000, "{} commands in the mission", w.len());
+    let steps = w
+        .windows(2)
+        .flat_map(|p| (1..5).map(move |m| (p[1][m] - p[0][m]).abs()));
+    let mean = steps.clone().sum::<f64>() / steps.count() as f64;
+    let lowest = w
+        .iter()
+        .flat_map(|row| row[1..].to_vec())
+        .fold(f64::MAX, f64::min);
+    eprintln!("motors in the mission: mean |dw| {mean:.2} rad/s a step, lowest {lowest:.0} rad/s");
+    assert!(mean < 2.0, "the motors chatter: {mean:.2} rad/s a step");
+    assert!(lowest > 250.0, "a motor went down to {lowest:.0} rad/s");
 }
 
 #[test]

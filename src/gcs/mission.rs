@@ -33,8 +33,9 @@ pub struct Anchor {
     /// y west), m.
     pub fix_deg: Option<[f64; 2]>,
     pub fix_xy_m: [f64; 2],
-    /// The takeoff point, x and y, m.
-    pub home_xy_m: [f64; 2],
+    /// The takeoff point in the local frame (x, y, z), m: LOCAL_NED items are given in the
+    /// frame LOCAL_POSITION_NED reports, and a mission's points are from the takeoff point.
+    pub home_m: [f64; 3],
 }
 
 /// An upload as a mission file: its text, and for each of the file's items the upload's
@@ -54,7 +55,10 @@ pub type Refusal = (MavMissionResult, String);
 pub fn item_int(i: &MISSION_ITEM_DATA) -> MISSION_ITEM_INT_DATA {
     let global = matches!(
         i.frame,
-        MavFrame::MAV_FRAME_GLOBAL_RELATIVE_ALT | MavFrame::MAV_FRAME_GLOBAL
+        MavFrame::MAV_FRAME_GLOBAL_RELATIVE_ALT
+            | MavFrame::MAV_FRAME_GLOBAL
+            | MavFrame::MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
+            | MavFrame::MAV_FRAME_GLOBAL_INT
     );
     let scale = if global { 1e7 } else { 1e4 };
     let int = |v: f32| (f64::from(v) * scale).round().clamp(-2.1e9, 2.1e9) as i32;
@@ -109,8 +113,8 @@ fn place(i: &MISSION_ITEM_INT_DATA, at: &Anchor) -> Result<Place, Refusal> {
                 let to = [f64::from(i.x) / 1e7, f64::from(i.y) / 1e7];
                 let [n, w] = offset_m(fix_deg, to);
                 Some([
-                    at.fix_xy_m[0] + n - at.home_xy_m[0],
-                    at.fix_xy_m[1] + w - at.home_xy_m[1],
+                    at.fix_xy_m[0] + n - at.home_m[0],
+                    at.fix_xy_m[1] + w - at.home_m[1],
                 ])
             } else {
                 None
@@ -118,9 +122,12 @@ fn place(i: &MISSION_ITEM_INT_DATA, at: &Anchor) -> Result<Place, Refusal> {
             Ok(Place { xy_m, z_m })
         }
         MavFrame::MAV_FRAME_LOCAL_NED => Ok(Place {
-            // North, east, down to north, west, up.
-            xy_m: Some([f64::from(i.x) / 1e4, -f64::from(i.y) / 1e4]),
-            z_m: z_m.map(|z| -z),
+            // North, east, down in the local frame to north, west, up from the takeoff point.
+            xy_m: Some([
+                f64::from(i.x) / 1e4 - at.home_m[0],
+                -f64::from(i.y) / 1e4 - at.home_m[1],
+            ]),
+            z_m: z_m.map(|z| -z - at.home_m[2]),
         }),
         f => Err((
             MavMissionResult::MAV_MISSION_UNSUPPORTED_FRAME,
@@ -132,11 +139,12 @@ fn place(i: &MISSION_ITEM_INT_DATA, at: &Anchor) -> Result<Place, Refusal> {
     }
 }
 
-/// Builds the file item by item, keeping where the vehicle will be and the speed.
+/// Builds the file item by item, keeping where the vehicle will be (none: somewhere on an
+/// orbit, or wherever a mission without a takeoff is started) and the speed.
 struct Writer {
     text: String,
     seq_of_item: Vec<u16>,
-    xy_m: [f64; 2],
+    xy_m: Option<[f64; 2]>,
     z_m: f64,
     speed_m_s: f64,
 }
@@ -156,7 +164,7 @@ impl Writer {
                 "kind = \"goto\"\nat_m = [{x:?}, {y:?}, {z_m:?}]\nspeed_m_s = {speed:?}\n"
             ),
         );
-        self.xy_m = xy_m;
+        self.xy_m = Some(xy_m);
         self.z_m = z_m;
     }
 }
@@ -173,7 +181,7 @@ pub fn convert(
     let mut w = Writer {
         text: format!("# A ground station's mission: {} items.\n", items.len()),
         seq_of_item: Vec::new(),
-        xy_m: [0.0, 0.0],
+        xy_m: None,
         z_m: hover_z_m,
         speed_m_s,
     };
@@ -195,7 +203,6 @@ fn write_item(w: &mut Writer, i: &MISSION_ITEM_INT_DATA, at: &Anchor) -> Result<
             format!("mission item {seq} ({:?}): {what}", i.command),
         ))
     };
-    let xy = p.xy_m.unwrap_or(w.xy_m);
     let z = p.z_m.unwrap_or(w.z_m);
     match i.command {
         MavCmd::MAV_CMD_NAV_TAKEOFF => {
@@ -203,12 +210,12 @@ fn write_item(w: &mut Writer, i: &MISSION_ITEM_INT_DATA, at: &Anchor) -> Result<
                 return invalid("no height (z)");
             };
             w.item(seq, format_args!("kind = \"takeoff\"\nheight_m = {z:?}\n"));
-            w.z_m = z;
+            (w.xy_m, w.z_m) = (Some([0.0, 0.0]), z);
         }
         MavCmd::MAV_CMD_NAV_WAYPOINT => {
-            if p.xy_m.is_none() {
+            let Some(xy) = p.xy_m else {
                 return invalid("no position (x, y)");
-            }
+            };
             w.goto(seq, xy, z);
             let hold_s = f64::from(i.param1);
             if hold_s > 0.0 {
@@ -221,7 +228,14 @@ fn write_item(w: &mut Writer, i: &MISSION_ITEM_INT_DATA, at: &Anchor) -> Result<
                 return invalid("no centre (x, y)");
             };
             if (z - w.z_m).abs() > 1e-6 {
-                w.goto(seq, w.xy_m, z);
+                // The orbit flies at the present height: climb (or descend) first, where the
+                // vehicle will be.
+                let Some(here) = w.xy_m else {
+                    return invalid(
+                        "a change of height with no known position before it: put a waypoint first",
+                    );
+                };
+                w.goto(seq, here, z);
             }
             let turn = if radius > 0.0 { "right" } else { "left" };
             let speed = w.speed_m_s;
@@ -233,10 +247,12 @@ fn write_item(w: &mut Writer, i: &MISSION_ITEM_INT_DATA, at: &Anchor) -> Result<
                      speed_m_s = {speed:?}\nturns = {turns:?}\nturn = \"{turn}\"\n"
                 ),
             );
+            // Somewhere on the circle.
+            w.xy_m = None;
         }
         MavCmd::MAV_CMD_NAV_RETURN_TO_LAUNCH => {
             w.item(seq, format_args!("kind = \"return\"\n"));
-            w.xy_m = [0.0, 0.0];
+            w.xy_m = Some([0.0, 0.0]);
         }
         MavCmd::MAV_CMD_NAV_LAND => {
             if let Some(xy) = p.xy_m {
@@ -245,9 +261,14 @@ fn write_item(w: &mut Writer, i: &MISSION_ITEM_INT_DATA, at: &Anchor) -> Result<
             w.item(seq, format_args!("kind = \"land\"\n"));
         }
         MavCmd::MAV_CMD_DO_CHANGE_SPEED => {
-            let v = f64::from(i.param2);
+            // Param 1: the speed's kind (0 air, 1 ground: both the path's speed here; 2 climb
+            // and 3 descent: the commander's own). Param 2: the speed, −1 for no change.
+            let (kind, v) = (i.param1, f64::from(i.param2));
+            if !(kind == 0.0 || kind == 1.0) || v == -1.0 {
+                return Ok(());
+            }
             if !(v.is_finite() && v > 0.0) {
-                return invalid("speed (param 2) must be above 0 m/s");
+                return invalid("speed (param 2) must be above 0 m/s, or -1 for no change");
             }
             w.speed_m_s = v;
         }
@@ -322,7 +343,7 @@ mod tests {
         Anchor {
             fix_deg: Some(SITE),
             fix_xy_m: [3.0, 0.0],
-            home_xy_m: [0.0, 1.0],
+            home_m: [0.0, 1.0, 0.5],
         }
     }
 
@@ -427,7 +448,8 @@ mod tests {
         // LOCAL_NED: 1 m north, 2 m east = 2 m west negative.
         let land_at = it[6]["at_m"].as_array().unwrap();
         assert_eq!(land_at[0].as_float(), Some(1.0));
-        assert_eq!(land_at[1].as_float(), Some(-2.0));
+        // (the takeoff point is 1 m west of the local origin, LOCAL_NED's)
+        assert_eq!(land_at[1].as_float(), Some(-3.0));
         assert_eq!(it[7]["kind"].as_str(), Some("land"));
     }
 
@@ -479,6 +501,40 @@ mod tests {
         );
         let (r, _) = convert(&[stop], &anchor(), 1.0, 1.0).unwrap_err();
         assert_eq!(r, MavMissionResult::MAV_MISSION_INVALID);
+        // −1 is "no change", and climb or descent speeds are not the path's.
+        let mission = MavFrame::MAV_FRAME_MISSION;
+        let keep = item(
+            0,
+            MAV_CMD_DO_CHANGE_SPEED,
+            mission,
+            [1.0, -1.0, 0.0, 0.0],
+            0,
+            0,
+            0.0,
+        );
+        let climb = item(
+            1,
+            MAV_CMD_DO_CHANGE_SPEED,
+            mission,
+            [2.0, 3.0, 0.0, 0.0],
+            0,
+            0,
+            0.0,
+        );
+        let wp = global(2, MAV_CMD_NAV_WAYPOINT, [0.0; 4], [5.0, 0.0], 2.0);
+        let c = convert(&[keep, climb, wp], &anchor(), 1.5, 1.0).unwrap();
+        assert!(c.text.contains("speed_m_s = 1.5"), "{}", c.text);
+        // An orbit's change of height where the position is not known (no takeoff before).
+        let orbit = global(
+            0,
+            MAV_CMD_NAV_LOITER_TURNS,
+            [1.0, 0.0, 3.0, 0.0],
+            [5.0, 0.0],
+            3.0,
+        );
+        let (r, why) = convert(&[orbit], &anchor(), 1.0, 1.0).unwrap_err();
+        assert_eq!(r, MavMissionResult::MAV_MISSION_INVALID);
+        assert!(why.contains("no known position"), "{why}");
         let nan = item(
             0,
             MAV_CMD_NAV_TAKEOFF,

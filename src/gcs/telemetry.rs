@@ -161,7 +161,7 @@ pub fn sys_status(s: &Snapshot) -> MavMessage {
 }
 
 /// `a` wrapped into [-π, π].
-fn wrap_pi(a: f64) -> f64 {
+pub fn wrap_pi(a: f64) -> f64 {
     let two_pi = std::f64::consts::TAU;
     a - two_pi * ((a + std::f64::consts::PI) / two_pi).floor()
 }
@@ -366,6 +366,7 @@ pub fn autopilot_version(system_id: u8) -> MavMessage {
     MavMessage::AUTOPILOT_VERSION(AUTOPILOT_VERSION_DATA {
         capabilities: C::MAV_PROTOCOL_CAPABILITY_MAVLINK2
             | C::MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+            | C::MAV_PROTOCOL_CAPABILITY_MISSION_INT
             | C::MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST,
         // Version as MAVLink packs it: major, minor, patch, release type (255: official).
         flight_sw_version: (major << 24) | (minor << 16) | (patch << 8) | 255,

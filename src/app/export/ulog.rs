@@ -5,7 +5,7 @@
 //! equal to what the text printed.
 
 use crate::app::run_logs::RunLogs;
-use crate::gcs::telemetry::{CUSTOM_MODES, ned};
+use crate::gcs::telemetry::{CUSTOM_MODES, ned, wrap_pi};
 use crate::logs::GpsLogRecord;
 use crate::logs::ulog::{Fields, Level, Type::*, Ulog, Value as V};
 
@@ -155,7 +155,8 @@ pub fn build(run: &RunLogs, params: &[(String, f64)]) -> std::result::Result<Vec
 fn estimates(u: &mut Ulog, run: &RunLogs) -> Result {
     for (x, t) in run.x_hat.iter().zip(run.estimate_times_us()) {
         let (p, v) = ned(x);
-        let (roll, pitch, yaw) = (x[3], -x[4], -x[5]);
+        // θ is unwrapped in the logs; PX4's yaw lies in ±π.
+        let (roll, pitch, yaw) = (x[3], -x[4], wrap_pi(-x[5]));
         let q = quaternion(roll, pitch, yaw);
         u.data("vehicle_attitude", ts(t), &q.map(V::F32))?;
         let lp = [
@@ -187,14 +188,10 @@ fn estimates(u: &mut Ulog, run: &RunLogs) -> Result {
 
 fn setpoints(u: &mut Ulog, run: &RunLogs) -> Result {
     for (t, sp) in &run.setpoint {
-        let pos = [
-            V::F64(sp[0]),
-            V::F64(-sp[1]),
-            V::F64(-sp[2]),
-            V::F64(-sp[5]),
-        ];
+        let yaw = wrap_pi(-sp[5]);
+        let pos = [V::F64(sp[0]), V::F64(-sp[1]), V::F64(-sp[2]), V::F64(yaw)];
         u.data("vehicle_local_position_setpoint", ts(*t), &pos)?;
-        let att = [V::F64(sp[3]), V::F64(-sp[4]), V::F64(-sp[5])];
+        let att = [V::F64(sp[3]), V::F64(-sp[4]), V::F64(yaw)];
         u.data("vehicle_attitude_setpoint", ts(*t), &att)?;
     }
     Ok(())

@@ -42,12 +42,20 @@ impl Commander {
             self.paused = false;
         }
         self.items_done = 0;
+        self.landing_item = None;
         self.gains = plan.gains.clone();
-        self.mission = Some(plan);
+        // The plan it replaces is kept for the run's life: its gain table may still be the
+        // controller's, and freeing it there would free memory on the control thread.
+        if let Some(old) = self.mission.replace(plan) {
+            self.retired.push(old);
+        }
     }
 
-    /// The item flown, or paused at.
+    /// The item flown (a mission's landing too), or paused at.
     pub(super) fn mission_item(&self) -> Option<usize> {
+        if self.mode == Mode::Land {
+            return self.landing_item;
+        }
         let flown = self.mode == Mode::Mission || (self.mode == Mode::Hold && self.paused);
         self.run.as_ref().filter(|_| flown).map(MissionRun::item)
     }

@@ -223,6 +223,10 @@ pub struct Summary {
     pub figures: Figures,
 }
 
+/// Room for this many replaced missions before the list grows (an allocation at an
+/// operator's input, not at a step).
+const RETIRED_PLANS: usize = 16;
+
 /// The ground's push felt at touchdown: the accelerometer reads at least this share of the
 /// weight more than the thrust gives.
 const GROUND_PUSH: f64 = 0.1;
@@ -270,6 +274,8 @@ pub struct Commander {
     /// controller.
     mission: Option<Arc<MissionPlan>>,
     gains: Arc<GainTable>,
+    /// Missions replaced by an upload, kept (see `load_mission`).
+    retired: Vec<Arc<MissionPlan>>,
     run: Option<MissionRun>,
     paused: bool,
     /// `start` from the ground: the mission follows the takeoff.
@@ -312,6 +318,7 @@ impl Commander {
             takeoff_steps: 0,
             mission: None,
             gains: Arc::default(),
+            retired: Vec::with_capacity(RETIRED_PLANS),
             run: None,
             paused: false,
             mission_after_takeoff: false,

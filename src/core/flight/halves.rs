@@ -209,6 +209,7 @@ pub struct ControllerCore {
     ramp_from: Option<u32>,
     /// Gains designed along a mission's paths, the profile's, and which are flown.
     gain_table: std::sync::Arc<GainTable>,
+    first_table: Option<std::sync::Arc<GainTable>>,
     profile_gains: Gains,
     active_gains: GainKey,
     /// The last step's set point was a path's.
@@ -236,6 +237,7 @@ impl ControllerCore {
         ControllerCore {
             profile_gains: controller.gains(),
             gain_table: std::sync::Arc::new(GainTable::default()),
+            first_table: None,
             active_gains: GainKey::Profile,
             following: false,
             controller,
@@ -273,7 +275,10 @@ impl ControllerCore {
         if let Some(t) = table
             && !std::sync::Arc::ptr_eq(t, &self.gain_table)
         {
-            self.gain_table = t.clone();
+            // The commander keeps every table it handed over alive; the first one, the
+            // controller's own, is kept here, so nothing is freed on the control thread.
+            let old = std::mem::replace(&mut self.gain_table, t.clone());
+            self.first_table.get_or_insert(old);
         }
         self.active_gains = key;
         let gains = *self.gain_table.get(key).unwrap_or(&self.profile_gains);

@@ -20,15 +20,22 @@ use std::time::{Duration, Instant};
 /// cancelled.
 const ASK_AGAIN: Duration = Duration::from_secs(1);
 const TRIES: u8 = 5;
-/// A plan the flight has not answered within this never will be (the flight has ended).
+/// An upload not planned and answered by the flight within this never will be (a worker that
+/// failed, a flight that has ended).
 const VERDICT_TIMEOUT: Duration = Duration::from_secs(10);
 
 fn ack(to: (u8, u8), result: MavMissionResult) -> MavMessage {
+    ack_of(to, result, MavMissionType::MAV_MISSION_TYPE_MISSION)
+}
+
+/// MISSION_ACK for a transaction of `mission_type` (a ground station drops an answer of
+/// another type).
+fn ack_of(to: (u8, u8), result: MavMissionResult, mission_type: MavMissionType) -> MavMessage {
     MavMessage::MISSION_ACK(MISSION_ACK_DATA {
         target_system: to.0,
         target_component: to.1,
         mavtype: result,
-        mission_type: MavMissionType::MAV_MISSION_TYPE_MISSION,
+        mission_type,
         opaque_id: 0,
     })
 }
@@ -57,14 +64,22 @@ impl Gcs {
     ) {
         use MavMissionResult::*;
         if c.mission_type != MavMissionType::MAV_MISSION_TYPE_MISSION {
-            return if c.count == 0 {
-                self.send(&ack(from, MAV_MISSION_ACCEPTED), link)
+            let result = if c.count == 0 {
+                MAV_MISSION_ACCEPTED
             } else {
                 let why = format!("mission upload: {:?} not supported", c.mission_type);
-                self.mission_refuse(from, MAV_MISSION_UNSUPPORTED, &why, link)
+                self.text(MavSeverity::MAV_SEVERITY_WARNING, &why, link);
+                MAV_MISSION_UNSUPPORTED
             };
+            return self.send(&ack_of(from, result, c.mission_type), link);
         }
-        let why = if self.missions.desk.is_none() {
+        let other = self.missions.upload.as_ref().filter(|u| u.partner != from);
+        let why = if other.is_some() {
+            Some((
+                MAV_MISSION_DENIED,
+                "mission upload: another ground station is uploading".into(),
+            ))
+        } else if self.missions.desk.is_none() {
             Some((
                 MAV_MISSION_DENIED,
                 "mission upload: this run cannot plan missions".into(),
@@ -148,16 +163,12 @@ impl Gcs {
         };
         // The takeoff point; before the takeoff, where the vehicle is (by its estimate, or
         // before the estimate runs, by the fix): where it will take off.
-        let fix_xy_m = snap.fix.map(|f| f.sample.xy_m);
-        let here = snap.state.map(|x| [x[0], x[1]]).or(fix_xy_m);
+        let fix_m = snap.fix.map(|f| f.sample.pos_m());
+        let here = snap.state.map(|x| [x[0], x[1], x[2]]).or(fix_m);
         let anchor = Anchor {
             fix_deg: snap.fix.map(|f| [f.fix.lat_deg, f.fix.lon_deg]),
-            fix_xy_m: fix_xy_m.unwrap_or_default(),
-            home_xy_m: snap
-                .home_m
-                .map(|h| [h[0], h[1]])
-                .or(here)
-                .unwrap_or_default(),
+            fix_xy_m: snap.fix.map_or([0.0; 2], |f| f.sample.xy_m),
+            home_m: snap.home_m.or(here).unwrap_or_default(),
         };
         let c = &desk.profile.config;
         let converted = conv::convert(&u.items, &anchor, c.mission.speed_m_s, c.control.hover_z_m);
@@ -185,7 +196,7 @@ impl Gcs {
                 items: u.items,
                 seq_of_item: converted.seq_of_item,
             },
-            sent_at: None,
+            since: Instant::now(),
         });
     }
 
@@ -201,10 +212,7 @@ impl Gcs {
                 .operator
                 .try_send(OperatorInput::Mission(Arc::new(plan)))
             {
-                Ok(()) => {
-                    j.sent_at = Some(Instant::now());
-                    return;
-                }
+                Ok(()) => return,
                 Err(_) => {
                     self.report.input_drops += 1;
                     format!("mission {}: the flight is not taking inputs now", d.name)
@@ -256,12 +264,11 @@ impl Gcs {
             u.asked_at = now;
             self.ask(partner, seq, link);
         }
-        let late = |j: &mut Judged| {
-            j.sent_at
-                .is_some_and(|t| now.duration_since(t) >= VERDICT_TIMEOUT)
-        };
+        // A plan that never came (a worker that failed) or a verdict that never came (the
+        // flight has ended): the upload fails, and the next one is taken.
+        let late = |j: &mut Judged| now.duration_since(j.since) >= VERDICT_TIMEOUT;
         if let Some(j) = self.missions.judged.take_if(late) {
-            let why = format!("mission {}: no answer from the flight", j.name);
+            let why = format!("mission {}: not planned or not answered in time", j.name);
             self.mission_refuse(j.partner, MavMissionResult::MAV_MISSION_ERROR, &why, link);
         }
     }
@@ -341,17 +348,25 @@ impl Gcs {
         flying: bool,
     ) -> Option<MissionStatus> {
         let f = self.missions.flown.as_ref()?;
-        let total = f.seq_of_item.last().map_or(0, |s| s + 1);
+        // The upload's items (a file's when it came from a file), and the last flown one.
+        let total = if f.items.is_empty() {
+            f.seq_of_item.len()
+        } else {
+            f.items.len()
+        };
+        let last = f.seq_of_item.last().copied();
         let (seq, state) = match (
             item.and_then(|i| self.missions.seq(i)),
             self.missions.reached,
         ) {
             (Some(s), _) if flying => (s, MissionState::MISSION_STATE_ACTIVE),
             (Some(s), _) => (s, MissionState::MISSION_STATE_PAUSED),
-            (None, Some(r)) if r + 1 >= total => (r, MissionState::MISSION_STATE_COMPLETE),
-            (None, Some(r)) => (r, MissionState::MISSION_STATE_ACTIVE),
-            (None, None) => (0, MissionState::MISSION_STATE_NOT_STARTED),
+            (None, Some(r)) if Some(r) == last => (r, MissionState::MISSION_STATE_COMPLETE),
+            // Not flown, or left (a hold, a landing, a return): `start` flies it from the
+            // beginning.
+            (None, _) => (0, MissionState::MISSION_STATE_NOT_STARTED),
         };
+        let total = u16::try_from(total).unwrap_or(u16::MAX);
         Some(MissionStatus { seq, total, state })
     }
 

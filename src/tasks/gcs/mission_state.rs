@@ -39,8 +39,8 @@ pub(super) struct Judged {
     pub(super) partner: (u8, u8),
     pub(super) name: String,
     pub(super) flown: Flown,
-    /// When the plan went to the flight.
-    pub(super) sent_at: Option<Instant>,
+    /// When the upload was complete (its planning began).
+    pub(super) since: Instant,
 }
 
 /// The mission the commander has: its upload (empty for a mission file given at start) and

@@ -500,8 +500,11 @@ impl Gcs {
             home_m: live.and_then(|l| l.home_m),
             health: self.health,
             load_permille: self.load_permille,
-            mission: live
-                .and_then(|l| self.mission_status(l.mission_item, l.mode == Mode::Mission)),
+            // A mission flies in `mission`, and its last item in `land`.
+            mission: live.and_then(|l| {
+                let flying = matches!(l.mode, Mode::Mission | Mode::Land);
+                self.mission_status(l.mission_item, flying)
+            }),
         }
     }
 }
