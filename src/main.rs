@@ -142,9 +142,13 @@ refused with an explanation and nothing is written."
         long_about = "Rerun a recorded flight through the core and write its logs.\n\n\
 RUN_DIR is a run folder as the original program wrote it: imu_raw.log (required) and, when \
 present, kalman_in.log, whose time columns are that run's recorded clock. The replay writes \
-OUT_DIR/kalman_in.log, x_hat.log, w.log and int.log in the original's formats, and innov.log \
-(the EKF's innovation test ratios per step) (OUT_DIR is created if missing; logs in it are \
-overwritten). Without --config, RUN_DIR/config.toml is used."
+OUT_DIR/kalman_in.log, x_hat.log, w.log and int.log in the original's formats, innov.log \
+(the EKF's innovation test ratios per step), setpoint.log and mode.log (OUT_DIR is created if \
+missing; logs in it are overwritten). Without --config, RUN_DIR/config.toml is used.\n\n\
+Several RUN_DIRs are replayed at once, spread over every core, each into OUT_DIR/<its folder's \
+name> (a repeated name gets -2, -3, ...); a progress bar on a terminal, then one line: runs, \
+Kalman steps, time and steps per second. A run that fails is named with its reason on stderr, \
+the others are still written, and the exit status is non-zero."
     )]
     Replay(ReplayArgs),
 }
@@ -344,8 +348,10 @@ enum Turn {
 
 #[derive(clap::Args, Debug)]
 struct ReplayArgs {
-    /// The run folder to replay (e.g. tests/data/flight-2012-05-25).
-    run_dir: PathBuf,
+    /// The run folder to replay (e.g. tests/data/flight-2012-05-25); several: each into
+    /// OUT_DIR/<its name>, on every core.
+    #[arg(required = true, num_args = 1.., value_name = "RUN_DIR")]
+    run_dirs: Vec<PathBuf>,
     /// Configuration profile (default: RUN_DIR/config.toml).
     #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
@@ -735,16 +741,16 @@ impl LqrArgs {
 }
 
 impl ReplayArgs {
-    /// The profile: --config, else the run folder's own config.toml.
-    fn profile(&self) -> anyhow::Result<Profile> {
+    /// The profile of `run_dir`: --config, else the run folder's own config.toml.
+    fn profile(&self, run_dir: &Path) -> anyhow::Result<Profile> {
         let path = match &self.config {
             Some(p) => p.clone(),
             None => {
-                let p = self.run_dir.join("config.toml");
+                let p = run_dir.join("config.toml");
                 if !p.is_file() {
                     return Err(Refused(format!(
                         "{} has no config.toml; pass --config FILE (config/flight-2012-05.toml for the 2012 runs)",
-                        self.run_dir.display()
+                        run_dir.display()
                     ))
                     .into());
                 }
@@ -755,7 +761,46 @@ impl ReplayArgs {
     }
 
     fn run(self) -> anyhow::Result<ExitCode> {
-        let run_dir = &self.run_dir;
+        match self.run_dirs.as_slice() {
+            [one] => self.run_one(&one.clone()),
+            _ => self.run_batch(),
+        }
+    }
+
+    /// Many runs: each into OUT_DIR/<its name>; the throughput at the end; a failed run named,
+    /// the exit status non-zero.
+    fn run_batch(&self) -> anyhow::Result<ExitCode> {
+        let fixed = match &self.config {
+            Some(p) => Some(self.sets.load(p)?),
+            None => None,
+        };
+        let profile = |run: &Path| match &fixed {
+            Some(p) => Ok(p.clone()),
+            None => self.profile(run),
+        };
+        let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let s = uquad::app::replay_batch::run(&self.run_dirs, &self.out, threads, &profile);
+        println!(
+            "replayed {} of {} runs into {}: {} Kalman steps in {:.3} s on {} threads, {:.0} steps/s",
+            s.runs - s.failed.len(),
+            s.runs,
+            self.out.display(),
+            s.kalman_steps,
+            s.wall_s,
+            s.threads,
+            s.steps_per_s()
+        );
+        for (run, why) in &s.failed {
+            eprintln!("error: replay of {} failed: {why}", run.display());
+        }
+        Ok(if s.failed.is_empty() {
+            ExitCode::SUCCESS
+        } else {
+            ExitCode::FAILURE
+        })
+    }
+
+    fn run_one(&self, run_dir: &Path) -> anyhow::Result<ExitCode> {
         if uquad::app::replay::out_is_the_run_folder(run_dir, &self.out) {
             return Err(Refused(format!(
                 "--out {}: that is the run folder being replayed, whose logs would be overwritten; choose another folder",
@@ -763,7 +808,7 @@ impl ReplayArgs {
             ))
             .into());
         }
-        let profile = self.profile()?;
+        let profile = self.profile(run_dir)?;
         let summary = uquad::app::replay::run(run_dir, &profile, &self.out)
             .with_context(|| format!("replay of {} failed", run_dir.display()))?;
         tracing::info!(

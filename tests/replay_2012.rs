@@ -1,4 +1,5 @@
-//! Replay of the real 2012-05-25 flight reproduces the original program's `kalman_in.log`.
+//! Replay of the real 2012-05-25 flight reproduces the original program's `kalman_in.log`; many
+//! copies of it replay at once, each into its own folder.
 
 mod common;
 use common::*;
@@ -162,4 +163,55 @@ fn replay_refuses_to_write_into_the_folder_it_reads() {
         std::fs::read(copy.path().join("kalman_in.log")).unwrap(),
         before
     );
+}
+
+/// Several run folders in one command: each into OUT/<its name>, the same bytes as one at a
+/// time; a run that fails is named, the others still written, the exit status non-zero.
+#[test]
+fn many_runs_replay_at_once_each_into_its_folder() {
+    let dir = tempfile::tempdir().unwrap();
+    let copies: Vec<std::path::PathBuf> = ["a", "b", "c"]
+        .iter()
+        .map(|n| {
+            let to = dir.path().join(n);
+            std::fs::create_dir(&to).unwrap();
+            for f in std::fs::read_dir(flight_dir()).unwrap() {
+                let f = f.unwrap().path();
+                std::fs::copy(&f, to.join(f.file_name().unwrap())).unwrap();
+            }
+            to
+        })
+        .collect();
+    let broken = dir.path().join("broken");
+    std::fs::create_dir(&broken).unwrap();
+    let out = dir.path().join("out");
+    let mut args = vec!["replay"];
+    let names: Vec<String> = copies.iter().map(|c| c.display().to_string()).collect();
+    args.extend(names.iter().map(String::as_str));
+    let broken_s = broken.display().to_string();
+    args.push(&broken_s);
+    let (profile, out_s) = (profile_2012(), out.display().to_string());
+    args.extend(["--config", profile.to_str().unwrap(), "--out", &out_s]);
+    let o = uquad(&root(), &args);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "the broken run must fail the batch");
+    assert!(
+        stdout.contains("replayed 3 of 4 runs") && stdout.contains("3360 Kalman steps"),
+        "{stdout}"
+    );
+    assert!(
+        stderr.contains("replay of") && stderr.contains("broken"),
+        "{stderr}"
+    );
+    let single = replay_ok(&copies[0], &[]);
+    for n in ["a", "b", "c"] {
+        for log in ["x_hat.log", "w.log", "kalman_in.log"] {
+            let a = std::fs::read(out.join(n).join(log)).unwrap();
+            assert!(
+                a == std::fs::read(single.path().join(log)).unwrap(),
+                "{n}/{log}"
+            );
+        }
+    }
 }

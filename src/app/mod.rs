@@ -11,6 +11,7 @@ pub mod gps;
 pub mod lqr;
 pub mod plot;
 pub mod replay;
+pub mod replay_batch;
 pub mod report;
 pub mod run_dir;
 pub mod run_logs;
