@@ -139,6 +139,26 @@ impl GainTable {
         self.entries.is_empty()
     }
 
+    /// A fingerprint of every gain (FNV-1a over their bits, in order): mode.log records it
+    /// with an uploaded mission, so a replay that plans different gains (another profile)
+    /// says so instead of flying something else.
+    pub fn fingerprint(&self) -> u64 {
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+        let values = self.entries.iter().flat_map(|(_, g)| {
+            g.k_prop
+                .iter()
+                .flatten()
+                .chain(g.k_int.iter().flatten())
+                .copied()
+        });
+        for v in values {
+            for b in v.to_bits().to_le_bytes() {
+                h = (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3);
+            }
+        }
+        h
+    }
+
     /// Designs the gains of every segment kind `mission` can fly (and its `return`s, which
     /// a failsafe may ask for at any time), about each one's trim, with the profile's weights.
     pub fn design(

@@ -11,11 +11,12 @@
 //! 31000000 refused disarm | in the air (land): land first, or kill
 //! 2000000 beat gcs
 //! 2100000 key 101
-//! 2500000 mission mission-1.toml
+//! 2500000 mission mission-1.toml gains 9ae16a3b2f90c14e
 //! ```
 //!
 //! A ground station's mission is recorded by the name of the file the link wrote into the
-//! run folder; a replay plans it again from that file (the same gains, bit for bit).
+//! run folder and a fingerprint of the gains planned for it; a replay plans it again from that
+//! file and refuses gains that differ (another profile) instead of flying something else.
 
 use crate::core::commander::{Command, Event, LinkSource, OperatorInput};
 use crate::core::control::ManualCommand;
@@ -45,7 +46,12 @@ pub fn write_input(
     let _ = match input {
         OperatorInput::Beat(src) => writeln!(out, "{t_us} beat {}", src.name()),
         OperatorInput::Key(k) => writeln!(out, "{t_us} key {}", k.key()),
-        OperatorInput::Mission(plan) => writeln!(out, "{t_us} mission {}", plan.name),
+        OperatorInput::Mission(plan) => writeln!(
+            out,
+            "{t_us} mission {} gains {:016x}",
+            plan.name,
+            plan.gains.fingerprint()
+        ),
         OperatorInput::Command(c, src) => {
             let _ = write!(out, "{t_us} in {} {c}", src.name());
             match verdict {
@@ -110,12 +116,32 @@ fn parse_input(
             let k = rest.parse::<u8>().ok().and_then(ManualCommand::from_key);
             OperatorInput::Key(k.ok_or_else(|| format!("unknown key {rest:?}"))?)
         }
-        "mission" => OperatorInput::Mission(mission(rest)?),
+        "mission" => OperatorInput::Mission(recorded_mission(rest, mission)?),
         "in" => return parse_command(t_us, rest, source).map(Some),
         "mode" | "failsafe" | "refused" | "reached" => return Ok(None),
         _ => return Err(format!("unknown record {kind:?}")),
     };
     Ok(Some((t_us, input, Ok(()))))
+}
+
+/// `NAME gains FINGERPRINT`: the plan of file NAME, whose gains must be the ones flown.
+fn recorded_mission(
+    rest: &str,
+    mission: &mut dyn FnMut(&str) -> Result<Arc<MissionPlan>, String>,
+) -> Result<Arc<MissionPlan>, String> {
+    let (name, flown) = match rest.split_once(" gains ") {
+        Some((n, f)) => (n, Some(f)),
+        None => (rest, None),
+    };
+    let plan = mission(name)?;
+    let now = format!("{:016x}", plan.gains.fingerprint());
+    match flown {
+        Some(f) if f != now => Err(format!(
+            "mission {name}: its gains now (fingerprint {now}) are not the ones flown ({f}): \
+             replay it with the run's own configuration"
+        )),
+        _ => Ok(plan),
+    }
 }
 
 fn parse_command(
@@ -206,5 +232,9 @@ mod tests {
         assert!(read_inputs("5 in gcs fly\n", &mut none).is_err());
         let e = read_inputs("5 mission m.toml\n", &mut none).unwrap_err();
         assert_eq!(e, "line 1: no file m.toml");
+        // Gains planned now that differ from the ones flown are refused.
+        let mut some = |_: &str| Ok(Arc::new(MissionPlan::default()));
+        let e = read_inputs("5 mission m.toml gains 0000000000000001\n", &mut some).unwrap_err();
+        assert!(e.contains("not the ones flown"), "{e}");
     }
 }
