@@ -273,6 +273,29 @@ impl Gcs {
         }
     }
 
+    /// MISSION_CLEAR_ALL: fence and rally lists are not kept (nothing to clear); the mission
+    /// is not cleared (upload another).
+    pub(super) fn on_mission_clear(
+        &mut self,
+        mission_type: MavMissionType,
+        from: (u8, u8),
+        link: &mut Link,
+    ) {
+        use MavMissionResult::*;
+        let kept_nothing = matches!(
+            mission_type,
+            MavMissionType::MAV_MISSION_TYPE_FENCE | MavMissionType::MAV_MISSION_TYPE_RALLY
+        );
+        if kept_nothing {
+            self.send(&ack_of(from, MAV_MISSION_ACCEPTED, mission_type), link);
+        } else {
+            let why = "mission clear: not supported (upload another mission)";
+            self.send(&ack_of(from, MAV_MISSION_DENIED, mission_type), link);
+            self.text(MavSeverity::MAV_SEVERITY_WARNING, why, link);
+            self.ctx.store.logs.err(why);
+        }
+    }
+
     /// MISSION_REQUEST_LIST: the count of the last accepted upload.
     pub(super) fn on_mission_list(
         &mut self,

@@ -324,10 +324,7 @@ impl Gcs {
             MavMessage::MISSION_REQUEST_LIST(r) => self.on_mission_list(from, r.mission_type, link),
             MavMessage::MISSION_REQUEST_INT(r) => self.on_mission_request(r.seq, from, link),
             MavMessage::MISSION_REQUEST(r) => self.on_mission_request(r.seq, from, link),
-            MavMessage::MISSION_CLEAR_ALL(_) => {
-                let why = "mission clear: not supported (upload another mission)";
-                self.mission_refuse(from, MavMissionResult::MAV_MISSION_DENIED, why, link);
-            }
+            MavMessage::MISSION_CLEAR_ALL(r) => self.on_mission_clear(r.mission_type, from, link),
             _ => {}
         }
     }
