@@ -194,27 +194,29 @@ pub fn convert(
     })
 }
 
+/// An item refused as not valid, naming it.
+fn invalid(i: &MISSION_ITEM_INT_DATA, what: &str) -> Result<(), Refusal> {
+    Err((
+        MavMissionResult::MAV_MISSION_INVALID,
+        format!("mission item {} ({:?}): {what}", i.seq, i.command),
+    ))
+}
+
 fn write_item(w: &mut Writer, i: &MISSION_ITEM_INT_DATA, at: &Anchor) -> Result<(), Refusal> {
     let seq = i.seq;
     let p = place(i, at)?;
-    let invalid = |what: &str| {
-        Err((
-            MavMissionResult::MAV_MISSION_INVALID,
-            format!("mission item {seq} ({:?}): {what}", i.command),
-        ))
-    };
     let z = p.z_m.unwrap_or(w.z_m);
     match i.command {
         MavCmd::MAV_CMD_NAV_TAKEOFF => {
             let Some(z) = p.z_m else {
-                return invalid("no height (z)");
+                return invalid(i, "no height (z)");
             };
             w.item(seq, format_args!("kind = \"takeoff\"\nheight_m = {z:?}\n"));
             (w.xy_m, w.z_m) = (Some([0.0, 0.0]), z);
         }
         MavCmd::MAV_CMD_NAV_WAYPOINT => {
             let Some(xy) = p.xy_m else {
-                return invalid("no position (x, y)");
+                return invalid(i, "no position (x, y)");
             };
             w.goto(seq, xy, z);
             let hold_s = f64::from(i.param1);
@@ -222,34 +224,7 @@ fn write_item(w: &mut Writer, i: &MISSION_ITEM_INT_DATA, at: &Anchor) -> Result<
                 w.item(seq, format_args!("kind = \"hold\"\nseconds = {hold_s:?}\n"));
             }
         }
-        MavCmd::MAV_CMD_NAV_LOITER_TURNS => {
-            let (turns, radius) = (f64::from(i.param1), f64::from(i.param3));
-            let Some(centre) = p.xy_m else {
-                return invalid("no centre (x, y)");
-            };
-            if (z - w.z_m).abs() > 1e-6 {
-                // The orbit flies at the present height: climb (or descend) first, where the
-                // vehicle will be.
-                let Some(here) = w.xy_m else {
-                    return invalid(
-                        "a change of height with no known position before it: put a waypoint first",
-                    );
-                };
-                w.goto(seq, here, z);
-            }
-            let turn = if radius > 0.0 { "right" } else { "left" };
-            let speed = w.speed_m_s;
-            let (r, [cx, cy]) = (radius.abs(), centre);
-            w.item(
-                seq,
-                format_args!(
-                    "kind = \"orbit\"\ncentre_m = [{cx:?}, {cy:?}]\nradius_m = {r:?}\n\
-                     speed_m_s = {speed:?}\nturns = {turns:?}\nturn = \"{turn}\"\n"
-                ),
-            );
-            // Somewhere on the circle.
-            w.xy_m = None;
-        }
+        MavCmd::MAV_CMD_NAV_LOITER_TURNS => return orbit(w, i, p.xy_m, z),
         MavCmd::MAV_CMD_NAV_RETURN_TO_LAUNCH => {
             w.item(seq, format_args!("kind = \"return\"\n"));
             w.xy_m = Some([0.0, 0.0]);
@@ -260,18 +235,7 @@ fn write_item(w: &mut Writer, i: &MISSION_ITEM_INT_DATA, at: &Anchor) -> Result<
             }
             w.item(seq, format_args!("kind = \"land\"\n"));
         }
-        MavCmd::MAV_CMD_DO_CHANGE_SPEED => {
-            // Param 1: the speed's kind (0 air, 1 ground: both the path's speed here; 2 climb
-            // and 3 descent: the commander's own). Param 2: the speed, −1 for no change.
-            let (kind, v) = (i.param1, f64::from(i.param2));
-            if !(kind == 0.0 || kind == 1.0) || v == -1.0 {
-                return Ok(());
-            }
-            if !(v.is_finite() && v > 0.0) {
-                return invalid("speed (param 2) must be above 0 m/s, or -1 for no change");
-            }
-            w.speed_m_s = v;
-        }
+        MavCmd::MAV_CMD_DO_CHANGE_SPEED => return change_speed(w, i),
         c => {
             return Err((
                 MavMissionResult::MAV_MISSION_UNSUPPORTED,
@@ -282,6 +246,60 @@ fn write_item(w: &mut Writer, i: &MISSION_ITEM_INT_DATA, at: &Anchor) -> Result<
             ));
         }
     }
+    Ok(())
+}
+
+/// NAV_LOITER_TURNS: param 1 turns, param 3 the radius (positive: clockwise), around
+/// `centre`, at height `z_m`.
+fn orbit(
+    w: &mut Writer,
+    i: &MISSION_ITEM_INT_DATA,
+    centre: Option<[f64; 2]>,
+    z_m: f64,
+) -> Result<(), Refusal> {
+    let (turns, radius) = (f64::from(i.param1), f64::from(i.param3));
+    let Some([cx, cy]) = centre else {
+        return invalid(i, "no centre (x, y)");
+    };
+    if (z_m - w.z_m).abs() > 1e-6 {
+        // The orbit flies at the present height: climb (or descend) first, where the
+        // vehicle will be.
+        let Some(here) = w.xy_m else {
+            return invalid(
+                i,
+                "a change of height with no known position before it: put a waypoint first",
+            );
+        };
+        w.goto(i.seq, here, z_m);
+    }
+    let turn = if radius > 0.0 { "right" } else { "left" };
+    let (r, speed) = (radius.abs(), w.speed_m_s);
+    w.item(
+        i.seq,
+        format_args!(
+            "kind = \"orbit\"\ncentre_m = [{cx:?}, {cy:?}]\nradius_m = {r:?}\n\
+             speed_m_s = {speed:?}\nturns = {turns:?}\nturn = \"{turn}\"\n"
+        ),
+    );
+    // Somewhere on the circle.
+    w.xy_m = None;
+    Ok(())
+}
+
+/// DO_CHANGE_SPEED: param 1 the speed's kind (0 air, 1 ground: both the path's speed here; 2
+/// climb and 3 descent: the commander's own), param 2 the speed (−1: no change).
+fn change_speed(w: &mut Writer, i: &MISSION_ITEM_INT_DATA) -> Result<(), Refusal> {
+    let (kind, v) = (i.param1, f64::from(i.param2));
+    if !(kind == 0.0 || kind == 1.0) || v == -1.0 {
+        return Ok(());
+    }
+    if !(v.is_finite() && v > 0.0) {
+        return invalid(
+            i,
+            "speed (param 2) must be above 0 m/s, or -1 for no change",
+        );
+    }
+    w.speed_m_s = v;
     Ok(())
 }
 

@@ -138,63 +138,25 @@ fn tables(run: &RunLogs) -> Vec<(&'static str, Table)> {
             row(k.t_us, &v)
         })
         .collect();
+    let t = |header, rows| Table { header, rows };
     let mut out = vec![
         (
             "imu_raw",
-            Table {
-                header: IMU_RAW,
-                rows: run.imu_raw.iter().map(raw_row).collect(),
-            },
+            t(IMU_RAW, run.imu_raw.iter().map(raw_row).collect()),
         ),
-        (
-            "x_hat",
-            Table {
-                header: X_HAT,
-                rows: x_hat,
-            },
-        ),
-        (
-            "kalman_in",
-            Table {
-                header: KALMAN_IN,
-                rows: kalman_in,
-            },
-        ),
-        (
-            "w",
-            Table {
-                header: W,
-                rows: run.w.iter().map(|(t, v)| row(*t, v)).collect(),
-            },
-        ),
+        ("x_hat", t(X_HAT, x_hat)),
+        ("kalman_in", t(KALMAN_IN, kalman_in)),
+        ("w", t(W, run.w.iter().map(|(t, v)| row(*t, v)).collect())),
         (
             "setpoint",
-            Table {
-                header: SETPOINT,
-                rows: run.setpoint.iter().map(|(t, v)| row(*t, v)).collect(),
-            },
+            t(
+                SETPOINT,
+                run.setpoint.iter().map(|(t, v)| row(*t, v)).collect(),
+            ),
         ),
-        (
-            "innov",
-            Table {
-                header: INNOV,
-                rows: run.innov.iter().map(innov_row).collect(),
-            },
-        ),
-        (
-            "gps",
-            Table {
-                header: GPS,
-                rows: run.gps.iter().filter_map(gps_row).collect(),
-            },
-        ),
-        (
-            "mode",
-            Table {
-                header: MODE,
-                rows: mode_rows(&run.mode_log),
-            },
-        ),
+        ("innov", t(INNOV, run.innov.iter().map(innov_row).collect())),
+        ("gps", t(GPS, run.gps.iter().filter_map(gps_row).collect())),
+        ("mode", t(MODE, mode_rows(&run.mode_log))),
     ];
     out.retain(|(_, t)| !t.rows.is_empty());
     out

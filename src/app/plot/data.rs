@@ -89,19 +89,11 @@ pub fn figure(run_dir: &Path) -> anyhow::Result<Figure> {
             series(&format!("motor {m}"), false, pts)
         })
         .collect();
-    let east_north = |x: f64, y: f64| (-y, x);
-    let mut track = vec![series(
-        "flown (estimate)",
-        false,
-        thin(x_hat.iter().map(|x| east_north(x[0], x[1]))),
-    )];
-    if !sp.is_empty() {
-        let planned = thin(sp.iter().map(|(_, v)| east_north(v[0], v[1])));
-        track.push(series("planned (set point)", true, planned));
-    }
+    let track = track(&run);
+    let east_north = |x: &[f64; 15]| (-x[1], x[0]);
     let marks = marks(&run.mode_log, |t_s| {
         let k = t.partition_point(|&s| s < t_s).min(x_hat.len() - 1);
-        east_north(x_hat[k][0], x_hat[k][1])
+        east_north(&x_hat[k])
     });
     Ok(Figure {
         title: format!("uquad run {}", run_dir.display()),
@@ -130,6 +122,19 @@ pub fn figure(run_dir: &Path) -> anyhow::Result<Figure> {
         track,
         marks,
     })
+}
+
+/// The horizontal track, east and north (m): flown (the estimate) and, with set points, the
+/// planned one.
+fn track(run: &RunLogs) -> Vec<Series> {
+    let east_north = |x: f64, y: f64| (-y, x);
+    let flown = thin(run.x_hat.iter().map(|x| east_north(x[0], x[1])));
+    let mut track = vec![series("flown (estimate)", false, flown)];
+    if !run.setpoint.is_empty() {
+        let planned = thin(run.setpoint.iter().map(|(_, v)| east_north(v[0], v[1])));
+        track.push(series("planned (set point)", true, planned));
+    }
+    track
 }
 
 /// The mode changes (`T mode NAME why`) and failsafes (`T failsafe KIND ACTION`) of a
