@@ -42,7 +42,8 @@ Exits 0 when everything is valid. Otherwise prints one line per problem, naming 
 Opens the IMU on imu.device (115200 8N1 raw) and the ESCs on esc.bus (Linux I2C). Start-up: \
 wait for a stable IMU sampling period (motors off), run the ESC start-up ramp, calibrate the IMU \
 (512 frames, motors idling), ramp the motors up over 100 steps, then hover at control.hover_z_m. \
-Logs go to <log dir>/<run-id>/ (imu_raw, kalman_in, x_hat, w, int, gps, err, and the resolved \
+Logs go to <log dir>/<run-id>/ (imu_raw, kalman_in, x_hat, innov, w, int, setpoint, gps, err, \
+mode, and the resolved \
 config.toml with copies of its data files, so `uquad replay <run folder>` reruns it).\n\n\
 SIGINT, SIGTERM, SIGHUP and SIGQUIT zero and disable the motors, then the report and logs are \
 written; a second signal is noted, a third exits once the motors are stopped. SIGTSTP is ignored \

@@ -51,9 +51,9 @@ fn flies(file: &str, items: usize) -> Value {
     r
 }
 
-/// While the mission flies the motors move smoothly and stay off their lower limit: a torque
-/// observer faster than its inputs' noise once made them chatter by 6 rad/s a step, touching
-/// w_min, with the receiver's errors.
+/// While the mission flies the motors move smoothly and stay off their lower limit (a torque
+/// observer faster than its inputs' noise makes them chatter down to w_min under the
+/// receiver's errors).
 fn motors_calm(run: &Path, r: &Value) {
     let t = |i: usize| r["modes"][i]["t_s"].as_f64().unwrap();
     // From the mission's start to the landing: modes 3 and 4.

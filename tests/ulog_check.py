@@ -31,9 +31,9 @@ def micros(text):
 
 
 def worst(a, b):
-    """Largest |a − b| (NaN equal to NaN); inf when the lengths differ."""
+    """Largest |a − b| (NaN equal to NaN); the lengths when they differ."""
     if len(a) != len(b):
-        return math.inf
+        return f"lengths differ: {len(a)} vs {len(b)}"
     d = 0.0
     for x, y in zip(a, b):
         if math.isnan(x) and math.isnan(y):
@@ -50,7 +50,9 @@ def main():
     ).stdout
     log = ULog(ulg)
     data = {d.name: d.data for d in log.data_list}
-    topics = sorted(t for t in data if t in info)
+    # ulog_info lists each topic as " name (multi id, size)".
+    listed = {line.split()[0] for line in info.splitlines() if line.startswith(" ") and "(" in line}
+    topics = sorted(t for t in data if t in listed)
     x_hat = [[float(v) for v in r] for r in rows(os.path.join(run, "x_hat.log"))]
     k_in = rows(os.path.join(run, "kalman_in.log"))
     w = rows(os.path.join(run, "w.log"))

@@ -9,8 +9,9 @@
 //! own times stand in.
 //!
 //! Outputs in OUT_DIR, in the original's formats: `kalman_in.log`, `x_hat.log`, `w.log`,
-//! `int.log`; and uquad's `innov.log` (the innovation test ratios) and `mode.log` (the
-//! commander's, from the run's recorded operator inputs and halt). They are built in memory
+//! `int.log`; and uquad's `innov.log` (the innovation test ratios), `setpoint.log` (the set
+//! points flown) and `mode.log` (the commander's, from the run's recorded operator inputs —
+//! a ground station's missions planned again from their files — and halt). They are built in memory
 //! and written once at the end (no sync per record).
 //! Replay is deterministic: the same inputs give byte-identical outputs.
 

@@ -86,7 +86,11 @@ pub fn run(
                     let (Some(run), Some(out)) = (runs.get(i), outs.get(i)) else {
                         break;
                     };
-                    let r = one(run, out, profile).map(|s| s.kalman_steps);
+                    // A panic in one replay fails that run only (and the progress still ends).
+                    let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                        one(run, out, profile).map(|s| s.kalman_steps)
+                    }))
+                    .unwrap_or_else(|_| Err(anyhow::anyhow!("the replay panicked")));
                     if let Ok(mut v) = results.lock() {
                         v.push((i, r));
                     }

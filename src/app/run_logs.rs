@@ -78,8 +78,10 @@ impl RunLogs {
         (0..self.x_hat.len())
             .map(|k| match (times.get(k), times.last()) {
                 (Some(&t), _) => t,
-                (None, Some(&last)) => last + (k + 1 - times.len()) as i64 * 10_000,
-                (None, None) => k as i64 * 10_000,
+                (None, Some(&last)) => {
+                    last.saturating_add(((k + 1 - times.len()) as i64).saturating_mul(10_000))
+                }
+                (None, None) => (k as i64).saturating_mul(10_000),
             })
             .collect()
     }

@@ -12,7 +12,10 @@
 //! - DO_CHANGE_SPEED → the speed (param 2, m/s) of the items after it.
 //!
 //! Frames: GLOBAL_RELATIVE_ALT(_INT) (latitude, longitude, height above the takeoff point),
-//! LOCAL_NED (metres north, east, down from the takeoff point), MISSION (no position).
+//! LOCAL_NED (metres north, east, down in the frame LOCAL_POSITION_NED reports), MISSION (no
+//! position). Latitude and longitude are placed from the newest fix on a sphere, as
+//! GLOBAL_POSITION_INT reports them (a real receiver's local frame follows the UTM grid, a
+//! fraction of a degree from true north: centimetres over a few metres).
 
 use crate::core::gps::offset_m;
 // Older ground stations still send the superseded MISSION_ITEM: it is taken.
@@ -220,6 +223,9 @@ fn write_item(w: &mut Writer, i: &MISSION_ITEM_INT_DATA, at: &Anchor) -> Result<
             };
             w.goto(seq, xy, z);
             let hold_s = f64::from(i.param1);
+            if !hold_s.is_finite() {
+                return invalid(i, "hold time (param 1) is not a number");
+            }
             if hold_s > 0.0 {
                 w.item(seq, format_args!("kind = \"hold\"\nseconds = {hold_s:?}\n"));
             }
@@ -258,6 +264,9 @@ fn orbit(
     z_m: f64,
 ) -> Result<(), Refusal> {
     let (turns, radius) = (f64::from(i.param1), f64::from(i.param3));
+    if !(turns.is_finite() && radius.is_finite()) {
+        return invalid(i, "turns (param 1) or radius (param 3) is not a number");
+    }
     let Some([cx, cy]) = centre else {
         return invalid(i, "no centre (x, y)");
     };
@@ -553,16 +562,21 @@ mod tests {
         let (r, why) = convert(&[orbit], &anchor(), 1.0, 1.0).unwrap_err();
         assert_eq!(r, MavMissionResult::MAV_MISSION_INVALID);
         assert!(why.contains("no known position"), "{why}");
-        let nan = item(
-            0,
-            MAV_CMD_NAV_TAKEOFF,
-            MavFrame::MAV_FRAME_MISSION,
-            [0.0; 4],
-            0,
-            0,
-            f32::NAN,
+        // A height that is not a number, turns that are not a number: named, not written.
+        let rel = MavFrame::MAV_FRAME_GLOBAL_RELATIVE_ALT_INT;
+        let nan = item(0, MAV_CMD_NAV_TAKEOFF, rel, [0.0; 4], 0, 0, f32::NAN);
+        let (_, why) = convert(&[nan], &anchor(), 1.0, 1.0).unwrap_err();
+        assert!(why.contains("no height"), "{why}");
+        let take = item(0, MAV_CMD_NAV_TAKEOFF, rel, [0.0; 4], 0, 0, 2.0);
+        let spin = global(
+            1,
+            MAV_CMD_NAV_LOITER_TURNS,
+            [f32::NAN, 0.0, 3.0, 0.0],
+            [5.0, 0.0],
+            2.0,
         );
-        assert!(convert(&[nan], &anchor(), 1.0, 1.0).is_err());
+        let (_, why) = convert(&[take, spin], &anchor(), 1.0, 1.0).unwrap_err();
+        assert!(why.contains("not a number"), "{why}");
     }
 
     #[test]

@@ -1,6 +1,7 @@
 //! The `mode` stream (mode.log): the commander's inputs (operator commands with the pre-arm
-//! verdict an `arm` got, link beats, manual keys) and outputs (mode changes, failsafes,
-//! refusals), one per line after the time in µs. `uquad replay` reads the inputs back and
+//! verdict an `arm` got, link beats, manual keys, a ground station's missions) and outputs
+//! (mode changes, failsafes, refusals, mission items reached), one per line after the time
+//! in µs. `uquad replay` reads the inputs back and
 //! writes the outputs again, so a replayed run's mode.log is the same bytes.
 //!
 //! ```text

@@ -25,8 +25,17 @@ fn params(run_dir: &Path) -> anyhow::Result<Vec<(String, f64)>> {
     if !path.exists() {
         return Ok(Vec::new());
     }
-    let profile = crate::config::load(&path, &[])
-        .with_context(|| format!("the run's configuration {}", path.display()))?;
+    // A configuration an older uquad wrote may not load now: the export goes on without it.
+    let profile = match crate::config::load(&path, &[]) {
+        Ok(p) => p,
+        Err(e) => {
+            eprintln!(
+                "warning: {}: {e}; exported without parameters",
+                path.display()
+            );
+            return Ok(Vec::new());
+        }
+    };
     let p = crate::gcs::params::Params::of(&profile.config);
     Ok((0..p.len())
         .filter_map(|i| p.get(i))

@@ -312,7 +312,12 @@ fn modes(u: &mut Ulog, run: &RunLogs) -> Result {
         };
         u.log(level, ts(t_us), &format!("{kind} {rest}"))?;
         if matches!(kind, "mode" | "failsafe") {
-            let armed = if custom == 0 || custom == 5 { 1 } else { 2 };
+            // Standby (1) when disarmed or killed, else armed (2).
+            let on_ground = matches!(
+                CUSTOM_MODES.get(custom).map(|m| m.name()),
+                Some("disarmed" | "kill")
+            );
+            let armed = if on_ground { 1 } else { 2 };
             let status = [
                 V::U8(armed),
                 V::U8(nav_state(custom)),

@@ -45,7 +45,7 @@ impl Commander {
         self.landing_item = None;
         self.gains = plan.gains.clone();
         // The plan it replaces is kept for the run's life: its gain table may still be the
-        // controller's, and freeing it there would free memory on the control thread.
+        // controller's, whose swap must not be the one that frees it.
         if let Some(old) = self.mission.replace(plan) {
             self.retired.push(old);
         }

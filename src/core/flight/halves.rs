@@ -275,8 +275,8 @@ impl ControllerCore {
         if let Some(t) = table
             && !std::sync::Arc::ptr_eq(t, &self.gain_table)
         {
-            // The commander keeps every table it handed over alive; the first one, the
-            // controller's own, is kept here, so nothing is freed on the control thread.
+            // The commander keeps every table it handed over alive and the first one, the
+            // controller's own, is kept here: a swap frees no memory on the control thread.
             let old = std::mem::replace(&mut self.gain_table, t.clone());
             self.first_table.get_or_insert(old);
         }

@@ -212,7 +212,11 @@ impl Gcs {
                 .operator
                 .try_send(OperatorInput::Mission(Arc::new(plan)))
             {
-                Ok(()) => return,
+                Ok(()) => {
+                    // The flight answers within a frame or two: its own 10 s from now.
+                    j.since = Instant::now();
+                    return;
+                }
                 Err(_) => {
                     self.report.input_drops += 1;
                     format!("mission {}: the flight is not taking inputs now", d.name)
