@@ -12,7 +12,7 @@
 //! 31000000 refused disarm | in the air (land): land first, or kill
 //! 2000000 beat gcs
 //! 2100000 key 101
-//! 2500000 mission mission-1.toml gains 9ae16a3b2f90c14e
+//! 2500000 mission mission-1.toml gains caeb2603ff2b78ed
 //! ```
 //!
 //! A ground station's mission is recorded by the name of the file the link wrote into the
