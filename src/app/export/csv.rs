@@ -52,15 +52,8 @@ const W: &[&str] = &[
     "motor 2 [rad/s]",
     "motor 3 [rad/s]",
 ];
-const SETPOINT: &[&str] = &[
-    "t [s]",
-    "x north [m]",
-    "y west [m]",
-    "z up [m]",
-    "roll psi [rad]",
-    "pitch phi [rad]",
-    "yaw theta [rad]",
-];
+/// The set point's columns are the estimate's first seven (time, position, attitude).
+const SETPOINT: &[&str] = X_HAT.split_at(7).0;
 const INNOV: &[&str] = &[
     "t [s]",
     "attitude test ratio [1]",
