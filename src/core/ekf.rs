@@ -5,15 +5,17 @@
 //! (3.6), step (3.7), θ unwrapping (3.8). Units: m, rad, m/s, rad/s, m/s²; dt in µs.
 //!
 //! Fixed-size nalgebra matrices: a step allocates nothing. The observation matrices are pure
-//! selections (each row reads one state), so H·P·Hᵀ and P·Hᵀ are index gathers, not products.
+//! selections (each row reads one state), so H·P·Hᵀ and P·Hᵀ are index gathers, not products;
+//! the arithmetic on the fixed structure of F and of the update is in `ekf_kernels`.
 
+use crate::core::ekf_kernels as kernels;
 use crate::core::gps::GpsSample;
 use crate::core::imu::calib::{ImuSample, unwrap_theta};
 use crate::core::math;
 use crate::core::model::{
     ARM_LENGTH_M, GRAVITY_M_S2, IXX_KG_M2, IYY_KG_M2, IZZ_KG_M2, IZZM_KG_M2, drag_nm, thrust_n,
 };
-use nalgebra::{SMatrix, SVector};
+use nalgebra::{ArrayStorage, SMatrix, SVector};
 
 pub const N_STATES: usize = 15;
 pub type State = SVector<f64, N_STATES>;
@@ -294,7 +296,19 @@ fn total_thrust_n(u: &Input) -> f64 {
 
 /// The process model x⁻ = f(x, u, T) (spec 3.3, explicit Euler).
 pub fn process(x: &State, u: &Input, t_s: f64, mass_kg: f64, original_model: bool) -> State {
-    let Trig {
+    process_at(x, &Trig::of(x), u, t_s, mass_kg, original_model)
+}
+
+/// [`process`] with the state's sines and cosines already taken.
+fn process_at(
+    x: &State,
+    trig: &Trig,
+    u: &Input,
+    t_s: f64,
+    mass_kg: f64,
+    original_model: bool,
+) -> State {
+    let &Trig {
         s_psi,
         c_psi,
         s_phi,
@@ -302,7 +316,7 @@ pub fn process(x: &State, u: &Input, t_s: f64, mass_kg: f64, original_model: boo
         t_phi,
         s_th,
         c_th,
-    } = Trig::of(x);
+    } = trig;
     let [vqx, vqy, vqz] = [x[idx::VQX], x[idx::VQY], x[idx::VQZ]];
     let [wqx, wqy, wqz] = [x[idx::WQX], x[idx::WQY], x[idx::WQZ]];
     let [bias_x, bias_y, bias_z] = [x[idx::BAX], x[idx::BAY], x[idx::BAZ]];
@@ -356,7 +370,12 @@ pub fn process(x: &State, u: &Input, t_s: f64, mass_kg: f64, original_model: boo
 
 /// The Jacobian F = ∂f/∂x at `x` (spec 3.4, ERRATA 2).
 pub fn jacobian(x: &State, u: &Input, t_s: f64, original_model: bool) -> StateMatrix {
-    let Trig {
+    jacobian_at(x, &Trig::of(x), u, t_s, original_model)
+}
+
+/// [`jacobian`] with the state's sines and cosines already taken.
+fn jacobian_at(x: &State, trig: &Trig, u: &Input, t_s: f64, original_model: bool) -> StateMatrix {
+    let &Trig {
         s_psi,
         c_psi,
         s_phi,
@@ -364,7 +383,7 @@ pub fn jacobian(x: &State, u: &Input, t_s: f64, original_model: bool) -> StateMa
         t_phi,
         s_th,
         c_th,
-    } = Trig::of(x);
+    } = trig;
     let [vqx, vqy, vqz] = [x[idx::VQX], x[idx::VQY], x[idx::VQZ]];
     let [wqx, wqy, wqz] = [x[idx::WQX], x[idx::WQY], x[idx::WQZ]];
     let g = GRAVITY_M_S2;
@@ -466,44 +485,6 @@ pub fn jacobian(x: &State, u: &Input, t_s: f64, original_model: bool) -> StateMa
     f
 }
 
-/// F·P·Fᵀ using the sparsity of F: F = I + D with about 55 non-zero entries in D. With
-/// g(Y) = Y + Y·Dᵀ = Y·Fᵀ (column operations, which suit nalgebra's column-major storage) and P
-/// symmetric, F·P·Fᵀ = g(g(P)ᵀ): two passes of ~55 column updates instead of two dense
-/// 15 × 15 products.
-pub fn propagate_covariance(f: &StateMatrix, p: &StateMatrix) -> StateMatrix {
-    // D's non-zero entries: the Jacobian of spec 3.4 has at most 53. No allocation.
-    const CAPACITY: usize = 64;
-    let mut entries = [(0usize, 0usize, 0.0f64); CAPACITY];
-    let mut n = 0;
-    for j in 0..N_STATES {
-        for i in 0..N_STATES {
-            let d = f[(i, j)] - if i == j { 1.0 } else { 0.0 };
-            if d != 0.0 {
-                if n == CAPACITY {
-                    // Not a Jacobian of this model: take the dense product.
-                    return f * p * f.transpose();
-                }
-                entries[n] = (i, j, d);
-                n += 1;
-            }
-        }
-    }
-    // Column-major storage: column c is the contiguous run c·15 .. c·15 + 15.
-    let g = |y: &StateMatrix| {
-        let mut out = *y;
-        for &(i, j, d) in &entries[..n] {
-            // Fixed-length columns: the compiler unrolls and vectorises the update.
-            let from: [f64; N_STATES] = y.column(j).into();
-            let mut to = out.column_mut(i);
-            for (t, f) in to.iter_mut().zip(from) {
-                *t += d * f;
-            }
-        }
-        out
-    };
-    g(&g(p).transpose())
-}
-
 impl Ekf {
     /// The initial state from the calibration null sample (spec 3.7): attitude from its Euler
     /// angles, accelerometer bias = its acceleration minus gravity, everything else 0; P = P₀.
@@ -558,14 +539,15 @@ impl Ekf {
     /// The prediction: x⁻ = f(x, u, T), P⁻ = F·P·Fᵀ + Q with F at the previous estimate.
     fn predict(&mut self, u: &Input, t_s: f64, mass_kg: f64) {
         let orig = self.params.original_model;
-        let f = jacobian(&self.x, u, t_s, orig);
-        let x_pred = process(&self.x, u, t_s, mass_kg, orig);
-        let mut p_pred = propagate_covariance(&f, &self.p);
+        // F and f(x) share the previous estimate's sines and cosines: take them once.
+        let trig = Trig::of(&self.x);
+        let f = jacobian_at(&self.x, &trig, u, t_s, orig);
+        let x_pred = process_at(&self.x, &trig, u, t_s, mass_kg, orig);
+        kernels::propagate_covariance(&f, &mut self.p);
         for i in 0..N_STATES {
-            p_pred[(i, i)] += self.params.q_diag[i];
+            self.p[(i, i)] += self.params.q_diag[i];
         }
         self.x = x_pred;
-        self.p = p_pred;
     }
 
     /// The measurement update: the IMU rows, plus the GPS rows when a sample is given. `theta_m`
@@ -638,7 +620,10 @@ impl Ekf {
             z[i] - h
         });
         // P·Hᵀ: the observed columns of P. S = H·P·Hᵀ + R: the observed rows of those.
-        let mut pht = SMatrix::<f64, N_STATES, M>::from_fn(|r, c| p[(r, obs[c])]);
+        let mut pht =
+            SMatrix::<f64, N_STATES, M>::from_data(ArrayStorage(std::array::from_fn(|c| {
+                p.data.0[obs[c]]
+            })));
         let mut s = SMatrix::<f64, M, M>::from_fn(|r, c| pht[(obs[r], c)]);
         for i in 0..M {
             s[(i, i)] += r_diag[i];
@@ -674,30 +659,13 @@ impl Ekf {
         pht: &SMatrix<f64, N_STATES, M>,
         s: &SMatrix<f64, M, M>,
     ) -> Result<(), EkfError> {
-        // With S = L·Lᵀ and W = P·Hᵀ·L⁻ᵀ: K·y = W·(L⁻¹·y) and K·H·P = W·Wᵀ. Two triangular
+        // With S = L·Lᵀ and U = P·Hᵀ·L⁻ᵀ: K·y = U·(L⁻¹·y) and K·H·P = U·Uᵀ. Two triangular
         // solves replace the explicit inverse, and P stays symmetric by construction.
-        let chol = s.cholesky().ok_or(EkfError::SingularInnovation)?;
-        let l = chol.l_dirty();
-        let mut wt = pht.transpose();
-        if !l.solve_lower_triangular_mut(&mut wt) {
-            return Err(EkfError::SingularInnovation);
-        }
-        let mut a = *innovation;
-        if !l.solve_lower_triangular_mut(&mut a) {
-            return Err(EkfError::SingularInnovation);
-        }
-        self.x += wt.tr_mul(&a);
-        // P −= Wᵀ·W, computed on one triangle and mirrored (it is symmetric).
-        for c in 0..N_STATES {
-            let wc = wt.column(c);
-            for r in c..N_STATES {
-                let v = wc.dot(&wt.column(r));
-                self.p[(r, c)] -= v;
-                if r != c {
-                    self.p[(c, r)] -= v;
-                }
-            }
-        }
+        let (l, inv_diag) = kernels::cholesky_lower(s).ok_or(EkfError::SingularInnovation)?;
+        let u = kernels::solve_right_lower_t(pht, &l, &inv_diag);
+        let a = kernels::solve_lower(&l, &inv_diag, innovation);
+        kernels::add_product(&mut self.x, &u, &a);
+        kernels::subtract_gram(&mut self.p, &u);
         Ok(())
     }
 }
@@ -812,13 +780,36 @@ mod tests {
 
     #[test]
     fn sparse_propagation_equals_the_dense_product() {
-        let x = some_state();
-        let f = jacobian(&x, &[300.0, 310.0, 295.0, 305.0], 0.01, true);
         let a = StateMatrix::from_fn(|i, j| ((i * 7 + j * 3) % 11) as f64 - 5.0);
         let p = a * a.transpose() + StateMatrix::identity();
-        let dense = f * p * f.transpose();
-        let sparse = propagate_covariance(&f, &p);
-        assert!((dense - sparse).abs().max() < 1e-12 * dense.abs().max());
+        for orig in [true, false] {
+            let f = jacobian(&some_state(), &[300.0, 310.0, 295.0, 305.0], 0.01, orig);
+            let dense = f * p * f.transpose();
+            let mut sparse = p;
+            kernels::propagate_covariance(&f, &mut sparse);
+            assert!((dense - sparse).abs().max() < 1e-12 * dense.abs().max());
+            assert_eq!(sparse, sparse.transpose());
+        }
+    }
+
+    #[test]
+    fn the_jacobian_writes_only_inside_the_fixed_structure() {
+        let u = [300.0, 310.0, 295.0, 305.0];
+        for orig in [true, false] {
+            for scale in [0.0, 0.5, 1.0, -2.0] {
+                let f = jacobian(&(some_state() * scale), &u, 0.01, orig);
+                for i in 0..N_STATES {
+                    for j in 0..N_STATES {
+                        let d = f[(i, j)] - if i == j { 1.0 } else { 0.0 };
+                        let listed = kernels::D_COLS[i].contains(&j);
+                        assert!(
+                            d == 0.0 || listed,
+                            "orig {orig}: D[{i}][{j}] = {d} unlisted"
+                        );
+                    }
+                }
+            }
+        }
     }
 
     #[test]

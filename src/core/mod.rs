@@ -6,6 +6,7 @@ pub mod commander;
 pub mod control;
 pub mod ekf;
 pub mod ekf_fix;
+pub mod ekf_kernels;
 pub mod esc;
 pub mod flight;
 pub mod gps;
