@@ -644,7 +644,7 @@ impl Ekf {
         if gated.any() {
             leave_out(gated, groups, &mut innovation, &mut pht, &mut s);
         }
-        let result = self.fuse(&innovation, &pht, &s);
+        let result = self.fuse(&innovation, &mut pht, &mut s);
         UpdateOutcome {
             ratios,
             gated,
@@ -656,16 +656,18 @@ impl Ekf {
     fn fuse<const M: usize>(
         &mut self,
         innovation: &SVector<f64, M>,
-        pht: &SMatrix<f64, N_STATES, M>,
-        s: &SMatrix<f64, M, M>,
+        pht: &mut SMatrix<f64, N_STATES, M>,
+        s: &mut SMatrix<f64, M, M>,
     ) -> Result<(), EkfError> {
         // With S = L·Lᵀ and U = P·Hᵀ·L⁻ᵀ: K·y = U·(L⁻¹·y) and K·H·P = U·Uᵀ. Two triangular
-        // solves replace the explicit inverse, and P stays symmetric by construction.
-        let (l, inv_diag) = kernels::cholesky_lower(s).ok_or(EkfError::SingularInnovation)?;
-        let u = kernels::solve_right_lower_t(pht, &l, &inv_diag);
-        let a = kernels::solve_lower(&l, &inv_diag, innovation);
-        kernels::add_product(&mut self.x, &u, &a);
-        kernels::subtract_gram(&mut self.p, &u);
+        // solves replace the explicit inverse, and P stays symmetric by construction. S becomes
+        // L and P·Hᵀ becomes U in place: no copies of either.
+        let inv_diag = kernels::cholesky_in_place(s).ok_or(EkfError::SingularInnovation)?;
+        let (l, u) = (s, pht);
+        kernels::solve_right_lower_t(u, l, &inv_diag);
+        let a = kernels::solve_lower(l, &inv_diag, innovation);
+        kernels::add_product(&mut self.x, u, &a);
+        kernels::subtract_gram(&mut self.p, u);
         Ok(())
     }
 }

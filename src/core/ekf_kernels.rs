@@ -126,18 +126,27 @@ fn mirror_lower(p: &mut StateMatrix) {
     }
 }
 
-/// The lower Cholesky factor L of S = L·Lᵀ (left-looking, column by column) and the
-/// reciprocals of its diagonal, which the solves multiply by (a division costs several
-/// products' time, and the solves' divisions would sit on their dependency chains); `None`
-/// when S is not positive definite (a pivot not above 0, or not a number). The upper triangle
-/// of L is 0.
-pub fn cholesky_lower<const M: usize>(
-    s: &SMatrix<f64, M, M>,
-) -> Option<(SMatrix<f64, M, M>, [f64; M])> {
-    let mut l = SMatrix::<f64, M, M>::zeros();
+/// Overwrites the lower triangle of S with its Cholesky factor L, S = L·Lᵀ (left-looking,
+/// column by column; the strict upper triangle is left as it was), and returns the reciprocals
+/// of L's diagonal, which the solves multiply by (a division costs several products' time, and
+/// the solves' divisions would sit on their dependency chains); `None` when S is not positive
+/// definite (a pivot not above 0, or not a number).
+pub fn cholesky_in_place<const M: usize>(s: &mut SMatrix<f64, M, M>) -> Option<[f64; M]> {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx") {
+        // SAFETY: the processor has AVX, checked just above.
+        return unsafe { avx::cholesky_in_place(s) };
+    }
+    cholesky_in_place_portable(s)
+}
+
+/// [`cholesky_in_place`] in portable code.
+#[inline(always)]
+fn cholesky_in_place_portable<const M: usize>(l: &mut SMatrix<f64, M, M>) -> Option<[f64; M]> {
     let mut inv_diag = [0.0; M];
     for j in 0..M {
-        let mut col = s.data.0[j];
+        // Column j is still S's; the columns before it are already L's.
+        let mut col = l.data.0[j];
         for k in 0..j {
             axpy(&mut col, -l.data.0[k][j], &l.data.0[k]);
         }
@@ -152,15 +161,16 @@ pub fn cholesky_lower<const M: usize>(
             *l_ij = c * inv_diag[j];
         }
     }
-    Some((l, inv_diag))
+    Some(inv_diag)
 }
 
-/// U with U·Lᵀ = B for a lower-triangular L (U = B·L⁻ᵀ); see `solve_right_lower_t_portable`.
+/// Overwrites B with U, U·Lᵀ = B for a lower-triangular L (U = B·L⁻ᵀ); see
+/// `solve_right_lower_t_portable`.
 pub fn solve_right_lower_t<const M: usize>(
-    b: &SMatrix<f64, N_STATES, M>,
+    b: &mut SMatrix<f64, N_STATES, M>,
     l: &SMatrix<f64, M, M>,
     inv_diag: &[f64; M],
-) -> SMatrix<f64, N_STATES, M> {
+) {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx") {
         // SAFETY: the processor has AVX, checked just above.
@@ -169,15 +179,15 @@ pub fn solve_right_lower_t<const M: usize>(
     solve_right_lower_t_portable(b, l, inv_diag)
 }
 
-/// U with U·Lᵀ = B for a lower-triangular L (U = B·L⁻ᵀ), one column of U at a time: column k
-/// is B's column k less Σ_{m<k} L[k][m]·(U's column m), over L[k][k] (`inv_diag`: 1/L[k][k]).
+/// Overwrites B with U, U·Lᵀ = B for a lower-triangular L (U = B·L⁻ᵀ), one column at a time:
+/// column k is B's column k less Σ_{m<k} L[k][m]·(U's column m), over L[k][k] (`inv_diag`:
+/// 1/L[k][k]).
 #[inline(always)]
 fn solve_right_lower_t_portable<const M: usize>(
-    b: &SMatrix<f64, N_STATES, M>,
+    u: &mut SMatrix<f64, N_STATES, M>,
     l: &SMatrix<f64, M, M>,
     inv_diag: &[f64; M],
-) -> SMatrix<f64, N_STATES, M> {
-    let mut u = *b;
+) {
     for (k, inv) in inv_diag.iter().enumerate() {
         let mut col = u.data.0[k];
         for m in 0..k {
@@ -185,7 +195,6 @@ fn solve_right_lower_t_portable<const M: usize>(
         }
         u.data.0[k] = col.map(|v| v * inv);
     }
-    u
 }
 
 /// a with L·a = y for a lower-triangular L (forward substitution; `inv_diag`: 1/L[k][k]).
@@ -263,11 +272,16 @@ mod avx {
     }
 
     #[target_feature(enable = "avx")]
+    pub fn cholesky_in_place<const M: usize>(s: &mut SMatrix<f64, M, M>) -> Option<[f64; M]> {
+        cholesky_in_place_portable(s)
+    }
+
+    #[target_feature(enable = "avx")]
     pub fn solve_right_lower_t<const M: usize>(
-        b: &SMatrix<f64, N_STATES, M>,
+        b: &mut SMatrix<f64, N_STATES, M>,
         l: &SMatrix<f64, M, M>,
         inv_diag: &[f64; M],
-    ) -> SMatrix<f64, N_STATES, M> {
+    ) {
         solve_right_lower_t_portable(b, l, inv_diag)
     }
 
@@ -302,10 +316,15 @@ mod tests {
         propagate_covariance(&f, &mut a);
         propagate_covariance_portable(&f, &mut b);
         assert_eq!(a, b);
-        let (l, inv) = cholesky_lower(&spd::<10>(5)).unwrap_or_else(|| panic!("not SPD"));
-        let rhs = SMatrix::<f64, N_STATES, 10>::from_fn(|i, j| (i * 3 + j) as f64 * 0.1 - 1.3);
-        let u = solve_right_lower_t(&rhs, &l, &inv);
-        assert_eq!(u, solve_right_lower_t_portable(&rhs, &l, &inv));
+        let (mut l, mut l_portable) = (spd::<10>(5), spd::<10>(5));
+        let inv = cholesky_in_place(&mut l).unwrap_or_else(|| panic!("not SPD"));
+        assert_eq!(Some(inv), cholesky_in_place_portable(&mut l_portable));
+        assert_eq!(l, l_portable);
+        let mut u = SMatrix::<f64, N_STATES, 10>::from_fn(|i, j| (i * 3 + j) as f64 * 0.1 - 1.3);
+        let mut u_portable = u;
+        solve_right_lower_t(&mut u, &l, &inv);
+        solve_right_lower_t_portable(&mut u_portable, &l, &inv);
+        assert_eq!(u, u_portable);
         subtract_gram(&mut a, &u);
         subtract_gram_portable(&mut b, &u);
         assert_eq!(a, b);
@@ -314,25 +333,30 @@ mod tests {
     #[test]
     fn cholesky_equals_nalgebra_and_refuses_what_is_not_positive_definite() {
         let s = spd::<10>(1);
-        let (ours, inv) = cholesky_lower(&s).unwrap_or_else(|| panic!("S is positive definite"));
+        let mut ours = s;
+        let inv = cholesky_in_place(&mut ours).unwrap_or_else(|| panic!("S is positive definite"));
+        let ours = ours.lower_triangle();
         assert!((0..10).all(|i| (inv[i] * ours[(i, i)] - 1.0).abs() < 1e-15));
         let theirs = s
             .cholesky()
             .map(|c| c.l())
             .unwrap_or_else(|| panic!("nalgebra"));
         assert!((ours - theirs).abs().max() < 1e-12 * theirs.abs().max());
-        let mut bad = s;
-        bad[(4, 4)] = -1.0;
-        assert!(cholesky_lower(&bad).is_none());
-        bad[(4, 4)] = f64::NAN;
-        assert!(cholesky_lower(&bad).is_none());
+        for bad_pivot in [-1.0, f64::NAN] {
+            let mut bad = s;
+            bad[(4, 4)] = bad_pivot;
+            assert!(cholesky_in_place(&mut bad).is_none());
+        }
     }
 
     #[test]
     fn triangular_solves_invert_their_products() {
-        let (l, inv) = cholesky_lower(&spd::<10>(2)).unwrap_or_else(|| panic!("not SPD"));
+        let mut l = spd::<10>(2);
+        let inv = cholesky_in_place(&mut l).unwrap_or_else(|| panic!("not SPD"));
+        let l = l.lower_triangle();
         let b = SMatrix::<f64, N_STATES, 10>::from_fn(|i, j| (i as f64 - 7.0) * 0.3 + j as f64);
-        let u = solve_right_lower_t(&b, &l, &inv);
+        let mut u = b;
+        solve_right_lower_t(&mut u, &l, &inv);
         assert!((u * l.transpose() - b).abs().max() < 1e-12 * b.abs().max());
         let y = SVector::<f64, 10>::from_fn(|i, _| i as f64 - 4.5);
         let a = solve_lower(&l, &inv, &y);
