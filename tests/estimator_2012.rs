@@ -117,7 +117,7 @@ fn covariance_stays_symmetric_positive_definite() {
     let out = tempfile::tempdir().unwrap();
     let mut steps = 0;
     let mut worst_asym = 0.0f64;
-    uquad::app::replay::run_observed(&flight_dir(), &profile, out.path(), |ekf| {
+    uquad::app::replay::run_observed(&flight_dir(), &profile, out.path(), true, |ekf| {
         steps += 1;
         let p = &ekf.p;
         let asym = (p - p.transpose()).abs().max() / p.abs().max();

@@ -107,8 +107,8 @@ impl Outputs for Records {
 }
 
 impl Records {
-    /// Formats and writes the logs into `out_dir` concurrently.
-    fn write(&self, out_dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
+    /// Formats and writes the logs into `out_dir`, on two threads when `parallel`.
+    fn write(&self, out_dir: &Path, parallel: bool) -> anyhow::Result<Vec<PathBuf>> {
         let kalman_in = || {
             let mut s = String::with_capacity(self.kalman_in.len() * 160);
             for r in &self.kalman_in {
@@ -152,35 +152,45 @@ impl Records {
             s
         };
         let mode = || self.mode.clone();
-        let jobs: [(&str, &(dyn Fn() -> String + Sync)); 7] = [
-            ("kalman_in.log", &kalman_in),
+        type Job<'a> = (&'static str, &'a (dyn Fn() -> String + Sync));
+        // Two halves of about equal work: one on a second thread (when `parallel`), one here.
+        // More threads than cores would only add their start-up.
+        let first: [Job; 4] = [
             ("x_hat.log", &x_hat),
-            ("innov.log", &innov),
             ("w.log", &w),
-            ("int.log", &int),
-            ("setpoint.log", &setpoint),
+            ("innov.log", &innov),
             ("mode.log", &mode),
         ];
-        std::thread::scope(|scope| {
-            let handles: Vec<_> = jobs
-                .iter()
+        let second: [Job; 3] = [
+            ("kalman_in.log", &kalman_in),
+            ("int.log", &int),
+            ("setpoint.log", &setpoint),
+        ];
+        let write_all = |jobs: &[Job]| -> anyhow::Result<Vec<PathBuf>> {
+            jobs.iter()
                 .map(|&(name, format)| {
-                    scope.spawn(move || {
-                        let path = out_dir.join(name);
-                        std::fs::write(&path, format())
-                            .with_context(|| format!("cannot write {}", path.display()))
-                            .map(|()| path)
-                    })
-                })
-                .collect();
-            handles
-                .into_iter()
-                .map(|h| {
-                    h.join()
-                        .unwrap_or_else(|_| Err(anyhow::anyhow!("a log writer thread panicked")))
+                    let path = out_dir.join(name);
+                    std::fs::write(&path, format())
+                        .with_context(|| format!("cannot write {}", path.display()))
+                        .map(|()| path)
                 })
                 .collect()
-        })
+        };
+        let (a, b) = if parallel {
+            std::thread::scope(|scope| {
+                let helper = scope.spawn(|| write_all(&first));
+                let b = write_all(&second);
+                let a = helper
+                    .join()
+                    .unwrap_or_else(|_| Err(anyhow::anyhow!("a log writer thread panicked")));
+                (a, b)
+            })
+        } else {
+            (write_all(&first), write_all(&second))
+        };
+        let mut paths = a?;
+        paths.extend(b?);
+        Ok(paths)
     }
 }
 
@@ -296,43 +306,51 @@ fn with_kept_mission(run_dir: &Path, profile: &Profile) -> anyhow::Result<Option
 
 /// Replays `run_dir` with `profile`, writing the logs into `out_dir` (created if missing).
 pub fn run(run_dir: &Path, profile: &Profile, out_dir: &Path) -> anyhow::Result<ReplaySummary> {
-    run_observed(run_dir, profile, out_dir, |_| {})
+    run_observed(run_dir, profile, out_dir, true, |_| {})
 }
 
-/// [`run`], calling `on_step` with the filter after every Kalman step (for checks and tools).
+/// [`run`] on this thread alone: for callers that already keep every core busy (a batch).
+pub fn run_on_this_thread(
+    run_dir: &Path,
+    profile: &Profile,
+    out_dir: &Path,
+) -> anyhow::Result<ReplaySummary> {
+    run_observed(run_dir, profile, out_dir, false, |_| {})
+}
+
+/// [`run`], calling `on_step` with the filter after every Kalman step (for checks and tools);
+/// reading and writing use a second thread when `parallel`.
 pub fn run_observed(
     run_dir: &Path,
     profile: &Profile,
     out_dir: &Path,
+    parallel: bool,
     mut on_step: impl FnMut(&Ekf),
 ) -> anyhow::Result<ReplaySummary> {
     let with_mission = with_kept_mission(run_dir, profile)?;
     let profile = with_mission.as_ref().unwrap_or(profile);
-    // The inputs are independent files: read them concurrently.
-    let (raw, recorded_times, cmd_times, ctrl_times, recorded_gps) = std::thread::scope(|scope| {
-        let time_column = |name: &'static str| {
-            scope.spawn(move || -> anyhow::Result<Vec<i64>> {
-                Ok(read_log(run_dir, name, logs::parse_time_column)?.unwrap_or_default())
-            })
-        };
-        let kalman = scope.spawn(|| -> anyhow::Result<Vec<(i64, i64)>> {
-            Ok(
-                read_log(run_dir, "kalman_in.log", logs::parse_time_column_pair)?
-                    .unwrap_or_default(),
-            )
-        });
-        let cmd = time_column("w.log");
-        let ctrl = time_column("int.log");
-        let gps = scope.spawn(|| read_log(run_dir, "gps.log", GpsLogRecord::parse_fields));
-        let raw = read_log(run_dir, "imu_raw.log", ImuRawRecord::parse_fields);
-        anyhow::Ok((
-            raw?,
-            joined(kalman.join())?,
-            joined(cmd.join())?,
-            joined(ctrl.join())?,
-            joined(gps.join())?,
+    // The inputs are independent files: imu_raw.log here, the others on a second thread when
+    // `parallel`.
+    let others = || -> anyhow::Result<_> {
+        let times = |name| read_log(run_dir, name, logs::parse_time_column);
+        Ok((
+            read_log(run_dir, "kalman_in.log", logs::parse_time_column_pair)?.unwrap_or_default(),
+            times("w.log")?.unwrap_or_default(),
+            times("int.log")?.unwrap_or_default(),
+            read_log(run_dir, "gps.log", GpsLogRecord::parse_fields)?,
         ))
-    })?;
+    };
+    let raw_log = || read_log(run_dir, "imu_raw.log", ImuRawRecord::parse_fields);
+    let (raw, others) = if parallel {
+        std::thread::scope(|scope| {
+            let helper = scope.spawn(others);
+            let raw = raw_log();
+            (raw, joined(helper.join()))
+        })
+    } else {
+        (raw_log(), others())
+    };
+    let (raw, (recorded_times, cmd_times, ctrl_times, recorded_gps)) = (raw?, others?);
     let raw = raw.with_context(|| format!("{} has no imu_raw.log", run_dir.display()))?;
 
     let cfg = &profile.config;
@@ -402,7 +420,7 @@ pub fn run_observed(
     }
     std::fs::create_dir_all(out_dir)
         .with_context(|| format!("cannot create {}", out_dir.display()))?;
-    summary.outputs = out.write(out_dir)?;
+    summary.outputs = out.write(out_dir, parallel)?;
     Ok(summary)
 }
 

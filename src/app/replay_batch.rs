@@ -61,7 +61,7 @@ fn one(
         );
     }
     let p = profile(run)?;
-    replay::run(run, &p, out)
+    replay::run_on_this_thread(run, &p, out)
 }
 
 /// Replays `runs` into their folders under `out` on `threads` threads; `profile` gives each

@@ -5,6 +5,8 @@ use crate::core::imu::calib::ImuSample;
 use crate::core::imu::frame::RawFrame;
 use std::fmt::Write as _;
 
+pub use super::numbers::{push_fixed, push_time_us, push_u64};
+
 /// A log line that could not be read.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("line {line}: {message}")]
@@ -35,113 +37,36 @@ pub fn fmt_time_us(t_us: i64) -> String {
     s
 }
 
-fn push_time_us(out: &mut String, t_us: i64) {
-    let sign = if t_us < 0 { "-" } else { "" };
-    let a = t_us.unsigned_abs();
-    // Writing into a String cannot fail.
-    let _ = write!(out, "{sign}{}.{:06}", a / 1_000_000, a % 1_000_000);
-}
-
 /// Parses a `seconds.micros` time exactly into µs (digits past the sixth are rounded).
 pub fn parse_time_us(s: &str) -> Option<i64> {
-    let (neg, body) = match s.strip_prefix('-') {
-        Some(rest) => (true, rest),
-        None => (false, s),
+    let bytes = s.as_bytes();
+    let (neg, body) = match bytes.split_first() {
+        Some((b'-', rest)) => (true, rest),
+        _ => (false, bytes),
     };
-    let (whole, frac) = body.split_once('.').unwrap_or((body, ""));
+    let (whole, frac) = match body.iter().position(|&c| c == b'.') {
+        Some(dot) => (&body[..dot], &body[dot + 1..]),
+        None => (body, &[][..]),
+    };
     if whole.is_empty() && frac.is_empty() {
         return None;
     }
-    if !whole.chars().all(|c| c.is_ascii_digit()) || !frac.chars().all(|c| c.is_ascii_digit()) {
+    if !whole.iter().chain(frac).all(u8::is_ascii_digit) {
         return None;
     }
-    let secs: i64 = if whole.is_empty() {
-        0
-    } else {
-        whole.parse().ok()?
-    };
-    let mut micros: i64 = 0;
-    for (i, c) in frac.chars().take(6).enumerate() {
-        micros += i64::from(c.to_digit(10)?) * 10i64.pow(5 - i as u32);
+    let mut secs: i64 = 0;
+    for &c in whole {
+        secs = secs.checked_mul(10)?.checked_add(i64::from(c - b'0'))?;
     }
-    if frac.len() > 6 && frac.as_bytes()[6] >= b'5' {
+    let mut micros: i64 = 0;
+    for k in 0..6 {
+        micros = micros * 10 + frac.get(k).map_or(0, |&c| i64::from(c - b'0'));
+    }
+    if frac.get(6).is_some_and(|&c| c >= b'5') {
         micros += 1;
     }
     let t = secs.checked_mul(1_000_000)?.checked_add(micros)?;
     Some(if neg { -t } else { t })
-}
-
-/// Appends `v` with exactly `decimals` digits after the point, as C's `%.Nf` prints it: the
-/// exact binary value rounded half to even. Logs print tens of thousands of numbers per run and
-/// the generic formatter dominated replay time; this exact integer path costs a fraction of it.
-/// Falls back to the standard formatter outside its range (non-finite, |v| ≥ 1e17, > 15 digits).
-pub fn push_fixed(out: &mut String, v: f64, decimals: u32) {
-    if !v.is_finite() || v.abs() >= 1e17 || decimals > 15 {
-        let _ = write!(out, "{v:.*}", decimals as usize);
-        return;
-    }
-    let negative = v.is_sign_negative();
-    let a = v.abs();
-    // Both parts are exact: trunc of a double is a double, and a − trunc(a) is exact.
-    let int_f = a.trunc();
-    let frac = a - int_f;
-    let mut int_part = int_f as u64;
-    let pow10 = 10u64.pow(decimals);
-    let mut frac_units = 0u64;
-    if frac > 0.0 {
-        // frac = mantissa · 2^exp exactly, with exp < 0; frac·10^d < 10^15 fits in u64 and the
-        // product mantissa·10^d < 2^103 in u128. Round half to even on the exact value.
-        let bits = frac.to_bits();
-        let biased_exp = ((bits >> 52) & 0x7ff) as i32;
-        let fraction = bits & ((1u64 << 52) - 1);
-        let (mantissa, exp) = if biased_exp == 0 {
-            (fraction, -1074)
-        } else {
-            (fraction | (1u64 << 52), biased_exp - 1075)
-        };
-        let scaled = u128::from(mantissa) * u128::from(pow10);
-        let shift = exp.unsigned_abs();
-        if shift < 120 {
-            let q = (scaled >> shift) as u64;
-            let rem = scaled & ((1u128 << shift) - 1);
-            let half = 1u128 << (shift - 1);
-            // On a tie the parity is that of the last printed digit: the integer part's when
-            // no decimals are printed.
-            let odd = if decimals == 0 {
-                int_part & 1 == 1
-            } else {
-                q & 1 == 1
-            };
-            frac_units = if rem > half || (rem == half && odd) {
-                q + 1
-            } else {
-                q
-            };
-        }
-        // Otherwise scaled < 2^103 is below half a unit: rounds to 0.
-        if frac_units == pow10 {
-            int_part += 1;
-            frac_units = 0;
-        }
-    }
-    if negative {
-        out.push('-');
-    }
-    push_digits(out, int_part, 1);
-    if decimals > 0 {
-        out.push('.');
-        push_digits(out, frac_units, decimals as usize);
-    }
-}
-
-/// Appends the decimal digits of `v`, zero-padded to at least `min_width`.
-fn push_digits(out: &mut String, v: u64, min_width: usize) {
-    let mut buf = itoa::Buffer::new();
-    let digits = buf.format(v);
-    for _ in digits.len()..min_width {
-        out.push('0');
-    }
-    out.push_str(digits);
 }
 
 fn field<T: std::str::FromStr>(fields: &[&str], i: usize, what: &str) -> Result<T, String> {
@@ -378,7 +303,9 @@ impl InnovRecord {
             out.push('\t');
             push_ratio(out, v);
         }
-        let _ = writeln!(out, "\t{}", Self::gated_mask(self.gated));
+        out.push('\t');
+        push_u64(out, u64::from(Self::gated_mask(self.gated)));
+        out.push('\n');
     }
 
     pub fn parse_fields(f: &[&str]) -> Result<Self, String> {

@@ -7,6 +7,7 @@
 
 pub mod format;
 pub mod mode_log;
+pub mod numbers;
 pub mod record;
 pub mod ulog;
 

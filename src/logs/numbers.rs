@@ -1,0 +1,122 @@
+//! Exact, fast printing of the logs' numbers: `%.Nf` decimals, the original's `%ld.%06ld`
+//! times and plain integers. Logs print tens of thousands of numbers per run and the generic
+//! formatter dominated replay time; these print integers exactly and without it.
+
+use std::fmt::Write as _;
+
+/// Appends the decimal digits of `v`, zero-padded to at least `min_width`.
+fn push_digits(out: &mut String, v: u64, min_width: usize) {
+    let mut buf = itoa::Buffer::new();
+    let digits = buf.format(v);
+    for _ in digits.len()..min_width {
+        out.push('0');
+    }
+    out.push_str(digits);
+}
+
+/// Appends `[-]int.frac`, `frac` zero-padded to `decimals` digits (no point when 0).
+fn push_parts(out: &mut String, negative: bool, int_part: u64, frac: u64, decimals: usize) {
+    if negative {
+        out.push('-');
+    }
+    push_digits(out, int_part, 1);
+    if decimals > 0 {
+        out.push('.');
+        push_digits(out, frac, decimals);
+    }
+}
+
+/// Appends `v`'s decimal digits.
+pub fn push_u64(out: &mut String, v: u64) {
+    push_parts(out, false, v, 0, 0);
+}
+
+/// Appends a time in µs as the original's `%ld.%06ld` seconds.
+pub fn push_time_us(out: &mut String, t_us: i64) {
+    let a = t_us.unsigned_abs();
+    push_parts(out, t_us < 0, a / 1_000_000, a % 1_000_000, 6);
+}
+
+/// Appends `v` with exactly `decimals` digits after the point, as C's `%.Nf` prints it: the
+/// exact binary value rounded half to even. Falls back to the standard formatter outside its
+/// range (non-finite, |v| ≥ 1e17, > 15 digits).
+pub fn push_fixed(out: &mut String, v: f64, decimals: u32) {
+    if !v.is_finite() || v.abs() >= 1e17 || decimals > 15 {
+        let _ = write!(out, "{v:.*}", decimals as usize);
+        return;
+    }
+    let a = v.abs();
+    // Both parts are exact: a < 1e17 < 2⁶³ truncates exactly through u64, and a − trunc(a) is
+    // exact.
+    let mut int_part = a as u64;
+    let frac = a - int_part as f64;
+    let pow10 = 10u64.pow(decimals);
+    let mut frac_units = 0u64;
+    if frac > 0.0 {
+        frac_units = round_scaled(frac, pow10, decimals == 0 && int_part & 1 == 1);
+        if frac_units == pow10 {
+            int_part += 1;
+            frac_units = 0;
+        }
+    }
+    push_parts(
+        out,
+        v.is_sign_negative(),
+        int_part,
+        frac_units,
+        decimals as usize,
+    );
+}
+
+/// frac·pow10 rounded half to even, for 0 < frac < 1 exactly: frac = mantissa·2^exp with
+/// exp < 0, and mantissa·pow10 < 2¹⁰³ fits in u128. On a tie the parity is the last printed
+/// digit's: `int_odd` (the integer part's) when no decimals are printed.
+fn round_scaled(frac: f64, pow10: u64, int_odd: bool) -> u64 {
+    let bits = frac.to_bits();
+    let biased_exp = ((bits >> 52) & 0x7ff) as i32;
+    let fraction = bits & ((1u64 << 52) - 1);
+    let (mantissa, exp) = if biased_exp == 0 {
+        (fraction, -1074)
+    } else {
+        (fraction | (1u64 << 52), biased_exp - 1075)
+    };
+    let scaled = u128::from(mantissa) * u128::from(pow10);
+    let shift = exp.unsigned_abs();
+    if shift >= 120 {
+        // scaled < 2¹⁰³ is below half a unit: rounds to 0.
+        return 0;
+    }
+    let q = (scaled >> shift) as u64;
+    let rem = scaled & ((1u128 << shift) - 1);
+    let half = 1u128 << (shift - 1);
+    let odd = if pow10 == 1 { int_odd } else { q & 1 == 1 };
+    if rem > half || (rem == half && odd) {
+        q + 1
+    } else {
+        q
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn integers_and_times_print_as_c_does() {
+        for v in [0u64, 7, 10, 99, 100, 12345, u64::MAX] {
+            let mut s = String::new();
+            push_u64(&mut s, v);
+            assert_eq!(s, v.to_string());
+        }
+        for (t, text) in [
+            (12_126_526i64, "12.126526"),
+            (5, "0.000005"),
+            (-1_500_000, "-1.500000"),
+            (0, "0.000000"),
+        ] {
+            let mut s = String::new();
+            push_time_us(&mut s, t);
+            assert_eq!(s, text);
+        }
+    }
+}
