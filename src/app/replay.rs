@@ -107,52 +107,47 @@ impl Outputs for Records {
 }
 
 impl Records {
+    /// Room for a record per frame in each stream: the vectors never grow (and copy) during
+    /// the loop.
+    fn with_capacity(frames: usize) -> Self {
+        Records {
+            kalman_in: Vec::with_capacity(frames),
+            x_hat: Vec::with_capacity(frames),
+            innov: Vec::with_capacity(frames),
+            w: Vec::with_capacity(frames),
+            int: Vec::with_capacity(frames),
+            n_int: 0,
+            setpoint: Vec::with_capacity(frames),
+            mode: String::new(),
+        }
+    }
+
     /// Formats and writes the logs into `out_dir`, on two threads when `parallel`.
     fn write(&self, out_dir: &Path, parallel: bool) -> anyhow::Result<Vec<PathBuf>> {
-        let kalman_in = || {
-            let mut s = String::with_capacity(self.kalman_in.len() * 160);
-            for r in &self.kalman_in {
-                r.write(&mut s);
-            }
-            s
+        let kalman_in = |path: &Path| write_rows(path, &self.kalman_in, |s, r| r.write(s));
+        let x_hat =
+            |path: &Path| write_rows(path, &self.x_hat, |s, r| logs::write_values_row(s, None, r));
+        let innov = |path: &Path| write_rows(path, &self.innov, |s, r| r.write(s));
+        let w = |path: &Path| {
+            write_rows(path, &self.w, |s, (t, v)| {
+                logs::write_values_row(s, Some(*t), v)
+            })
         };
-        let x_hat = || {
-            let mut s = String::with_capacity(self.x_hat.len() * 300);
-            for r in &self.x_hat {
-                logs::write_values_row(&mut s, None, r);
-            }
-            s
+        let int = |path: &Path| {
+            write_rows(path, &self.int, |s, (t, v)| {
+                logs::write_values_row(s, Some(*t), &v[..self.n_int])
+            })
         };
-        let innov = || {
-            let mut s = String::with_capacity(self.innov.len() * 80);
-            for r in &self.innov {
-                r.write(&mut s);
-            }
-            s
+        let setpoint = |path: &Path| {
+            write_rows(path, &self.setpoint, |s, (t, v)| {
+                logs::write_values_row(s, Some(*t), v)
+            })
         };
-        let w = || {
-            let mut s = String::with_capacity(self.w.len() * 100);
-            for (t, v) in &self.w {
-                logs::write_values_row(&mut s, Some(*t), v);
-            }
-            s
-        };
-        let int = || {
-            let mut s = String::with_capacity(self.int.len() * 100);
-            for (t, v) in &self.int {
-                logs::write_values_row(&mut s, Some(*t), &v[..self.n_int]);
-            }
-            s
-        };
-        let setpoint = || {
-            let mut s = String::with_capacity(self.setpoint.len() * 130);
-            for (t, v) in &self.setpoint {
-                logs::write_values_row(&mut s, Some(*t), v);
-            }
-            s
-        };
-        let mode = || self.mode.clone();
-        type Job<'a> = (&'static str, &'a (dyn Fn() -> String + Sync));
+        let mode = |path: &Path| std::fs::write(path, &self.mode);
+        type Job<'a> = (
+            &'static str,
+            &'a (dyn Fn(&Path) -> std::io::Result<()> + Sync),
+        );
         // Two halves of about equal work: one on a second thread (when `parallel`), one here.
         // More threads than cores would only add their start-up.
         let first: [Job; 4] = [
@@ -168,9 +163,9 @@ impl Records {
         ];
         let write_all = |jobs: &[Job]| -> anyhow::Result<Vec<PathBuf>> {
             jobs.iter()
-                .map(|&(name, format)| {
+                .map(|&(name, write)| {
                     let path = out_dir.join(name);
-                    std::fs::write(&path, format())
+                    write(&path)
                         .with_context(|| format!("cannot write {}", path.display()))
                         .map(|()| path)
                 })
@@ -192,6 +187,25 @@ impl Records {
         paths.extend(b?);
         Ok(paths)
     }
+}
+
+/// Formats `rows` into the file at `path` through one small buffer, written out whenever it
+/// fills: the memory a log's text would take is never touched (fresh pages cost a fault each),
+/// and the buffer stays in the cache.
+fn write_rows<T>(path: &Path, rows: &[T], format: impl Fn(&mut String, &T)) -> std::io::Result<()> {
+    use std::io::Write as _;
+    const FLUSH_AT: usize = 60 * 1024;
+    let mut file = std::fs::File::create(path)?;
+    // Room for one more row past the flush mark (a row is well under 4 KiB).
+    let mut text = String::with_capacity(FLUSH_AT + 4096);
+    for row in rows {
+        format(&mut text, row);
+        if text.len() >= FLUSH_AT {
+            file.write_all(text.as_bytes())?;
+            text.clear();
+        }
+    }
+    file.write_all(text.as_bytes())
 }
 
 /// Reads an optional log of a run folder; `Ok(None)` when the file does not exist.
@@ -366,7 +380,7 @@ pub fn run_observed(
         });
     let mut controller = ControllerSide::new(profile.controller_core());
     let mut feedback = controller.first_feedback();
-    let mut out = Records::default();
+    let mut out = Records::with_capacity(raw.len());
     let mut summary = ReplaySummary {
         raw_frames: raw.len(),
         ..ReplaySummary::default()

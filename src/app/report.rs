@@ -47,8 +47,8 @@ pub struct FlySummary {
     pub gcs: Option<crate::tasks::gcs::GcsReport>,
     /// Records written per stream.
     pub log_records: PerStream<u64>,
-    /// Frame arrival → ESC write, µs.
-    pub latencies_us: Vec<u32>,
+    /// Frame arrival → ESC write and its stages, µs (all 0 in lock-step runs).
+    pub latency: LatencyFigures,
     pub deadline_misses: u64,
     /// The watchdog's halt, if it tripped.
     pub halt: Option<Halt>,
@@ -58,13 +58,7 @@ pub struct FlySummary {
     pub commander: CommanderSummary,
 }
 
-/// Frame → ESC write latency percentiles, µs.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-pub struct Percentiles {
-    pub p50: u32,
-    pub p99: u32,
-    pub max: u32,
-}
+pub use crate::tasks::latency::{LatencyFigures, Percentiles, StageFigures};
 
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct HaltReport {
@@ -110,6 +104,8 @@ pub struct FlyReport {
     pub frames: u64,
     pub steps: u64,
     pub latency_us: Percentiles,
+    /// Where the latency goes: decode → estimate, estimate → command, command → write.
+    pub latency_stages_us: StageFigures,
     pub deadline_misses: u64,
     pub log_drops: u64,
     pub watchdog_trips: u64,
@@ -169,18 +165,7 @@ impl FlySummary {
 
     /// Latency percentiles (p50, p99, max), µs.
     pub fn latency_percentiles(&self) -> Percentiles {
-        let mut lat = self.latencies_us.clone();
-        lat.sort_unstable();
-        let pct = |q: f64| {
-            lat.get(((lat.len() as f64 - 1.0) * q).round() as usize)
-                .copied()
-                .unwrap_or(0)
-        };
-        Percentiles {
-            p50: pct(0.5),
-            p99: pct(0.99),
-            max: lat.last().copied().unwrap_or(0),
-        }
+        self.latency.total
     }
 
     /// The flight report (`--report FILE`).
@@ -189,6 +174,7 @@ impl FlySummary {
             frames: self.frames,
             steps: self.steps,
             latency_us: self.latency_percentiles(),
+            latency_stages_us: self.latency.stages,
             deadline_misses: self.deadline_misses,
             log_drops: self.log_drops_total(),
             watchdog_trips: u64::from(self.halt.is_some()),
@@ -284,6 +270,14 @@ impl FlySummary {
     /// The exit summary, a few lines for a person.
     pub fn text(&self) -> String {
         let lat = self.latency_percentiles();
+        let st = &self.latency.stages;
+        let stage = |p: &Percentiles| format!("{}/{}/{}", p.p50, p.p99, p.max);
+        let stages = format!(
+            "stages p50/p99/max: decode -> estimate {} us, estimate -> command {} us, command -> write {} us",
+            stage(&st.decode_to_estimate),
+            stage(&st.estimate_to_command),
+            stage(&st.command_to_write)
+        );
         let drops: Vec<String> = self
             .log_drops
             .iter()
@@ -308,6 +302,7 @@ impl FlySummary {
              outside the innovation gate, left out: attitude {}, altitude {}, GPS {}\n  \
              ESC: {} commands, {} writes, {} failed; stopped: {}\n  \
              latency frame -> ESC write: p50 {} us, p99 {} us, max {} us; deadline misses {}\n  \
+             {stages}\n  \
              watchdog: {watchdog}\n  \
              log drops: {}\n  {}{}",
             self.run_dir.display(),

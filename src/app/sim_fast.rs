@@ -399,7 +399,6 @@ impl<'a> FastSim<'a> {
             }
             if done.kind == CycleKind::Command {
                 self.fly.esc_commands += 1;
-                self.fly.latencies_us.push(0);
                 let e = Event::Command {
                     frame_us: t,
                     written_us: t,

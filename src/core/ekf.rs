@@ -17,9 +17,8 @@ use crate::core::model::{
 };
 use nalgebra::{ArrayStorage, SMatrix, SVector};
 
-pub const N_STATES: usize = 15;
+pub use crate::core::ekf_kernels::{N_STATES, StateMatrix};
 pub type State = SVector<f64, N_STATES>;
-pub type StateMatrix = SMatrix<f64, N_STATES, N_STATES>;
 /// Motor speeds m0..m3, rad/s.
 pub type Input = [f64; 4];
 

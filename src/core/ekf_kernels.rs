@@ -4,8 +4,11 @@
 //! fixed at compile time, so the compiler unrolls and vectorises them; nothing is allocated and
 //! no matrix is scanned or copied whole.
 
-use crate::core::ekf::{N_STATES, StateMatrix};
 use nalgebra::{SMatrix, SVector};
+
+/// The filter's state count (spec 3.1) and its covariance's type; `ekf` re-exports both.
+pub const N_STATES: usize = 15;
+pub type StateMatrix = SMatrix<f64, N_STATES, N_STATES>;
 
 /// The columns of the non-zero entries of D = F − I in each row: the structure of the
 /// Jacobian of spec 3.4 (both models). Position (x, y, z) drives no state, and the rates and

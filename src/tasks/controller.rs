@@ -11,7 +11,9 @@ use crate::core::flight::{Command, ControllerSide, Feedback};
 use crate::tasks::TaskOutputs;
 use crate::tasks::esc_writer::{EscMailbox, HaltOnPanic, MotorCommand};
 use crate::tasks::estimator::EstimateMsg;
+use crate::tasks::latency::Stamps;
 use std::sync::Arc;
+use std::time::Instant;
 use tokio::sync::{mpsc, watch};
 use tokio_util::sync::CancellationToken;
 
@@ -84,7 +86,11 @@ impl ControllerTask {
                 } else {
                     esc.command(MotorCommand {
                         w_rad_s: c.w_rad_s,
-                        frame_at: msg.frame_at,
+                        stamps: Stamps {
+                            decoded: msg.frame_at,
+                            estimated: msg.estimated_at,
+                            commanded: Instant::now(),
+                        },
                     })
                 }
             };

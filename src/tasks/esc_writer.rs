@@ -19,15 +19,16 @@ use crate::core::motor::MotorMap;
 use crate::hw::esc_bus::EscBus;
 use crate::tasks::ESC_WRITER_PRIORITY;
 use crate::tasks::heartbeats::{Event, Heartbeats};
-use std::sync::atomic::{AtomicU8, AtomicU64, Ordering};
+use crate::tasks::latency::{LatencyLog, Stamps};
+use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
 
-/// A flight command: motor speeds and when the frame that produced it arrived.
+/// A flight command: motor speeds and when its frame arrived, its estimate and it were made.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MotorCommand {
     pub w_rad_s: [f64; 4],
-    pub frame_at: Instant,
+    pub stamps: Stamps,
 }
 
 #[derive(Debug, Default)]
@@ -40,19 +41,69 @@ struct Requests {
 }
 
 /// The writer's inbox: newest command wins; start, halt and shutdown are latched.
+///
+/// Waking a sleeping thread costs tens of microseconds on this kind of machine (more on a
+/// virtual one), so the command's hand-off avoids it: when a frame has been decoded and a
+/// command will follow, [`EscMailbox::expect_command`] wakes the writer while the estimate and
+/// the control law are still being computed, and the writer then spins on `seq` until the
+/// command lands (at most `SPIN_LIMIT`). A request notifies the condition variable only when the
+/// writer is parked on it, so the command itself costs no system call.
 #[derive(Debug, Default)]
 pub struct EscMailbox {
     req: Mutex<Requests>,
     wake: Condvar,
+    /// Bumped with every request; the spinning writer watches it.
+    seq: AtomicU64,
+    /// The writer is blocked on `wake` (set and cleared under `req`'s lock).
+    parked: AtomicBool,
+    /// A command is on its way: the writer spins for it instead of sleeping.
+    expect: AtomicBool,
 }
+
+/// How long the writer spins for an expected command before it sleeps again: well above the
+/// decode → command time (tens of µs), well below the 10 ms period.
+const SPIN_LIMIT: Duration = Duration::from_micros(1500);
 
 impl EscMailbox {
     fn with<R>(&self, f: impl FnOnce(&mut Requests) -> R) -> R {
         // A poisoned lock means a writer thread panicked; the requests are still plain data.
         let mut g = self.req.lock().unwrap_or_else(|p| p.into_inner());
         let r = f(&mut g);
-        self.wake.notify_all();
+        self.seq.fetch_add(1, Ordering::SeqCst);
+        drop(g);
+        // Read after the lock is released: a writer that parked before we took the lock is
+        // seen here; one that parks after it sees the request before it sleeps.
+        if self.parked.load(Ordering::SeqCst) {
+            self.wake.notify_all();
+        }
         r
+    }
+
+    /// A frame was decoded and a command will follow: wake the writer now, so that it is
+    /// spinning, not asleep, when the command lands.
+    pub fn expect_command(&self) {
+        self.expect.store(true, Ordering::SeqCst);
+        let g = self.req.lock().unwrap_or_else(|p| p.into_inner());
+        let parked = self.parked.load(Ordering::SeqCst);
+        drop(g);
+        if parked {
+            self.wake.notify_all();
+        }
+    }
+
+    /// Spins until a request arrives after `seen` (true) or `until` passes (false).
+    fn spin_for_request(&self, seen: u64, until: Instant) -> bool {
+        loop {
+            if self.seq.load(Ordering::SeqCst) != seen {
+                return true;
+            }
+            if Instant::now() >= until {
+                return false;
+            }
+            for _ in 0..64 {
+                std::hint::spin_loop();
+            }
+        }
     }
 
     /// Enable the ESCs and run the start-up ramp.
@@ -82,6 +133,7 @@ impl EscMailbox {
             if r.halt.is_none() {
                 r.halt = Some(reason.to_string());
             }
+            self.seq.fetch_add(1, Ordering::SeqCst);
             drop(r);
             self.wake.notify_all();
         }
@@ -147,8 +199,8 @@ pub struct EscStatus {
     pub refused_commands: AtomicU64,
     /// Why the ESCs were stopped, once they were.
     pub stop_reason: Mutex<Option<String>>,
-    /// Frame-arrival → ESC-write latency of each flight command, µs (newest last).
-    pub latencies_us: Mutex<Vec<u32>>,
+    /// Frame-arrival → ESC-write latency of the flight commands, and its stages.
+    pub latency: LatencyLog,
     /// How the stop ended (confirmed or not, and when), once it has.
     stop_outcome: Mutex<Option<StopOutcome>>,
     /// The ESCs that did not acknowledge the last probe while disabled, bit m = motor m
@@ -185,9 +237,6 @@ impl EscStatus {
     }
 }
 
-/// Latency samples kept (about 2.8 hours of flight at 100 Hz).
-const MAX_LATENCY_SAMPLES: usize = 1_000_000;
-
 /// Writer settings.
 #[derive(Debug, Clone, Copy)]
 pub struct EscParams {
@@ -210,7 +259,7 @@ impl Writer {
         &mut self,
         driver: &mut EscDriver,
         cycles: &mut Vec<(CycleKind, Cycle)>,
-        command_frame_at: Option<Instant>,
+        command_stamps: Option<Stamps>,
     ) {
         let (bus, beats, status) = (&mut self.bus, &self.beats, &self.status);
         self.runner.execute(
@@ -225,8 +274,8 @@ impl Writer {
                 for e in done.watchdog_events() {
                     beats.report(e);
                 }
-                if let (CycleKind::Command, Some(frame_at)) = (done.kind, command_frame_at) {
-                    record_command(status, beats, frame_at, done.at_us);
+                if let (CycleKind::Command, Some(stamps)) = (done.kind, command_stamps) {
+                    record_command(status, beats, &stamps, done.at_us);
                 }
             },
         );
@@ -248,19 +297,14 @@ impl Writer {
 }
 
 /// A flight command written at `written_us`: the watchdog's deadline event and the latency.
-fn record_command(status: &EscStatus, beats: &Heartbeats, frame_at: Instant, written_us: i64) {
-    let frame_us = beats.us(frame_at);
+fn record_command(status: &EscStatus, beats: &Heartbeats, stamps: &Stamps, written_us: i64) {
     beats.report(Event::Command {
-        frame_us,
+        frame_us: beats.us(stamps.decoded),
         written_us,
     });
     status.commands.fetch_add(1, Ordering::Relaxed);
-    let latency = (written_us - frame_us).clamp(0, i64::from(u32::MAX)) as u32;
-    if let Ok(mut l) = status.latencies_us.lock()
-        && l.len() < MAX_LATENCY_SAMPLES
-    {
-        l.push(latency);
-    }
+    let written = beats.start() + Duration::from_micros(written_us.max(0) as u64);
+    status.latency.record(stamps, written);
 }
 
 /// Starts the writer thread. It owns the bus; it ends after shutdown.
@@ -294,10 +338,12 @@ enum Wake {
     Tick,
 }
 
-/// Waits for a request or until `deadline`.
-fn wait(mailbox: &EscMailbox, deadline: Option<Instant>, accept_start: bool) -> Wake {
+/// Waits for a request or until `deadline`; when `spin` (the ESCs are running) and a command
+/// is expected, spins for it instead of sleeping.
+fn wait(mailbox: &EscMailbox, deadline: Option<Instant>, accept_start: bool, spin: bool) -> Wake {
     let mut g = mailbox.req.lock().unwrap_or_else(|p| p.into_inner());
     loop {
+        mailbox.parked.store(false, Ordering::SeqCst);
         if g.shutdown {
             return Wake::Shutdown;
         }
@@ -314,13 +360,22 @@ fn wait(mailbox: &EscMailbox, deadline: Option<Instant>, accept_start: bool) -> 
                 return Wake::Command(c);
             }
         }
+        let now = Instant::now();
+        if deadline.is_some_and(|d| now >= d) {
+            return Wake::Tick;
+        }
+        if spin && mailbox.expect.swap(false, Ordering::SeqCst) {
+            let seen = mailbox.seq.load(Ordering::SeqCst);
+            drop(g);
+            let until = deadline.map_or(now + SPIN_LIMIT, |d| d.min(now + SPIN_LIMIT));
+            mailbox.spin_for_request(seen, until);
+            g = mailbox.req.lock().unwrap_or_else(|p| p.into_inner());
+            continue;
+        }
+        mailbox.parked.store(true, Ordering::SeqCst);
         match deadline {
             None => g = mailbox.wake.wait(g).unwrap_or_else(|p| p.into_inner()),
             Some(d) => {
-                let now = Instant::now();
-                if now >= d {
-                    return Wake::Tick;
-                }
                 g = mailbox
                     .wake
                     .wait_timeout(g, d - now)
@@ -339,9 +394,15 @@ fn run(mut w: Writer, mailbox: &EscMailbox) {
         let deadline = driver
             .next_wake_us()
             .map(|us| w.beats.start() + Duration::from_micros(us.max(0) as u64));
-        let wake = wait(mailbox, deadline, driver.phase() == EscPhase::Disabled);
+        let phase = driver.phase();
+        let wake = wait(
+            mailbox,
+            deadline,
+            phase == EscPhase::Disabled,
+            phase == EscPhase::Running,
+        );
         let now_us = w.beats.us(Instant::now());
-        let mut frame_at = None;
+        let mut stamps = None;
         match wake {
             Wake::Shutdown => {
                 driver.stop("shutdown", now_us, &mut cycles);
@@ -353,8 +414,9 @@ fn run(mut w: Writer, mailbox: &EscMailbox) {
                 if c.w_rad_s.iter().any(|v| !v.is_finite()) {
                     w.status.refused_commands.fetch_add(1, Ordering::Relaxed);
                 }
-                frame_at = Some(c.frame_at);
-                driver.command(&c.w_rad_s, w.beats.us(c.frame_at), now_us, &mut cycles);
+                stamps = Some(c.stamps);
+                let frame_us = w.beats.us(c.stamps.decoded);
+                driver.command(&c.w_rad_s, frame_us, now_us, &mut cycles);
             }
             Wake::Tick => {}
         }
@@ -363,7 +425,7 @@ fn run(mut w: Writer, mailbox: &EscMailbox) {
         if was_running && driver.stop_reason() == Some("stale motor command") {
             w.status.refused_commands.fetch_add(1, Ordering::Relaxed);
         }
-        w.execute(&mut driver, &mut cycles, frame_at);
+        w.execute(&mut driver, &mut cycles, stamps);
         w.finish(&driver);
         if driver.phase() == EscPhase::Stopped {
             settle_stop(&mut w, &mut driver, &mut cycles);
@@ -423,7 +485,7 @@ impl Writer {
 /// After a stop the writer writes nothing more; it waits for shutdown to end the thread.
 fn park_until_shutdown(mailbox: &EscMailbox) {
     loop {
-        if let Wake::Shutdown = wait(mailbox, None, false) {
+        if let Wake::Shutdown = wait(mailbox, None, false, false) {
             return;
         }
         // Halts and commands after a stop are ignored: the motors stay off.

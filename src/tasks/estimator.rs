@@ -32,8 +32,9 @@ use tokio_util::sync::CancellationToken;
 #[derive(Debug, Clone)]
 pub struct EstimateMsg {
     pub est: Estimate,
-    /// When the frame arrived (for the frame → ESC write latency).
+    /// When the frame arrived and when its estimate was made (the latency's first stamps).
     pub frame_at: Instant,
+    pub estimated_at: Instant,
 }
 
 /// After this long without the previous step's feedback the wait is counted as late (it still
@@ -105,6 +106,10 @@ impl EstimatorTask {
                 FrameAction::Ended => break,
                 FrameAction::Step(sample) => sample,
             };
+            if phase == EscPhase::Running {
+                // A command follows this step: the ESC writer wakes while it is computed.
+                self.esc.expect_command();
+            }
             let step = self.side.counts().steps as u32;
             let Some(fb) = self.wait_feedback(step, &mut late_feedback).await else {
                 break;
@@ -119,6 +124,7 @@ impl EstimatorTask {
             let msg = EstimateMsg {
                 est,
                 frame_at: f.at,
+                estimated_at: Instant::now(),
             };
             if self.estimates.send(msg).await.is_err() {
                 break;

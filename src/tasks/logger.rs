@@ -1,7 +1,9 @@
 //! Loggers: one task per stream, writing `<run>/<stream>.log` in the original's formats.
 //!
 //! In: records through a bounded channel per stream; producers use `try_send` only, so a slow
-//! disk never slows the control path: what cannot be queued is dropped and counted.
+//! disk never slows the control path: what cannot be queued is dropped and counted. Loggers
+//! take their queue every 10 ms rather than being woken per record, so queuing one wakes no
+//! thread.
 //! Out: the stream's file, written in batches. err.log and gps.log (what an operator reads
 //! after a crash: the start-up, the halts, the fixes) reach the kernel after every batch and
 //! the disk at most a second later (`sync_data`), so a killed process or a power cut loses at
@@ -125,6 +127,9 @@ const BATCH_BYTES: usize = 64 * 1024;
 /// How often a stream reaches the kernel at least, and err.log and gps.log the disk.
 const FLUSH_EVERY: Duration = Duration::from_secs(1);
 
+/// How often a logger takes what is queued.
+const POLL: Duration = Duration::from_millis(10);
+
 /// One stream's file and its bookkeeping.
 struct StreamWriter {
     stream: Stream,
@@ -214,31 +219,38 @@ async fn run(
     // Records are formatted into `buf`; `pending` of them are not yet written.
     let mut buf = String::with_capacity(BATCH_BYTES + 1024);
     let (mut records, mut pending) = (0u64, 0u64);
+    // The logger looks at its queue every `POLL` instead of being woken by each record: a
+    // record queued from the control path then wakes no thread (no futex, no system call on
+    // the way to the motors). The queue holds `log.queue_records` records, seconds of a
+    // 100 Hz stream.
+    let mut tick = tokio::time::interval(POLL);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     loop {
-        // Wake at least once a second so that a quiet stream's last records are written.
-        let rec = match tokio::time::timeout(FLUSH_EVERY, rx.recv()).await {
-            Ok(Some(rec)) => rec,
-            Ok(None) => break,
-            Err(_) => {
-                w.write(&mut buf, 0, &mut pending, true).await;
-                continue;
-            }
-        };
-        rec.write(&mut buf);
-        let mut batch = 1;
-        // Take what else is queued before touching the file.
+        tick.tick().await;
+        let mut batch = 0;
+        let mut closed = false;
         while buf.len() < BATCH_BYTES {
             match rx.try_recv() {
                 Ok(r) => {
                     r.write(&mut buf);
                     batch += 1;
                 }
-                Err(_) => break,
+                Err(mpsc::error::TryRecvError::Empty) => break,
+                Err(mpsc::error::TryRecvError::Disconnected) => {
+                    closed = true;
+                    break;
+                }
             }
         }
         records += batch;
-        w.maybe_stall(records).await;
+        if batch > 0 {
+            w.maybe_stall(records).await;
+        }
+        // Written when due: a large batch, a durable stream, or a second since the last write.
         w.write(&mut buf, batch, &mut pending, false).await;
+        if closed {
+            break;
+        }
     }
     // The end of the run: everything to the kernel, the durable streams to the disk.
     w.write(&mut buf, 0, &mut pending, true).await;

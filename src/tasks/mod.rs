@@ -7,6 +7,7 @@ pub mod gcs;
 pub mod gps_client;
 pub mod heartbeats;
 pub mod imu_reader;
+pub mod latency;
 pub mod logger;
 pub mod notices;
 pub mod prearm;

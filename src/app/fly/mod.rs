@@ -262,10 +262,6 @@ fn start_actuator(
     realtime: bool,
 ) -> anyhow::Result<JoinHandle<()>> {
     let cfg = &profile.config;
-    if let Ok(mut l) = h.esc_status.latencies_us.lock() {
-        // An hour of commands: the ESC writer does not allocate while flying.
-        l.reserve(360_000);
-    }
     esc_writer::spawn(
         bus,
         EscParams {
@@ -418,12 +414,6 @@ async fn joined<T: Send + 'static>(name: &str, t: JoinHandle<T>) -> Result<T, St
 /// The run's counters, gathered from every part.
 fn summarise(h: &RunHandles, r: control::Reports, error: Option<String>) -> FlySummary {
     let load = |a: &std::sync::atomic::AtomicU64| a.load(Ordering::Relaxed);
-    let latencies_us = h
-        .esc_status
-        .latencies_us
-        .lock()
-        .map(|l| l.clone())
-        .unwrap_or_default();
     FlySummary {
         run_dir: h.run_dir.clone(),
         frames: load(&h.imu_stats.frames),
@@ -452,7 +442,7 @@ fn summarise(h: &RunHandles, r: control::Reports, error: Option<String>) -> FlyS
             .map(|s| s.lock().map(|r| *r).unwrap_or_default()),
         stderr_drops: crate::console::stderr_drops(),
         log_records: Default::default(),
-        latencies_us,
+        latency: h.esc_status.latency.figures(),
         deadline_misses: load(&h.wd_status.deadline_misses),
         halt: h.wd_status.halt(),
         error,

@@ -14,20 +14,28 @@ use tokio_util::sync::CancellationToken;
 /// The console's statistics line: latency histogram, deadline misses, log drops, the current
 /// estimate and motor speeds.
 pub(super) fn console_stats(h: &RunHandles) -> String {
-    // Latency histogram of the last second's commands (at most 100), in buckets of 100 µs.
+    // Latency histogram of the last second's commands (at most 100), in buckets of 100 µs,
+    // and where it went: each stage's median and maximum over the same commands.
+    let latency = &h.esc_status.latency;
     let mut hist = [0u32; 6];
-    if let Ok(l) = h.esc_status.latencies_us.lock() {
-        for &v in l.iter().rev().take(100) {
-            hist[(v as usize / 100).min(5)] += 1;
-        }
+    for v in latency.total.recent(100) {
+        hist[(v as usize / 100).min(5)] += 1;
     }
+    let [e, c, w] = latency.stages.each_ref().map(|s| s.recent_median_max(100));
     let mut s = format!(
-        "stats t={:.1}s frames={} deadline_misses={} log_drops={} latency_us[<100,<200,<300,<400,<500,>=500]={:?}",
+        "stats t={:.1}s frames={} deadline_misses={} log_drops={} latency_us[<100,<200,<300,<400,<500,>=500]={:?} \
+         latency_stages_us[estimate,command,write](median/max)=[{}/{}, {}/{}, {}/{}]",
         h.beats.us(Instant::now()) as f64 / 1e6,
         h.imu_stats.frames.load(Ordering::Relaxed),
         h.wd_status.deadline_misses.load(Ordering::Relaxed),
         h.logs.dropped().total(),
-        hist
+        hist,
+        e.0,
+        e.1,
+        c.0,
+        c.1,
+        w.0,
+        w.1
     );
     if let Some(l) = *h.live.borrow() {
         let _ = std::fmt::Write::write_fmt(
