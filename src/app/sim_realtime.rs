@@ -19,10 +19,10 @@ use crate::sim::hover::{
 use crate::sim::operator::SimOperator;
 use crate::sim::physics::Plant;
 use crate::sim::{FRAME_US, frame_start_byte};
-use crate::tasks::SIM_PRIORITY;
 use crate::tasks::controller::Live;
 use crate::tasks::imu_reader::BINARY_MODE_COMMAND;
 use crate::tasks::logger::LogStall;
+use crate::tasks::{Cpu, SIM_PRIORITY};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -94,7 +94,8 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
         stop: stop.clone(),
         rt: tokio::runtime::Handle::current(),
     };
-    let sim_thread = crate::tasks::spawn_thread("sim", true, SIM_PRIORITY, move || thread.run())?;
+    let sim_thread =
+        crate::tasks::spawn_thread("sim", true, SIM_PRIORITY, Cpu::First, move || thread.run())?;
     let timer = {
         let cancel = cancel.clone();
         tokio::spawn(async move {

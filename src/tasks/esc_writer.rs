@@ -17,9 +17,9 @@ pub use crate::core::esc::EscPhase;
 use crate::core::esc::{Cycle, CycleKind, CycleRunner, EscDriver, EscTiming, StopOutcome};
 use crate::core::motor::MotorMap;
 use crate::hw::esc_bus::EscBus;
-use crate::tasks::ESC_WRITER_PRIORITY;
 use crate::tasks::heartbeats::{Event, Heartbeats};
 use crate::tasks::latency::{LatencyLog, Stamps};
+use crate::tasks::{Cpu, ESC_WRITER_PRIORITY};
 use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
@@ -316,18 +316,24 @@ pub fn spawn(
     beats: Arc<Heartbeats>,
     realtime: bool,
 ) -> std::io::Result<std::thread::JoinHandle<()>> {
-    crate::tasks::spawn_thread("esc_writer", realtime, ESC_WRITER_PRIORITY, move || {
-        run(
-            Writer {
-                bus,
-                params,
-                status,
-                beats,
-                runner: CycleRunner::default(),
-            },
-            &mailbox,
-        )
-    })
+    crate::tasks::spawn_thread(
+        "esc_writer",
+        realtime,
+        ESC_WRITER_PRIORITY,
+        Cpu::Last,
+        move || {
+            run(
+                Writer {
+                    bus,
+                    params,
+                    status,
+                    beats,
+                    runner: CycleRunner::default(),
+                },
+                &mailbox,
+            )
+        },
+    )
 }
 
 enum Wake {

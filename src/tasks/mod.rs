@@ -101,12 +101,25 @@ fn set_fifo(priority: i32) -> Result<(), String> {
     Ok(())
 }
 
-/// Starts a named OS thread running `f`, first raised to SCHED_FIFO `priority` when
-/// `realtime` (a warning when not permitted).
+/// The CPU a flight thread runs on when the machine has two or more (and the run is
+/// realtime). The ESC writer spins for the command it was told is coming: it must never share a
+/// CPU with the control path that computes that command, or it would hold it off for the whole
+/// spin. So the writer (and the watchdog, which wakes briefly every millisecond) take the last
+/// CPU, the control path (and the simulator's physics, which preempts it only briefly) the first.
+/// Everything else (the loggers, the operators' tasks, other programs) is left to the kernel.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Cpu {
+    First,
+    Last,
+}
+
+/// Starts a named OS thread running `f`, first raised to SCHED_FIFO `priority` and pinned to
+/// its `cpu` when `realtime` (a warning when not permitted).
 pub fn spawn_thread<T: Send + 'static>(
     name: &'static str,
     realtime: bool,
     priority: i32,
+    cpu: Cpu,
     f: impl FnOnce() -> T + Send + 'static,
 ) -> std::io::Result<std::thread::JoinHandle<T>> {
     std::thread::Builder::new()
@@ -114,9 +127,47 @@ pub fn spawn_thread<T: Send + 'static>(
         .spawn(move || {
             if realtime {
                 raise_priority(name, priority);
+                if let Err(e) = pin(cpu) {
+                    tracing::warn!(thread = name, "{e}; left where the kernel puts it");
+                }
             }
             f()
         })
+}
+
+/// Pins the calling thread to the first or last CPU it is allowed on; nothing with fewer than
+/// two.
+fn pin(cpu: Cpu) -> Result<(), String> {
+    let size = std::mem::size_of::<libc::cpu_set_t>();
+    // SAFETY: cpu_set_t is a plain bit array; all zeros is the empty set.
+    let mut allowed: libc::cpu_set_t = unsafe { std::mem::zeroed() };
+    // SAFETY: `allowed` is a cpu_set_t of `size` bytes, written by the call.
+    if unsafe { libc::sched_getaffinity(0, size, &mut allowed) } != 0 {
+        return Err(format!(
+            "cannot read the CPUs allowed ({})",
+            std::io::Error::last_os_error()
+        ));
+    }
+    let cpus: Vec<usize> = (0..libc::CPU_SETSIZE as usize)
+        // SAFETY: CPU_ISSET reads bit `c` < CPU_SETSIZE of `allowed`.
+        .filter(|&c| unsafe { libc::CPU_ISSET(c, &allowed) })
+        .collect();
+    let chosen = match (cpu, cpus.as_slice()) {
+        (_, [] | [_]) => return Ok(()),
+        (Cpu::First, [first, ..]) => *first,
+        (Cpu::Last, [.., last]) => *last,
+    };
+    // SAFETY: as above; CPU_SET writes bit `chosen` < CPU_SETSIZE.
+    let mut one: libc::cpu_set_t = unsafe { std::mem::zeroed() };
+    unsafe { libc::CPU_SET(chosen, &mut one) };
+    // SAFETY: `one` is a cpu_set_t of `size` bytes.
+    if unsafe { libc::sched_setaffinity(0, size, &one) } != 0 {
+        return Err(format!(
+            "cannot pin to CPU {chosen} ({})",
+            std::io::Error::last_os_error()
+        ));
+    }
+    Ok(())
 }
 
 /// Asks for SCHED_FIFO at `priority` for the calling thread; warns when not permitted.

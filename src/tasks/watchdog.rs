@@ -10,9 +10,9 @@
 
 use crate::core::watchdog::Halt;
 use crate::core::watchdog::{Event, Trip, Watchdog, WatchdogParams};
-use crate::tasks::WATCHDOG_PRIORITY;
 use crate::tasks::esc_writer::{EscMailbox, EscStatus};
 use crate::tasks::heartbeats::Heartbeats;
+use crate::tasks::{Cpu, WATCHDOG_PRIORITY};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -59,27 +59,33 @@ pub fn spawn(
     cancel: CancellationToken,
     realtime: bool,
 ) -> std::io::Result<std::thread::JoinHandle<()>> {
-    crate::tasks::spawn_thread("watchdog", realtime, WATCHDOG_PRIORITY, move || {
-        // Without its watchdog the flight must not go on.
-        let _halt = crate::tasks::esc_writer::HaltOnPanic {
-            mailbox: path.mailbox.clone(),
-            cancel: cancel.clone(),
-        };
-        let mut wd = Watchdog::new(params);
-        let mut batch = Vec::with_capacity(256);
-        while !status.stop.load(Ordering::SeqCst) && !cancel.is_cancelled() {
-            std::thread::sleep(TICK);
-            if let Some(trip) = check(&mut wd, &beats, &status, &mut batch) {
-                let halt = halt_motors(trip, &path, &beats);
-                if let Ok(mut h) = status.halt.lock() {
-                    *h = Some(halt);
+    crate::tasks::spawn_thread(
+        "watchdog",
+        realtime,
+        WATCHDOG_PRIORITY,
+        Cpu::Last,
+        move || {
+            // Without its watchdog the flight must not go on.
+            let _halt = crate::tasks::esc_writer::HaltOnPanic {
+                mailbox: path.mailbox.clone(),
+                cancel: cancel.clone(),
+            };
+            let mut wd = Watchdog::new(params);
+            let mut batch = Vec::with_capacity(256);
+            while !status.stop.load(Ordering::SeqCst) && !cancel.is_cancelled() {
+                std::thread::sleep(TICK);
+                if let Some(trip) = check(&mut wd, &beats, &status, &mut batch) {
+                    let halt = halt_motors(trip, &path, &beats);
+                    if let Ok(mut h) = status.halt.lock() {
+                        *h = Some(halt);
+                    }
+                    on_halt(halt);
+                    cancel.cancel();
+                    return;
                 }
-                on_halt(halt);
-                cancel.cancel();
-                return;
             }
-        }
-    })
+        },
+    )
 }
 
 /// One check: the reported events through the policy's one dispatch, then the clock.

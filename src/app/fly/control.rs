@@ -12,7 +12,7 @@ use crate::tasks::controller::{ControllerReport, ControllerTask, Live};
 use crate::tasks::esc_writer::HaltOnPanic;
 use crate::tasks::estimator::{EstimatorReport, EstimatorTask};
 use crate::tasks::prearm::PreArm;
-use crate::tasks::{CONTROL_PRIORITY, TaskOutputs};
+use crate::tasks::{CONTROL_PRIORITY, Cpu, TaskOutputs};
 use crate::tasks::{gps_client, imu_reader};
 use anyhow::Context;
 use std::thread::JoinHandle;
@@ -60,86 +60,92 @@ pub(super) fn spawn(
         opts.control_panic_at,
         opts.arm_at_start,
     );
-    crate::tasks::spawn_thread("control", realtime, CONTROL_PRIORITY, move || {
-        let _end_run = h.cancel.clone().drop_guard();
-        let _halt = HaltOnPanic {
-            mailbox: h.mailbox.clone(),
-            cancel: h.cancel.clone(),
-        };
-        let rt = tokio::runtime::Builder::new_current_thread()
-            .enable_all()
-            .build()
-            .context("cannot build the control runtime")?;
-        let out = TaskOutputs {
-            logs: h.logs.clone(),
-            beats: h.beats.clone(),
-            notices: h.notices.clone(),
-        };
-        let (fb_tx, fb_rx) = watch::channel(controller.first_feedback());
-        let (est_tx, est_rx) = mpsc::channel(1);
-        let controller = ControllerTask {
-            side: controller,
-            estimates: est_rx,
-            feedback: fb_tx,
-            esc: h.mailbox.clone(),
-            out: out.clone(),
-            cancel: h.cancel.clone(),
-            delay,
-            panic_at_step,
-            live: inputs.live,
-        };
-        rt.block_on(async move {
-            let (frame_tx, frame_rx) = mpsc::channel(8);
-            let reader = imu_reader::run(
-                inputs.imu,
-                h.beats.clone(),
-                frame_tx,
-                h.imu_stats.clone(),
-                h.cancel.clone(),
-            );
-            let reader = tokio::spawn(reader.instrument(tracing::info_span!("imu_reader")));
-            let controller = tokio::spawn(
-                controller
-                    .run()
-                    .instrument(tracing::info_span!("controller")),
-            );
-            let estimator = EstimatorTask {
-                side: estimator,
-                gps_live,
-                frames: frame_rx,
-                feedback: fb_rx,
-                estimates: est_tx,
-                esc: h.mailbox.clone(),
-                esc_status: h.esc_status.clone(),
-                out,
+    crate::tasks::spawn_thread(
+        "control",
+        realtime,
+        CONTROL_PRIORITY,
+        Cpu::First,
+        move || {
+            let _end_run = h.cancel.clone().drop_guard();
+            let _halt = HaltOnPanic {
+                mailbox: h.mailbox.clone(),
                 cancel: h.cancel.clone(),
-                operator: inputs.operator,
-                prearm,
-                auto_arm,
-                watchdog: h.wd_status.clone(),
-            }
-            .run()
-            .instrument(tracing::info_span!("estimator"))
-            .await;
-            // The estimator ends when frames stop, on an abort or on cancel: end the run.
-            h.cancel.cancel();
-            if let Ok(Err(e)) = reader.await {
-                tracing::warn!("IMU read error: {e}");
-            }
-            // A panic in the controller task already halted the motors (`HaltOnPanic`).
-            let controller = controller.await.map_err(|e| {
-                let why = e.try_into_panic().map_or_else(
-                    |e| e.to_string(),
-                    |p| crate::tasks::panic_message(p.as_ref()),
+            };
+            let rt = tokio::runtime::Builder::new_current_thread()
+                .enable_all()
+                .build()
+                .context("cannot build the control runtime")?;
+            let out = TaskOutputs {
+                logs: h.logs.clone(),
+                beats: h.beats.clone(),
+                notices: h.notices.clone(),
+            };
+            let (fb_tx, fb_rx) = watch::channel(controller.first_feedback());
+            let (est_tx, est_rx) = mpsc::channel(1);
+            let controller = ControllerTask {
+                side: controller,
+                estimates: est_rx,
+                feedback: fb_tx,
+                esc: h.mailbox.clone(),
+                out: out.clone(),
+                cancel: h.cancel.clone(),
+                delay,
+                panic_at_step,
+                live: inputs.live,
+            };
+            rt.block_on(async move {
+                let (frame_tx, frame_rx) = mpsc::channel(8);
+                let reader = imu_reader::run(
+                    inputs.imu,
+                    h.beats.clone(),
+                    frame_tx,
+                    h.imu_stats.clone(),
+                    h.cancel.clone(),
                 );
-                anyhow::anyhow!("the controller task panicked: {why}")
-            });
-            Ok(Reports {
-                estimator: estimator?,
-                controller: controller?,
+                let reader = tokio::spawn(reader.instrument(tracing::info_span!("imu_reader")));
+                let controller = tokio::spawn(
+                    controller
+                        .run()
+                        .instrument(tracing::info_span!("controller")),
+                );
+                let estimator = EstimatorTask {
+                    side: estimator,
+                    gps_live,
+                    frames: frame_rx,
+                    feedback: fb_rx,
+                    estimates: est_tx,
+                    esc: h.mailbox.clone(),
+                    esc_status: h.esc_status.clone(),
+                    out,
+                    cancel: h.cancel.clone(),
+                    operator: inputs.operator,
+                    prearm,
+                    auto_arm,
+                    watchdog: h.wd_status.clone(),
+                }
+                .run()
+                .instrument(tracing::info_span!("estimator"))
+                .await;
+                // The estimator ends when frames stop, on an abort or on cancel: end the run.
+                h.cancel.cancel();
+                if let Ok(Err(e)) = reader.await {
+                    tracing::warn!("IMU read error: {e}");
+                }
+                // A panic in the controller task already halted the motors (`HaltOnPanic`).
+                let controller = controller.await.map_err(|e| {
+                    let why = e.try_into_panic().map_or_else(
+                        |e| e.to_string(),
+                        |p| crate::tasks::panic_message(p.as_ref()),
+                    );
+                    anyhow::anyhow!("the controller task panicked: {why}")
+                });
+                Ok(Reports {
+                    estimator: estimator?,
+                    controller: controller?,
+                })
             })
-        })
-    })
+        },
+    )
     .context("cannot start the control thread")
 }
 
