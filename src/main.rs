@@ -97,7 +97,7 @@ vehicle_status (modes and failsafes), uquad_imu_raw (the IMU frames in counts), 
     #[command(
         long_about = "Attach to a running `uquad fly` or `uquad sim --realtime` through its console \
 socket (console.socket of its configuration). Prints the live events (filtered) and a statistics \
-line every second (latency histogram, deadline misses, log drops, the estimate and the motor \
+line every second (latency histogram and its stages, deadline misses, log drops, the estimate and the motor \
 speeds). Type a manual-mode key and RET to send it (spec 5.2): j/g roll, y/h pitch, q/w yaw, \
 e/d altitude, i/k mass, 0 reset mass, quit; 'filter LEVEL[,TEXT]' changes the filter. Several \
 consoles can attach at once; one that stops reading only loses its own events."
@@ -170,6 +170,7 @@ struct FlyArgs {
     #[arg(long, value_name = "DIR")]
     log_dir: Option<PathBuf>,
     /// Write the flight report (JSON: frames, steps, latency_us {p50, p99, max},
+    /// latency_stages_us {decode_to_estimate, estimate_to_command, command_to_write},
     /// deadline_misses, log_drops, watchdog_trips, halt, run_dir) to FILE at the end.
     #[arg(long, value_name = "FILE")]
     report: Option<PathBuf>,

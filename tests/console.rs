@@ -93,6 +93,36 @@ fn two_consoles_watch_and_steer_a_running_flight() {
     // The new set point is in the run's logs and the stats.
     let r: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    // Where the latency went: each stage in the report (a command's total is its stages' sum,
+    // each rounded down to the µs), and each stage's last-second figures on the stats line.
+    let stages = &r["latency_stages_us"];
+    let mut stage_max_sum = 0;
+    for name in [
+        "decode_to_estimate",
+        "estimate_to_command",
+        "command_to_write",
+    ] {
+        let p = |k: &str| {
+            stages[name][k]
+                .as_u64()
+                .unwrap_or_else(|| panic!("{name} {k}: {r}"))
+        };
+        assert!(p("p50") <= p("p99") && p("p99") <= p("max"), "{name}: {r}");
+        stage_max_sum += p("max");
+    }
+    let total = &r["latency_us"];
+    assert!(total["p50"].as_u64().unwrap() > 0, "{r}");
+    assert!(total["max"].as_u64().unwrap() <= stage_max_sum + 2, "{r}");
+    assert!(
+        a_lines
+            .lock()
+            .unwrap()
+            .iter()
+            .any(|l| l.starts_with("stats ")
+                && l.contains("latency_stages_us[estimate,command,write](median/max)=[")
+                && !l.contains("=[0/0, 0/0, 0/0]")),
+        "no stage figures on the stats lines"
+    );
     let run = std::path::Path::new(r["run_dir"].as_str().unwrap()).to_path_buf();
     let err = std::fs::read_to_string(run.join("err.log")).unwrap();
     assert!(
