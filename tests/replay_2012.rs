@@ -67,6 +67,16 @@ fn replay_is_deterministic_and_overwrites() {
     let first = run();
     assert!(!first.starts_with(b"stale"));
     assert_eq!(first, run());
+    // Files longer than what the replay writes are cut to it, not left with a stale tail.
+    let [x_hat, mode] =
+        ["x_hat.log", "mode.log"].map(|f| std::fs::read(out.path().join(f)).unwrap());
+    let mut longer = x_hat.clone();
+    longer.extend_from_slice(&x_hat);
+    std::fs::write(out.path().join("x_hat.log"), &longer).unwrap();
+    std::fs::write(out.path().join("mode.log"), "stale\n".repeat(1000)).unwrap();
+    run();
+    assert_eq!(std::fs::read(out.path().join("x_hat.log")).unwrap(), x_hat);
+    assert_eq!(std::fs::read(out.path().join("mode.log")).unwrap(), mode);
 }
 
 #[test]

@@ -143,7 +143,7 @@ impl Records {
                 logs::write_values_row(s, Some(*t), v)
             })
         };
-        let mode = |path: &Path| std::fs::write(path, &self.mode);
+        let mode = |path: &Path| write_text(path, &self.mode);
         type Job<'a> = (
             &'static str,
             &'a (dyn Fn(&Path) -> std::io::Result<()> + Sync),
@@ -195,17 +195,40 @@ impl Records {
 fn write_rows<T>(path: &Path, rows: &[T], format: impl Fn(&mut String, &T)) -> std::io::Result<()> {
     use std::io::Write as _;
     const FLUSH_AT: usize = 60 * 1024;
-    let mut file = std::fs::File::create(path)?;
+    let mut file = open_for_overwrite(path)?;
     // Room for one more row past the flush mark (a row is well under 4 KiB).
     let mut text = String::with_capacity(FLUSH_AT + 4096);
+    let mut len = 0u64;
     for row in rows {
         format(&mut text, row);
         if text.len() >= FLUSH_AT {
             file.write_all(text.as_bytes())?;
+            len += text.len() as u64;
             text.clear();
         }
     }
-    file.write_all(text.as_bytes())
+    file.write_all(text.as_bytes())?;
+    file.set_len(len + text.len() as u64)
+}
+
+/// Writes `text` as the whole file at `path` (see [`open_for_overwrite`]).
+fn write_text(path: &Path, text: &str) -> std::io::Result<()> {
+    use std::io::Write as _;
+    let mut file = open_for_overwrite(path)?;
+    file.write_all(text.as_bytes())?;
+    file.set_len(text.len() as u64)
+}
+
+/// Opens `path` for writing from its start without truncating it first: a replay usually
+/// rewrites a log of the same size, and truncating frees the file's blocks only for the writes
+/// to allocate them again (a third of a batch's time into an existing folder). The caller
+/// cuts the file to what it wrote.
+fn open_for_overwrite(path: &Path) -> std::io::Result<std::fs::File> {
+    std::fs::File::options()
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(path)
 }
 
 /// Reads an optional log of a run folder; `Ok(None)` when the file does not exist.

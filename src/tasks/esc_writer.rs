@@ -363,6 +363,8 @@ fn wait(mailbox: &EscMailbox, deadline: Option<Instant>, accept_start: bool, spi
         if g.new_command {
             g.new_command = false;
             if let Some(c) = g.command {
+                // The command expected, if any, is this one: no spin for it afterwards.
+                mailbox.expect.store(false, Ordering::SeqCst);
                 return Wake::Command(c);
             }
         }
@@ -393,6 +395,9 @@ fn wait(mailbox: &EscMailbox, deadline: Option<Instant>, accept_start: bool, spi
 }
 
 fn run(mut w: Writer, mailbox: &EscMailbox) {
+    // Spinning for a command is only safe on a CPU the control path does not use: without its
+    // own CPU (one CPU, no realtime, pinning refused) the writer sleeps until the command.
+    let may_spin = crate::tasks::pinned();
     let mut driver = EscDriver::new(w.params.map, w.params.timing);
     let mut cycles = Vec::with_capacity(8);
     w.status.set_phase(EscPhase::Disabled);
@@ -405,7 +410,7 @@ fn run(mut w: Writer, mailbox: &EscMailbox) {
             mailbox,
             deadline,
             phase == EscPhase::Disabled,
-            phase == EscPhase::Running,
+            may_spin && phase == EscPhase::Running,
         );
         let now_us = w.beats.us(Instant::now());
         let mut stamps = None;

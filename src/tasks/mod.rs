@@ -127,17 +127,28 @@ pub fn spawn_thread<T: Send + 'static>(
         .spawn(move || {
             if realtime {
                 raise_priority(name, priority);
-                if let Err(e) = pin(cpu) {
-                    tracing::warn!(thread = name, "{e}; left where the kernel puts it");
+                match pin(cpu) {
+                    Ok(pinned) => PINNED.set(pinned),
+                    Err(e) => tracing::warn!(thread = name, "{e}; left where the kernel puts it"),
                 }
             }
             f()
         })
 }
 
-/// Pins the calling thread to the first or last CPU it is allowed on; nothing with fewer than
-/// two.
-fn pin(cpu: Cpu) -> Result<(), String> {
+thread_local! {
+    static PINNED: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Whether the calling flight thread was placed on its CPU (see [`Cpu`]): a realtime run on a
+/// machine with two CPUs or more, and the kernel agreed.
+pub fn pinned() -> bool {
+    PINNED.get()
+}
+
+/// Pins the calling thread to the first or last CPU it is allowed on (true); nothing with fewer
+/// than two (false).
+fn pin(cpu: Cpu) -> Result<bool, String> {
     let size = std::mem::size_of::<libc::cpu_set_t>();
     // SAFETY: cpu_set_t is a plain bit array; all zeros is the empty set.
     let mut allowed: libc::cpu_set_t = unsafe { std::mem::zeroed() };
@@ -153,7 +164,7 @@ fn pin(cpu: Cpu) -> Result<(), String> {
         .filter(|&c| unsafe { libc::CPU_ISSET(c, &allowed) })
         .collect();
     let chosen = match (cpu, cpus.as_slice()) {
-        (_, [] | [_]) => return Ok(()),
+        (_, [] | [_]) => return Ok(false),
         (Cpu::First, [first, ..]) => *first,
         (Cpu::Last, [.., last]) => *last,
     };
@@ -167,7 +178,7 @@ fn pin(cpu: Cpu) -> Result<(), String> {
             std::io::Error::last_os_error()
         ));
     }
-    Ok(())
+    Ok(true)
 }
 
 /// Asks for SCHED_FIFO at `priority` for the calling thread; warns when not permitted.
