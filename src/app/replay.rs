@@ -144,10 +144,6 @@ impl Records {
             })
         };
         let mode = |path: &Path| write_text(path, &self.mode);
-        type Job<'a> = (
-            &'static str,
-            &'a (dyn Fn(&Path) -> std::io::Result<()> + Sync),
-        );
         // Two halves of about equal work: one on a second thread (when `parallel`), one here.
         // More threads than cores would only add their start-up.
         let first: [Job; 4] = [
@@ -161,32 +157,49 @@ impl Records {
             ("int.log", &int),
             ("setpoint.log", &setpoint),
         ];
-        let write_all = |jobs: &[Job]| -> anyhow::Result<Vec<PathBuf>> {
-            jobs.iter()
-                .map(|&(name, write)| {
-                    let path = out_dir.join(name);
-                    write(&path)
-                        .with_context(|| format!("cannot write {}", path.display()))
-                        .map(|()| path)
-                })
-                .collect()
-        };
-        let (a, b) = if parallel {
-            std::thread::scope(|scope| {
-                let helper = scope.spawn(|| write_all(&first));
-                let b = write_all(&second);
-                let a = helper
-                    .join()
-                    .unwrap_or_else(|_| Err(anyhow::anyhow!("a log writer thread panicked")));
-                (a, b)
-            })
-        } else {
-            (write_all(&first), write_all(&second))
-        };
-        let mut paths = a?;
-        paths.extend(b?);
-        Ok(paths)
+        write_jobs(out_dir, &first, &second, parallel)
     }
+}
+
+/// A log file's name and what writes it at a path.
+type Job<'a> = (
+    &'static str,
+    &'a (dyn Fn(&Path) -> std::io::Result<()> + Sync),
+);
+
+/// Runs `first` on a second thread (when `parallel`) and `second` here; the paths written,
+/// or the first failure naming its file.
+fn write_jobs(
+    out_dir: &Path,
+    first: &[Job],
+    second: &[Job],
+    parallel: bool,
+) -> anyhow::Result<Vec<PathBuf>> {
+    let write_all = |jobs: &[Job]| -> anyhow::Result<Vec<PathBuf>> {
+        jobs.iter()
+            .map(|&(name, write)| {
+                let path = out_dir.join(name);
+                write(&path)
+                    .with_context(|| format!("cannot write {}", path.display()))
+                    .map(|()| path)
+            })
+            .collect()
+    };
+    let (a, b) = if parallel {
+        std::thread::scope(|scope| {
+            let helper = scope.spawn(|| write_all(first));
+            let b = write_all(second);
+            let a = helper
+                .join()
+                .unwrap_or_else(|_| Err(anyhow::anyhow!("a log writer thread panicked")));
+            (a, b)
+        })
+    } else {
+        (write_all(first), write_all(second))
+    };
+    let mut paths = a?;
+    paths.extend(b?);
+    Ok(paths)
 }
 
 /// Formats `rows` into the file at `path` through one small buffer, written out whenever it
@@ -366,28 +379,8 @@ pub fn run_observed(
 ) -> anyhow::Result<ReplaySummary> {
     let with_mission = with_kept_mission(run_dir, profile)?;
     let profile = with_mission.as_ref().unwrap_or(profile);
-    // The inputs are independent files: imu_raw.log here, the others on a second thread when
-    // `parallel`.
-    let others = || -> anyhow::Result<_> {
-        let times = |name| read_log(run_dir, name, logs::parse_time_column);
-        Ok((
-            read_log(run_dir, "kalman_in.log", logs::parse_time_column_pair)?.unwrap_or_default(),
-            times("w.log")?.unwrap_or_default(),
-            times("int.log")?.unwrap_or_default(),
-            read_log(run_dir, "gps.log", GpsLogRecord::parse_fields)?,
-        ))
-    };
-    let raw_log = || read_log(run_dir, "imu_raw.log", ImuRawRecord::parse_fields);
-    let (raw, others) = if parallel {
-        std::thread::scope(|scope| {
-            let helper = scope.spawn(others);
-            let raw = raw_log();
-            (raw, joined(helper.join()))
-        })
-    } else {
-        (raw_log(), others())
-    };
-    let (raw, (recorded_times, cmd_times, ctrl_times, recorded_gps)) = (raw?, others?);
+    let (raw, recorded_times, cmd_times, ctrl_times, recorded_gps) =
+        read_inputs(run_dir, parallel)?;
     let raw = raw.with_context(|| format!("{} has no imu_raw.log", run_dir.display()))?;
 
     let cfg = &profile.config;
@@ -459,6 +452,43 @@ pub fn run_observed(
         .with_context(|| format!("cannot create {}", out_dir.display()))?;
     summary.outputs = out.write(out_dir, parallel)?;
     Ok(summary)
+}
+
+/// A run folder's logs a replay reads: imu_raw.log (`None` when missing), the recorded step
+/// times of kalman_in.log, w.log and int.log, and gps.log's fixes.
+type Inputs = (
+    Option<Vec<ImuRawRecord>>,
+    Vec<(i64, i64)>,
+    Vec<i64>,
+    Vec<i64>,
+    Option<Vec<GpsLogRecord>>,
+);
+
+/// Reads the run's logs: imu_raw.log here, the others on a second thread when `parallel`
+/// (they are independent files).
+fn read_inputs(run_dir: &Path, parallel: bool) -> anyhow::Result<Inputs> {
+    let others = || -> anyhow::Result<_> {
+        let times = |name| read_log(run_dir, name, logs::parse_time_column);
+        Ok((
+            read_log(run_dir, "kalman_in.log", logs::parse_time_column_pair)?.unwrap_or_default(),
+            times("w.log")?.unwrap_or_default(),
+            times("int.log")?.unwrap_or_default(),
+            read_log(run_dir, "gps.log", GpsLogRecord::parse_fields)?,
+        ))
+    };
+    let raw_log = || read_log(run_dir, "imu_raw.log", ImuRawRecord::parse_fields);
+    let (raw, others) = if parallel {
+        std::thread::scope(|scope| {
+            let helper = scope.spawn(others);
+            let raw = raw_log();
+            (raw, joined(helper.join()))
+        })
+    } else {
+        (raw_log(), others())
+    };
+    let raw = raw?;
+    let (kalman, cmd, ctrl, gps) = others?;
+    Ok((raw, kalman, cmd, ctrl, gps))
 }
 
 /// The operator's inputs of a run (its mode.log) and its halt, if the watchdog halted it;
