@@ -51,7 +51,6 @@ pub struct ReplaySummary {
 
 /// The output records, kept in memory during the loop and formatted and written at the end,
 /// one file per thread (formatting tens of thousands of numbers is a large share of a replay).
-#[derive(Default)]
 struct Records {
     kalman_in: Vec<KalmanInRecord>,
     x_hat: Vec<[f64; 15]>,
