@@ -813,8 +813,8 @@ impl ReplayArgs {
             ))
             .into());
         }
-        let profile = self.profile(run_dir)?;
-        let summary = uquad::app::replay::run(run_dir, &profile, &self.out)
+        // The profile is loaded while a second thread reads the run's IMU log.
+        let summary = uquad::app::replay::run_loading(run_dir, &self.out, || self.profile(run_dir))
             .with_context(|| format!("replay of {} failed", run_dir.display()))?;
         tracing::info!(
             raw_frames = summary.raw_frames,

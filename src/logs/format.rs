@@ -91,13 +91,23 @@ pub fn parse_log<T>(
     text: &str,
     parse: impl Fn(&[&str]) -> Result<T, String>,
 ) -> Result<Parsed<T>, LineError> {
+    parse_log_columns(text, usize::MAX, parse)
+}
+
+/// [`parse_log`] handing `parse` only each record's first `columns` columns (a reader of a
+/// log's times need not split the rest of each line).
+pub fn parse_log_columns<T>(
+    text: &str,
+    columns: usize,
+    parse: impl Fn(&[&str]) -> Result<T, String>,
+) -> Result<Parsed<T>, LineError> {
     let lines: Vec<(usize, &str)> = records(text).collect();
     let mut rows = Vec::with_capacity(lines.len());
     let mut truncated = None;
     let mut fields: Vec<&str> = Vec::with_capacity(16);
     for (k, (line, body)) in lines.iter().enumerate() {
         fields.clear();
-        fields.extend(body.split_ascii_whitespace());
+        fields.extend(body.split_ascii_whitespace().take(columns));
         match parse(&fields) {
             Ok(r) => rows.push(r),
             Err(message) if k + 1 == lines.len() && k > 0 => {

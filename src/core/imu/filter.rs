@@ -39,38 +39,59 @@ impl Fir {
         self.count == FIR_LEN
     }
 
-    /// The `i`-th newest frame (0 = newest).
-    fn back(&self, i: usize) -> &RawFrame {
-        &self.ring[(self.next + FIR_LEN - 1 - i) % FIR_LEN]
-    }
-
-    fn tap(&self, field: impl Fn(&RawFrame) -> f64) -> f64 {
-        let mut acc = 0.0;
-        for (i, h) in FIR_TAPS.iter().enumerate() {
-            acc += h * field(self.back(i));
-        }
-        acc
-    }
-
     /// The filtered frame (fields truncated toward zero), or `None` until six frames arrived.
     /// `T_us` is the newest frame's.
     pub fn output(&self) -> Option<RawFrame> {
         if !self.ready() {
             return None;
         }
-        // A convex combination of i16 values stays in i16 range: `as` only truncates the fraction.
-        let axis = |sel: fn(&RawFrame) -> [i16; 3]| -> [i16; 3] {
-            std::array::from_fn(|k| self.tap(|f| f64::from(sel(f)[k])).trunc() as i16)
-        };
+        // Every field of every frame in the window as a float, newest frame first; then each
+        // field's sum, accumulated from 0, newest first (see the module's note), all fields
+        // side by side.
+        let newest = (self.next + FIR_LEN - 1) % FIR_LEN;
+        let window: [[f64; FIELDS]; FIR_LEN] =
+            std::array::from_fn(|i| fields(&self.ring[(newest + FIR_LEN - i) % FIR_LEN]));
+        let mut sum = [0.0; FIELDS];
+        for (h, frame) in FIR_TAPS.iter().zip(&window) {
+            for (s, v) in sum.iter_mut().zip(frame) {
+                *s += h * v;
+            }
+        }
+        // A float's `as` cast truncates toward zero (and saturates), as the original's
+        // assignment did.
+        let axis = |k: usize| -> [i16; 3] { std::array::from_fn(|j| sum[k + j] as i16) };
         Some(RawFrame {
-            t_us: self.back(0).t_us,
-            acc: axis(|f| f.acc),
-            gyro: axis(|f| f.gyro),
-            magn: axis(|f| f.magn),
-            temp_dc: self.tap(|f| f64::from(f.temp_dc)).trunc() as i16,
-            pres_pa: self.tap(|f| f64::from(f.pres_pa)).trunc() as u32,
+            t_us: self.ring[newest].t_us,
+            acc: axis(0),
+            gyro: axis(3),
+            magn: axis(6),
+            temp_dc: sum[9] as i16,
+            pres_pa: sum[10] as u32,
         })
     }
+}
+
+/// The filtered fields of a frame: acc, gyro, magn (three each), temperature, pressure.
+const FIELDS: usize = 11;
+
+/// A frame's filtered fields as floats, in [`FIELDS`]' order.
+fn fields(f: &RawFrame) -> [f64; FIELDS] {
+    let [a0, a1, a2] = f.acc.map(f64::from);
+    let [g0, g1, g2] = f.gyro.map(f64::from);
+    let [m0, m1, m2] = f.magn.map(f64::from);
+    [
+        a0,
+        a1,
+        a2,
+        g0,
+        g1,
+        g2,
+        m0,
+        m1,
+        m2,
+        f64::from(f.temp_dc),
+        f64::from(f.pres_pa),
+    ]
 }
 
 #[cfg(test)]
