@@ -624,7 +624,7 @@ mod tests {
             }
         }
         for v in values {
-            for d in [0u32, 1, 3, 6, 8, 15] {
+            for d in 0..=15 {
                 let mut ours = String::new();
                 push_fixed(&mut ours, v, d);
                 assert_eq!(

@@ -33,18 +33,22 @@ fn put_pair(buf: &mut [u8; BUF_LEN], pos: usize, v: u32) -> usize {
     pos - 2
 }
 
-/// Writes exactly `width` (≤ 8) digits of `v` < 10^width just before `pos`, zero-padded, in
-/// 32-bit arithmetic; returns where they start.
-fn put_fixed_u32(buf: &mut [u8; BUF_LEN], mut pos: usize, mut v: u32, width: usize) -> usize {
-    for _ in 0..width / 2 {
-        pos = put_pair(buf, pos, v % 100);
-        v /= 100;
-    }
-    if width % 2 == 1 {
-        pos -= 1;
-        buf[pos] = b'0' + (v % 10) as u8;
-    }
-    pos
+/// The eight decimal digits of `v` < 10⁸, zero-padded, as ASCII: all of them at once in one
+/// 64-bit word (two 4-digit halves, then four 2-digit quarters, then eight digits, each split
+/// by a multiply and shift exact in that range), a few instructions where a digit at a time
+/// took a division each.
+fn eight_digits(v: u32) -> [u8; 8] {
+    debug_assert!(v < 100_000_000);
+    let v = u64::from(v);
+    // Lanes of 32 bits: abcd, efgh.
+    let halves = v / 10_000 | (v % 10_000) << 32;
+    // x / 100 = (x · 10486) >> 20 for x < 10⁴: lanes of 16 bits ab, cd, ef, gh.
+    let hundreds = ((halves * 10_486) >> 20) & 0x0000_007F_0000_007F;
+    let quarters = hundreds | (halves - hundreds * 100) << 16;
+    // x / 10 = (x · 103) >> 10 for x < 100: lanes of 8 bits a … h.
+    let tens = ((quarters * 103) >> 10) & 0x000F_000F_000F_000F;
+    let digits = tens | (quarters - tens * 10) << 8;
+    (digits + 0x3030_3030_3030_3030).to_le_bytes()
 }
 
 /// Writes the digits of `v` (no padding) just before `pos`; returns where they start.
@@ -61,18 +65,19 @@ fn put_u64(buf: &mut [u8; BUF_LEN], mut pos: usize, mut v: u64) -> usize {
     }
 }
 
-/// Appends `[-]int.frac`, `frac` zero-padded to `decimals` (≤ 15) digits (no point when 0).
+/// Appends `[-]int.frac`, `frac` < 10^decimals zero-padded to `decimals` (≤ 15) digits (no
+/// point when 0).
 fn push_parts(out: &mut String, negative: bool, int_part: u64, frac: u64, decimals: usize) {
     let mut buf = [0u8; BUF_LEN];
     let mut pos = BUF_LEN;
-    if decimals > 8 {
-        pos = put_fixed_u32(&mut buf, pos, (frac % 100_000_000) as u32, 8);
-        pos = put_fixed_u32(&mut buf, pos, (frac / 100_000_000) as u32, decimals - 8);
-    } else if decimals > 0 {
-        pos = put_fixed_u32(&mut buf, pos, frac as u32, decimals);
-    }
     if decimals > 0 {
-        pos -= 1;
+        // The sixteen digits of `frac`, of which the last `decimals` are printed.
+        buf[BUF_LEN - 8..].copy_from_slice(&eight_digits((frac % 100_000_000) as u32));
+        if decimals > 8 {
+            let high = eight_digits((frac / 100_000_000) as u32);
+            buf[BUF_LEN - 16..BUF_LEN - 8].copy_from_slice(&high);
+        }
+        pos -= decimals + 1;
         buf[pos] = b'.';
     }
     pos = put_u64(&mut buf, pos, int_part);
@@ -159,6 +164,21 @@ fn round_scaled(frac: f64, pow10: u64, int_odd: bool) -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn eight_digits_of_every_kind_of_value() {
+        let mut x = 0x9e37_79b9u32;
+        let mut values = vec![0, 1, 9, 10, 99, 100, 9_999, 10_000, 10_001, 99_999_999];
+        for _ in 0..100_000 {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            values.push(x % 100_000_000);
+        }
+        for v in values {
+            assert_eq!(eight_digits(v), *format!("{v:08}").as_bytes(), "{v}");
+        }
+    }
 
     #[test]
     fn integers_and_times_print_as_c_does() {
