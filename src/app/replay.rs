@@ -232,40 +232,37 @@ fn replay<'p>(
     profile: impl FnOnce() -> anyhow::Result<Cow<'p, Profile>>,
     on_step: impl FnMut(&Ekf),
 ) -> anyhow::Result<ReplaySummary> {
-    let (mut summary, texts) = if parallel {
-        replay_on_two_threads(run_dir, profile, on_step)?
-    } else {
-        let profile = profile()?;
-        let raw = read_raw(run_dir)?;
-        let mut out = Records::new(Texts::for_frames(raw.len()));
-        let summary = closed_loop(run_dir, &profile, &raw, &mut out, on_step)?;
-        (summary, out.finish())
-    };
-    std::fs::create_dir_all(out_dir)
-        .with_context(|| format!("cannot create {}", out_dir.display()))?;
-    summary.outputs = texts.write(out_dir, parallel)?;
-    Ok(summary)
+    if parallel {
+        return replay_on_two_threads(run_dir, out_dir, profile, on_step);
+    }
+    let profile = profile()?;
+    let raw = read_raw(run_dir)?;
+    let mut out = Records::new(Texts::for_frames(raw.len()));
+    let summary = closed_loop(run_dir, &profile, &raw, &mut out, on_step)?;
+    write_logs(summary, &out.finish(), out_dir)
 }
 
-/// [`replay`]'s loop with a second thread reading imu_raw.log and then formatting the records.
+/// [`replay`] with a second thread that reads imu_raw.log and then formats the records.
 fn replay_on_two_threads<'p>(
     run_dir: &Path,
+    out_dir: &Path,
     profile: impl FnOnce() -> anyhow::Result<Cow<'p, Profile>>,
     on_step: impl FnMut(&Ekf),
-) -> anyhow::Result<(ReplaySummary, Texts)> {
+) -> anyhow::Result<ReplaySummary> {
     let (raw_tx, raw_rx) = mpsc::sync_channel(1);
     let (full_tx, full_rx) = mpsc::channel();
     let (spare_tx, spare_rx) = mpsc::channel();
+    let (texts_tx, texts_rx) = mpsc::sync_channel(1);
     std::thread::scope(|scope| {
-        let formatter = scope.spawn(move || {
+        scope.spawn(move || {
             let raw = read_raw(run_dir);
             let frames = raw.as_ref().map_or(0, Vec::len);
-            // Never blocks (room for one); the loop may have failed and gone already.
+            // Neither send blocks (room for one); the loop may have failed and gone already.
             let _ = raw_tx.send(raw);
-            replay_output::format_chunks(full_rx, spare_tx, frames)
+            let _ = texts_tx.send(replay_output::format_chunks(full_rx, spare_tx, frames));
         });
         // Whatever ends the loop drops the chunks' sender, which ends the formatter's input.
-        let looped = (move || -> anyhow::Result<ReplaySummary> {
+        let summary = (move || -> anyhow::Result<ReplaySummary> {
             let profile = profile()?;
             let raw = raw_rx
                 .recv()
@@ -278,12 +275,26 @@ fn replay_on_two_threads<'p>(
             let summary = closed_loop(run_dir, &profile, &raw, &mut out, on_step)?;
             drop(out.finish());
             Ok(summary)
-        })();
-        let texts = formatter.join();
-        let summary = looped?;
-        let texts = texts.map_err(|_| anyhow::anyhow!("the log formatter thread panicked"))?;
-        Ok((summary, texts))
+        })()?;
+        // The texts come as soon as they are formatted; the thread's own end overlaps the
+        // writing.
+        let texts = texts_rx
+            .recv()
+            .map_err(|_| anyhow::anyhow!("the log formatter thread panicked"))?;
+        write_logs(summary, &texts, out_dir)
     })
+}
+
+/// Writes the logs into `out_dir` (created if missing); the summary with the files written.
+fn write_logs(
+    mut summary: ReplaySummary,
+    texts: &Texts,
+    out_dir: &Path,
+) -> anyhow::Result<ReplaySummary> {
+    std::fs::create_dir_all(out_dir)
+        .with_context(|| format!("cannot create {}", out_dir.display()))?;
+    summary.outputs = texts.write(out_dir)?;
+    Ok(summary)
 }
 
 /// Runs the flight sequence over the run's frames, its records into `out`.

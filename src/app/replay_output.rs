@@ -110,46 +110,26 @@ impl Texts {
         self.mode.push_str(&c.mode);
     }
 
-    /// Writes the logs into `out_dir` (which exists), half of them on a second thread when
-    /// `parallel`; the paths written, or the first failure naming its file.
-    pub fn write(&self, out_dir: &Path, parallel: bool) -> anyhow::Result<Vec<PathBuf>> {
-        // Two halves of about equal size.
-        let first = [
+    /// Writes the logs into `out_dir` (which exists); the paths written, or the first
+    /// failure naming its file.
+    pub fn write(&self, out_dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
+        [
             ("x_hat.log", &self.x_hat),
             ("w.log", &self.w),
             ("innov.log", &self.innov),
             ("mode.log", &self.mode),
-        ];
-        let second = [
             ("kalman_in.log", &self.kalman_in),
             ("int.log", &self.int),
             ("setpoint.log", &self.setpoint),
-        ];
-        let write_all = |logs: &[(&str, &String)]| -> anyhow::Result<Vec<PathBuf>> {
-            logs.iter()
-                .map(|(name, text)| {
-                    let path = out_dir.join(name);
-                    write_text(&path, text)
-                        .with_context(|| format!("cannot write {}", path.display()))
-                        .map(|()| path)
-                })
-                .collect()
-        };
-        let (a, b) = if parallel {
-            std::thread::scope(|scope| {
-                let helper = scope.spawn(|| write_all(&first));
-                let b = write_all(&second);
-                let a = helper
-                    .join()
-                    .unwrap_or_else(|_| Err(anyhow::anyhow!("a log writer thread panicked")));
-                (a, b)
-            })
-        } else {
-            (write_all(&first), write_all(&second))
-        };
-        let mut paths = a?;
-        paths.extend(b?);
-        Ok(paths)
+        ]
+        .iter()
+        .map(|(name, text)| {
+            let path = out_dir.join(name);
+            write_text(&path, text)
+                .with_context(|| format!("cannot write {}", path.display()))
+                .map(|()| path)
+        })
+        .collect()
     }
 }
 

@@ -19,15 +19,73 @@ pub struct LineError {
 /// Splits a log's text into (1-based line number, trimmed record), accepting `\n`, `\r\n` and
 /// `\n\r` and skipping blank or whitespace-only pieces and `#` comment lines.
 pub fn records(text: &str) -> impl Iterator<Item = (usize, &str)> {
-    text.split('\n')
-        .enumerate()
-        .map(|(i, l)| {
-            (
-                i + 1,
-                l.trim_matches(|c: char| c == '\r' || c.is_whitespace()),
-            )
-        })
-        .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'))
+    Records {
+        text,
+        pos: 0,
+        line: 0,
+    }
+}
+
+/// [`records`]' iterator: finds each line's end eight bytes at a time (logs are read whole and
+/// split into a few thousand lines, once per replay).
+struct Records<'a> {
+    text: &'a str,
+    /// Where the next line starts; past the end when done.
+    pos: usize,
+    /// The line number of the last line returned.
+    line: usize,
+}
+
+impl<'a> Iterator for Records<'a> {
+    type Item = (usize, &'a str);
+
+    fn next(&mut self) -> Option<(usize, &'a str)> {
+        while self.pos <= self.text.len() {
+            let start = self.pos;
+            let end = find_newline(self.text.as_bytes(), start);
+            self.pos = end + 1;
+            self.line += 1;
+            // `\n` is ASCII, so both ends are character boundaries.
+            let body = trim_record(&self.text[start..end]);
+            if !body.is_empty() && !body.starts_with('#') {
+                return Some((self.line, body));
+            }
+        }
+        None
+    }
+}
+
+/// The index of the first `\n` in `bytes` at or after `from`, or `bytes.len()`.
+fn find_newline(bytes: &[u8], from: usize) -> usize {
+    const ONES: u64 = 0x0101_0101_0101_0101;
+    const HIGHS: u64 = 0x8080_8080_8080_8080;
+    let mut i = from;
+    while let Some(word) = bytes.get(i..i + 8) {
+        let mut eight = [0u8; 8];
+        eight.copy_from_slice(word);
+        let x = u64::from_le_bytes(eight) ^ (ONES * u64::from(b'\n'));
+        // The lowest byte that is zero in x sets its high bit here (higher ones may be false).
+        let zero = x.wrapping_sub(ONES) & !x & HIGHS;
+        if zero != 0 {
+            return i + zero.trailing_zeros() as usize / 8;
+        }
+        i += 8;
+    }
+    bytes[i.min(bytes.len())..]
+        .iter()
+        .position(|&b| b == b'\n')
+        .map_or(bytes.len(), |k| i + k)
+}
+
+/// A line without its surrounding whitespace (a `\r` of any line end included); checked on
+/// the bytes first, since a log's lines almost always start and end in a printable character.
+fn trim_record(line: &str) -> &str {
+    let printable = |b: &u8| b.is_ascii_graphic();
+    let bytes = line.as_bytes();
+    if bytes.first().is_some_and(printable) && bytes.last().is_some_and(printable) {
+        return line;
+    }
+    line.trim_matches(|c: char| c == '\r' || c.is_whitespace())
 }
 
 /// Formats a time in µs as the original's `%ld.%06ld` seconds.
@@ -51,22 +109,26 @@ pub fn parse_time_us(s: &str) -> Option<i64> {
     if whole.is_empty() && frac.is_empty() {
         return None;
     }
-    if !whole.iter().chain(frac).all(u8::is_ascii_digit) {
-        return None;
-    }
     let mut secs: i64 = 0;
     for &c in whole {
-        secs = secs.checked_mul(10)?.checked_add(i64::from(c - b'0'))?;
+        secs = secs.checked_mul(10)?.checked_add(digit(c)?)?;
     }
     let mut micros: i64 = 0;
     for k in 0..6 {
-        micros = micros * 10 + frac.get(k).map_or(0, |&c| i64::from(c - b'0'));
+        micros = micros * 10 + frac.get(k).map_or(Some(0), |&c| digit(c))?;
     }
-    if frac.get(6).is_some_and(|&c| c >= b'5') {
-        micros += 1;
+    match frac.get(6..) {
+        Some(rest) if !rest.iter().all(u8::is_ascii_digit) => return None,
+        Some([round, ..]) if *round >= b'5' => micros += 1,
+        _ => {}
     }
     let t = secs.checked_mul(1_000_000)?.checked_add(micros)?;
     Some(if neg { -t } else { t })
+}
+
+/// The value of an ASCII decimal digit.
+fn digit(c: u8) -> Option<i64> {
+    c.is_ascii_digit().then(|| i64::from(c - b'0'))
 }
 
 fn field<T: std::str::FromStr>(fields: &[&str], i: usize, what: &str) -> Result<T, String> {
@@ -101,27 +163,20 @@ pub fn parse_log_columns<T>(
     columns: usize,
     parse: impl Fn(&[&str]) -> Result<T, String>,
 ) -> Result<Parsed<T>, LineError> {
-    let lines: Vec<(usize, &str)> = records(text).collect();
-    let mut rows = Vec::with_capacity(lines.len());
+    // Room for a row per line of a log's usual length (60 bytes or more).
+    let mut rows = Vec::with_capacity(text.len() / 60 + 1);
     let mut truncated = None;
     let mut fields: Vec<&str> = Vec::with_capacity(16);
-    for (k, (line, body)) in lines.iter().enumerate() {
+    let mut lines = records(text).peekable();
+    while let Some((line, body)) = lines.next() {
         fields.clear();
         fields.extend(body.split_ascii_whitespace().take(columns));
         match parse(&fields) {
             Ok(r) => rows.push(r),
-            Err(message) if k + 1 == lines.len() && k > 0 => {
-                truncated = Some(LineError {
-                    line: *line,
-                    message,
-                })
+            Err(message) if lines.peek().is_none() && !rows.is_empty() => {
+                truncated = Some(LineError { line, message })
             }
-            Err(message) => {
-                return Err(LineError {
-                    line: *line,
-                    message,
-                });
-            }
+            Err(message) => return Err(LineError { line, message }),
         }
     }
     Ok(Parsed { rows, truncated })
