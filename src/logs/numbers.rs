@@ -41,13 +41,13 @@ fn eight_digits(v: u32) -> [u8; 8] {
     debug_assert!(v < 100_000_000);
     let v = u64::from(v);
     // Lanes of 32 bits: abcd, efgh.
-    let halves = v / 10_000 | (v % 10_000) << 32;
+    let halves = (v / 10_000) | ((v % 10_000) << 32);
     // x / 100 = (x · 10486) >> 20 for x < 10⁴: lanes of 16 bits ab, cd, ef, gh.
     let hundreds = ((halves * 10_486) >> 20) & 0x0000_007F_0000_007F;
-    let quarters = hundreds | (halves - hundreds * 100) << 16;
+    let quarters = hundreds | ((halves - hundreds * 100) << 16);
     // x / 10 = (x · 103) >> 10 for x < 100: lanes of 8 bits a … h.
     let tens = ((quarters * 103) >> 10) & 0x000F_000F_000F_000F;
-    let digits = tens | (quarters - tens * 10) << 8;
+    let digits = tens | ((quarters - tens * 10) << 8);
     (digits + 0x3030_3030_3030_3030).to_le_bytes()
 }
 
