@@ -5,7 +5,7 @@ use crate::core::imu::calib::ImuSample;
 use crate::core::imu::frame::RawFrame;
 use std::fmt::Write as _;
 
-pub use super::numbers::{push_fixed, push_time_us, push_u64};
+pub use super::numbers::{push_fixed, push_shortest_exp, push_time_us, push_u64};
 
 /// A log line that could not be read.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -404,7 +404,7 @@ fn push_ratio(out: &mut String, v: f64) {
     if v.is_nan() {
         out.push_str("nan");
     } else {
-        let _ = write!(out, "{v:e}");
+        push_shortest_exp(out, v);
     }
 }
 
