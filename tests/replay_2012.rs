@@ -225,3 +225,33 @@ fn many_runs_replay_at_once_each_into_its_folder() {
         }
     }
 }
+
+#[test]
+fn replay_drops_a_cut_off_last_line_and_says_so() {
+    // A run cut off mid-write: the last line of imu_raw.log and of kalman_in.log half there.
+    let run = tempfile::tempdir().unwrap();
+    for name in ["imu_raw.log", "kalman_in.log", "w.log", "int.log"] {
+        let text = std::fs::read_to_string(flight_dir().join(name)).unwrap();
+        std::fs::write(run.path().join(name), text).unwrap();
+    }
+    let cut = |name: &str, keep: &str| {
+        let path = run.path().join(name);
+        let mut text = std::fs::read_to_string(&path).unwrap();
+        text.push_str(keep);
+        std::fs::write(path, text).unwrap();
+    };
+    cut("imu_raw.log", "99.999999\t1327662600.0");
+    cut("kalman_in.log", "99.99");
+    let (o, out) = replay_2012(run.path(), &[]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    for name in ["imu_raw.log", "kalman_in.log"] {
+        assert!(
+            err.lines()
+                .any(|l| l.contains("dropped a cut-off last record") && l.contains(name)),
+            "no warning for {name}: {err}"
+        );
+    }
+    // The rest replays as the whole flight does.
+    assert_eq!(read_table(&out.path().join("kalman_in.log")).len(), 1120);
+}

@@ -12,6 +12,7 @@ pub mod lqr;
 pub mod plot;
 pub mod replay;
 pub mod replay_batch;
+pub mod replay_input;
 pub mod replay_output;
 pub mod report;
 pub mod run_dir;

@@ -15,16 +15,16 @@
 //! and written once at the end (no sync per record).
 //! Replay is deterministic: the same inputs give byte-identical outputs.
 
+use crate::app::replay_input::RunLogs;
 use crate::app::replay_output::{self, ChunkSink, Records, Texts, ToFormatter};
 use crate::config::{GpsMode, Profile};
 use crate::core::ekf::Ekf;
 use crate::core::flight::ArmCheck;
 use crate::core::flight::{
     ControllerSide, EscState, EstimatorSide, FrameAction, FrameTimes, GatedCounts, GpsFeed,
-    RecordedClock,
 };
 use crate::core::gps::{GpsSample, LocalFrame, RecordedGps};
-use crate::logs::{self, GpsLogRecord, ImuRawRecord, Parsed};
+use crate::logs::{self, GpsLogRecord};
 use anyhow::{Context, bail};
 use std::borrow::Cow;
 use std::path::{Path, PathBuf};
@@ -49,37 +49,6 @@ pub struct ReplaySummary {
     pub saturated_commands: usize,
     /// Files written.
     pub outputs: Vec<PathBuf>,
-}
-
-/// Reads an optional log of a run folder; `Ok(None)` when the file does not exist.
-fn read_log<T>(
-    dir: &Path,
-    name: &str,
-    parse: impl Fn(&[&str]) -> Result<T, String>,
-) -> anyhow::Result<Option<Vec<T>>> {
-    read_log_times(dir, name, usize::MAX, parse)
-}
-
-/// [`read_log`] with only each line's first `columns` columns split out for `parse` (a log
-/// whose times alone are read: the rest of a line is not looked at).
-fn read_log_times<T>(
-    dir: &Path,
-    name: &str,
-    columns: usize,
-    parse: impl Fn(&[&str]) -> Result<T, String>,
-) -> anyhow::Result<Option<Vec<T>>> {
-    let path = dir.join(name);
-    let text = match std::fs::read_to_string(&path) {
-        Ok(t) => t,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
-        Err(e) => return Err(e).with_context(|| format!("cannot read {}", path.display())),
-    };
-    let Parsed { rows, truncated } = logs::parse_log_columns(&text, columns, parse)
-        .with_context(|| format!("{}", path.display()))?;
-    if let Some(t) = truncated {
-        tracing::warn!(file = %path.display(), "dropped a cut-off last record: {t}");
-    }
-    Ok(Some(rows))
 }
 
 /// The GPS feed of a replay: the run's gps.log when it has one, else the fake-GPS rule.
@@ -169,22 +138,30 @@ fn with_kept_mission(run_dir: &Path, profile: &Profile) -> anyhow::Result<Option
 
 /// Replays `run_dir` with `profile`, writing the logs into `out_dir` (created if missing).
 pub fn run(run_dir: &Path, profile: &Profile, out_dir: &Path) -> anyhow::Result<ReplaySummary> {
-    replay(
-        run_dir,
-        out_dir,
-        true,
-        || Ok(Cow::Borrowed(profile)),
-        |_| {},
-    )
+    let profile = || Ok(Cow::Borrowed(profile));
+    replay(run_dir, out_dir, several_cpus(), profile, |_| {})
 }
 
-/// [`run`] with the profile `load` gives, loaded while a second thread reads the run's IMU log.
+/// [`run`] with the profile `load` gives, loaded while a second thread (with more than one
+/// CPU) reads the run's logs.
 pub fn run_loading(
     run_dir: &Path,
     out_dir: &Path,
     load: impl FnOnce() -> anyhow::Result<Profile>,
 ) -> anyhow::Result<ReplaySummary> {
-    replay(run_dir, out_dir, true, || load().map(Cow::Owned), |_| {})
+    replay(
+        run_dir,
+        out_dir,
+        several_cpus(),
+        || load().map(Cow::Owned),
+        |_| {},
+    )
+}
+
+/// Whether this process may run on more than one CPU: a second thread is worth it only then
+/// (on one CPU the two would take turns, and poll in each other's time).
+fn several_cpus() -> bool {
+    std::thread::available_parallelism().is_ok_and(|n| n.get() > 1)
 }
 
 /// [`run`] on this thread alone: for callers that already keep every core busy (a batch).
@@ -222,9 +199,9 @@ pub fn run_observed(
 
 /// The whole replay: the closed loop, then the logs written (only when the loop succeeded).
 ///
-/// With `parallel`, a second thread reads imu_raw.log while this one loads the profile, then
-/// formats the records chunk by chunk while this one runs the loop: the loop is the one part
-/// that cannot be shared, and everything else fits beside it.
+/// With `parallel`, a second thread reads the run's logs while this one loads the profile,
+/// then formats the records chunk by chunk while this one runs the loop: the loop is the one
+/// part that cannot be shared, and most of the rest fits beside it.
 fn replay<'p>(
     run_dir: &Path,
     out_dir: &Path,
@@ -236,51 +213,49 @@ fn replay<'p>(
         return replay_on_two_threads(run_dir, out_dir, profile, on_step);
     }
     let profile = profile()?;
-    let raw = read_raw(run_dir)?;
-    let mut out = Records::new(Texts::for_frames(raw.len()));
-    let summary = closed_loop(run_dir, &profile, &raw, &mut out, on_step)?;
+    let logs = RunLogs::read(run_dir)?;
+    let mut out = Records::new(Texts::for_frames(logs.raw.len()));
+    let summary = closed_loop(run_dir, &profile, logs, &mut out, on_step)?;
     write_logs(summary, &out.finish(), out_dir)
 }
 
-/// [`replay`] with a second thread that reads imu_raw.log and then formats the records.
+/// [`replay`] with a second thread that reads the run's logs and then formats the records.
 fn replay_on_two_threads<'p>(
     run_dir: &Path,
     out_dir: &Path,
     profile: impl FnOnce() -> anyhow::Result<Cow<'p, Profile>>,
     on_step: impl FnMut(&Ekf),
 ) -> anyhow::Result<ReplaySummary> {
-    let (raw_tx, raw_rx) = mpsc::sync_channel(1);
+    let (logs_tx, logs_rx) = mpsc::sync_channel(1);
     let (full_tx, full_rx) = mpsc::channel();
     let (spare_tx, spare_rx) = mpsc::channel();
     let (texts_tx, texts_rx) = mpsc::sync_channel(1);
     std::thread::scope(|scope| {
         scope.spawn(move || {
-            let raw = read_raw(run_dir);
-            let frames = raw.as_ref().map_or(0, Vec::len);
+            let logs = RunLogs::read(run_dir);
+            let frames = logs.as_ref().map_or(0, |l| l.raw.len());
             // Neither send blocks (room for one); the loop may have failed and gone already.
-            let _ = raw_tx.send(raw);
+            let _ = logs_tx.send(logs);
             let _ = texts_tx.send(replay_output::format_chunks(full_rx, spare_tx, frames));
         });
         // Whatever ends the loop drops the chunks' sender, which ends the formatter's input.
         let summary = (move || -> anyhow::Result<ReplaySummary> {
             let profile = profile()?;
-            let raw = raw_rx
-                .recv()
-                .unwrap_or_else(|_| Err(anyhow::anyhow!("the log reader thread panicked")))?;
+            let logs = replay_output::next_polling(&logs_rx)
+                .unwrap_or_else(|| Err(anyhow::anyhow!("the log reader thread panicked")))?;
             let sink = ToFormatter {
                 full: full_tx,
                 spare: spare_rx,
             };
             let mut out = Records::new(sink);
-            let summary = closed_loop(run_dir, &profile, &raw, &mut out, on_step)?;
+            let summary = closed_loop(run_dir, &profile, logs, &mut out, on_step)?;
             drop(out.finish());
             Ok(summary)
         })()?;
         // The texts come as soon as they are formatted; the thread's own end overlaps the
         // writing.
-        let texts = texts_rx
-            .recv()
-            .map_err(|_| anyhow::anyhow!("the log formatter thread panicked"))?;
+        let texts = replay_output::next_polling(&texts_rx)
+            .ok_or_else(|| anyhow::anyhow!("the log formatter thread panicked"))?;
         write_logs(summary, &texts, out_dir)
     })
 }
@@ -301,17 +276,23 @@ fn write_logs(
 fn closed_loop(
     run_dir: &Path,
     profile: &Profile,
-    raw: &[ImuRawRecord],
+    logs: RunLogs,
     out: &mut Records<impl ChunkSink>,
     mut on_step: impl FnMut(&Ekf),
 ) -> anyhow::Result<ReplaySummary> {
+    logs.report_cut_off();
     let with_mission = with_kept_mission(run_dir, profile)?;
     let profile = with_mission.as_ref().unwrap_or(profile);
-    let (mut estimator, mut controller) = sides(run_dir, profile)?;
+    let gps = gps_source(profile, logs.gps, logs.gps_local)?;
+    // The original's imu_raw.log holds no settling frames (spec 1.6): start with calibration.
+    let mut estimator = EstimatorSide::new(profile.estimator_core(true), gps, profile.commander())
+        .with_clock(logs.clock);
+    let mut controller = ControllerSide::new(profile.controller_core());
+    let raw = logs.raw;
     let mut feedback = controller.first_feedback();
     let (inputs, halt) = recorded_inputs(run_dir, profile)?;
     let mut inputs = inputs.into_iter().peekable();
-    for rec in raw {
+    for rec in &raw {
         let times = FrameTimes {
             t_main_us: rec.t_main_us,
             t_frame_us: rec.t_frame_us,
@@ -345,22 +326,6 @@ fn closed_loop(
     summarize(run_dir, profile, raw.len(), &estimator, &controller)
 }
 
-/// The estimator and controller sides of a replay: the run's recorded clock and GPS.
-fn sides(run_dir: &Path, profile: &Profile) -> anyhow::Result<(EstimatorSide, ControllerSide)> {
-    let (recorded_times, cmd_times, ctrl_times, recorded_gps) = read_clock_and_gps(run_dir)?;
-    let local_positions = std::fs::read_to_string(run_dir.join("gps.log"))
-        .is_ok_and(|t| t.starts_with(logs::UQUAD_GPS_HEADER));
-    let gps = gps_source(profile, recorded_gps, local_positions)?;
-    // The original's imu_raw.log holds no settling frames (spec 1.6): start with calibration.
-    let estimator = EstimatorSide::new(profile.estimator_core(true), gps, profile.commander())
-        .with_clock(RecordedClock {
-            kalman_us: recorded_times,
-            ctrl_us: ctrl_times,
-            cmd_us: cmd_times,
-        });
-    Ok((estimator, ControllerSide::new(profile.controller_core())))
-}
-
 /// The replay's counts, or why it ran no Kalman step.
 fn summarize(
     run_dir: &Path,
@@ -389,33 +354,6 @@ fn summarize(
         outputs: Vec::new(),
     })
 }
-
-/// The run's imu_raw.log, which a replay needs.
-fn read_raw(run_dir: &Path) -> anyhow::Result<Vec<ImuRawRecord>> {
-    read_log(run_dir, "imu_raw.log", ImuRawRecord::parse_fields)?
-        .with_context(|| format!("{} has no imu_raw.log", run_dir.display()))
-}
-
-/// The run's recorded clock and fixes: the step times of kalman_in.log, w.log and int.log
-/// (only their time columns are read) and gps.log's records; empty or `None` when missing.
-fn read_clock_and_gps(run_dir: &Path) -> anyhow::Result<ClockAndGps> {
-    let times = |name| read_log_times(run_dir, name, 1, logs::parse_time_column);
-    Ok((
-        read_log_times(run_dir, "kalman_in.log", 2, logs::parse_time_column_pair)?
-            .unwrap_or_default(),
-        times("w.log")?.unwrap_or_default(),
-        times("int.log")?.unwrap_or_default(),
-        read_log(run_dir, "gps.log", GpsLogRecord::parse_fields)?,
-    ))
-}
-
-/// kalman_in.log's (time, dt) pairs, the times of w.log and int.log, gps.log's records.
-type ClockAndGps = (
-    Vec<(i64, i64)>,
-    Vec<i64>,
-    Vec<i64>,
-    Option<Vec<GpsLogRecord>>,
-);
 
 /// The operator's inputs of a run (its mode.log) and its halt, if the watchdog halted it;
 /// none for runs without a mode.log (the 2012 flights, which started flying).

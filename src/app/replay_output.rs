@@ -153,13 +153,31 @@ fn write_text(path: &Path, text: &str) -> std::io::Result<()> {
 /// until `full` closes: the text of every log, for `frames` frames.
 pub fn format_chunks(full: Receiver<Chunk>, spare: Sender<Chunk>, frames: usize) -> Texts {
     let mut texts = Texts::for_frames(frames);
-    for mut chunk in full {
+    while let Some(mut chunk) = next_polling(&full) {
         texts.append(&chunk);
         chunk.clear();
         // The loop may have ended already; then the chunk is simply dropped.
         let _ = spare.send(chunk);
     }
     texts
+}
+
+/// The next message of `rx` (`None` once its sender is gone), polled for about a millisecond
+/// before sleeping: a replay's two threads wait on each other some fifteen times, and waking
+/// a sleeping thread costs tens of microseconds on a virtual machine, several times what the
+/// wait itself usually is. Only for the replay's own two threads, each on a CPU of its own.
+pub fn next_polling<T>(rx: &Receiver<T>) -> Option<T> {
+    use std::sync::mpsc::TryRecvError;
+    // An empty poll takes 10-20 ns.
+    const POLLS: usize = 100_000;
+    for _ in 0..POLLS {
+        match rx.try_recv() {
+            Ok(v) => return Some(v),
+            Err(TryRecvError::Disconnected) => return None,
+            Err(TryRecvError::Empty) => std::hint::spin_loop(),
+        }
+    }
+    rx.recv().ok()
 }
 
 /// Where a full chunk goes: formatted here (a [`Texts`]) or to a formatter thread.
