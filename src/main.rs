@@ -827,9 +827,13 @@ impl ReplayArgs {
             gated_gps = summary.ekf_gated.gps,
             "replay finished"
         );
-        for o in &summary.outputs {
-            println!("{}", o.display());
-        }
+        // One write for all the paths (a line at a time would be a write each).
+        let paths: String = summary
+            .outputs
+            .iter()
+            .map(|o| format!("{}\n", o.display()))
+            .collect();
+        print!("{paths}");
         Ok(ExitCode::SUCCESS)
     }
 }

@@ -231,15 +231,14 @@ fn replay_on_two_threads<'p>(
     let (spare_tx, spare_rx) = mpsc::channel();
     let (texts_tx, texts_rx) = mpsc::sync_channel(1);
     std::thread::scope(|scope| {
-        scope.spawn(move || {
+        let helper = scope.spawn(move || {
             let logs = RunLogs::read(run_dir);
             let frames = logs.as_ref().map_or(0, |l| l.raw.len());
             // Neither send blocks (room for one); the loop may have failed and gone already.
             let _ = logs_tx.send(logs);
             let _ = texts_tx.send(replay_output::format_chunks(full_rx, spare_tx, frames));
         });
-        // Whatever ends the loop drops the chunks' sender, which ends the formatter's input.
-        let summary = (move || -> anyhow::Result<ReplaySummary> {
+        let replayed = (move || -> anyhow::Result<ReplaySummary> {
             let profile = profile()?;
             let logs = replay_output::next_polling(&logs_rx)
                 .unwrap_or_else(|| Err(anyhow::anyhow!("the log reader thread panicked")))?;
@@ -249,14 +248,19 @@ fn replay_on_two_threads<'p>(
             };
             let mut out = Records::new(sink);
             let summary = closed_loop(run_dir, &profile, logs, &mut out, on_step)?;
+            // Dropping the sink ends the formatter's input; the texts come as soon as they
+            // are formatted, and the thread's own end overlaps the writing.
             drop(out.finish());
-            Ok(summary)
-        })()?;
-        // The texts come as soon as they are formatted; the thread's own end overlaps the
-        // writing.
-        let texts = replay_output::next_polling(&texts_rx)
-            .ok_or_else(|| anyhow::anyhow!("the log formatter thread panicked"))?;
-        write_logs(summary, &texts, out_dir)
+            let texts = replay_output::next_polling(&texts_rx)
+                .ok_or_else(|| anyhow::anyhow!("the log formatter thread panicked"))?;
+            write_logs(summary, &texts, out_dir)
+        })();
+        // Whatever ended the loop dropped the chunks' sender, so the thread is done or ending;
+        // joined here, a panic in it is an error, not a panic of the scope.
+        helper
+            .join()
+            .map_err(|_| anyhow::anyhow!("the replay's reader and formatter thread panicked"))?;
+        replayed
     })
 }
 

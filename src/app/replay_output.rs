@@ -14,8 +14,11 @@ use std::sync::mpsc::{Receiver, Sender};
 /// enough that the formatter is not woken for every step.
 const CHUNK_FRAMES: usize = 128;
 
+/// A chunk's room: it is handed on between frames, so one stream may hold a record more than
+/// the stream it is counted by.
+const CHUNK_ROOM: usize = CHUNK_FRAMES + 1;
+
 /// The records of some consecutive frames, each stream in order.
-#[derive(Default)]
 pub struct Chunk {
     kalman_in: Vec<KalmanInRecord>,
     x_hat: Vec<[f64; 15]>,
@@ -30,6 +33,7 @@ pub struct Chunk {
 }
 
 impl Chunk {
+    /// Room for `frames` records in each stream, so that a chunk never grows once made.
     fn with_capacity(frames: usize) -> Self {
         Chunk {
             kalman_in: Vec::with_capacity(frames),
@@ -205,8 +209,8 @@ impl ChunkSink for ToFormatter {
         let next = self
             .spare
             .try_recv()
-            .unwrap_or_else(|_| Chunk::with_capacity(CHUNK_FRAMES + 1));
-        // A formatter that is gone has panicked; its join after the loop reports it.
+            .unwrap_or_else(|_| Chunk::with_capacity(CHUNK_ROOM));
+        // A formatter that is gone has panicked; the replay reports it after the loop.
         let _ = self.full.send(std::mem::replace(chunk, next));
     }
 }
@@ -221,7 +225,7 @@ pub struct Records<S> {
 impl<S: ChunkSink> Records<S> {
     pub fn new(sink: S) -> Self {
         Records {
-            chunk: Chunk::with_capacity(CHUNK_FRAMES + 1),
+            chunk: Chunk::with_capacity(CHUNK_ROOM),
             sink,
         }
     }

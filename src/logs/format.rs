@@ -102,16 +102,17 @@ pub fn parse_time_us(s: &str) -> Option<i64> {
         Some((b'-', rest)) => (true, rest),
         _ => (false, bytes),
     };
-    let (whole, frac) = match body.iter().position(|&c| c == b'.') {
-        Some(dot) => (&body[..dot], &body[dot + 1..]),
-        None => (body, &[][..]),
-    };
-    if whole.is_empty() && frac.is_empty() {
-        return None;
-    }
+    // One pass over the seconds' digits, up to the point.
     let mut secs: i64 = 0;
-    for &c in whole {
+    let mut i = 0;
+    while let Some(&c) = body.get(i).filter(|&&c| c != b'.') {
         secs = secs.checked_mul(10)?.checked_add(digit(c)?)?;
+        i += 1;
+    }
+    let whole_digits = i;
+    let frac = body.get(i + 1..).unwrap_or(&[]);
+    if whole_digits == 0 && frac.is_empty() {
+        return None;
     }
     let mut micros: i64 = 0;
     for k in 0..6 {
@@ -561,6 +562,80 @@ mod tests {
         assert_eq!(parse_time_us(""), None);
         assert_eq!(fmt_time_us(12_126_526), "12.126526");
         assert_eq!(fmt_time_us(5), "0.000005");
+    }
+
+    /// The plain reading: every character a digit but one point, checked arithmetic.
+    fn reference_time_us(s: &str) -> Option<i64> {
+        let bytes = s.as_bytes();
+        let (neg, body) = match bytes.split_first() {
+            Some((b'-', rest)) => (true, rest),
+            _ => (false, bytes),
+        };
+        let (whole, frac) = match body.iter().position(|&c| c == b'.') {
+            Some(dot) => (&body[..dot], &body[dot + 1..]),
+            None => (body, &[][..]),
+        };
+        if whole.is_empty() && frac.is_empty() {
+            return None;
+        }
+        let mut secs: i64 = 0;
+        for &c in whole {
+            secs = secs.checked_mul(10)?.checked_add(digit(c)?)?;
+        }
+        let mut micros: i64 = 0;
+        for k in 0..6 {
+            micros = micros * 10 + frac.get(k).map_or(Some(0), |&c| digit(c))?;
+        }
+        match frac.get(6..) {
+            Some(rest) if !rest.iter().all(u8::is_ascii_digit) => return None,
+            Some([round, ..]) if *round >= b'5' => micros += 1,
+            _ => {}
+        }
+        let t = secs.checked_mul(1_000_000)?.checked_add(micros)?;
+        Some(if neg { -t } else { t })
+    }
+
+    #[test]
+    fn times_parse_as_the_plain_reading_does() {
+        let mut cases: Vec<String> = [
+            "",
+            ".",
+            "-",
+            "-.",
+            "0",
+            "1.",
+            ".5",
+            "-0.0000005",
+            "12.126526",
+            "1.2e3",
+            "1..2",
+            "999999999999.999999",
+            "999999999999.9999995",
+            "1000000000000",
+            "1 2",
+            "+1",
+            "1327662538.476410",
+            "9223372036854.775807",
+            "00000000000000001.5",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        let mut x = 0x1234_5678u64;
+        let alphabet = b"0123456789.-e ";
+        for _ in 0..50_000 {
+            let mut t = String::new();
+            for _ in 0..(x % 22) {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                t.push(char::from(alphabet[(x % alphabet.len() as u64) as usize]));
+            }
+            cases.push(t);
+        }
+        for t in cases {
+            assert_eq!(parse_time_us(&t), reference_time_us(&t), "{t:?}");
+        }
     }
 
     #[test]
