@@ -813,9 +813,13 @@ impl ReplayArgs {
             ))
             .into());
         }
-        // The profile is loaded while a second thread reads the run's IMU log.
+        // The profile is loaded while a second thread reads the run's logs; a profile refused
+        // is said as it is (exit status 2), not as a replay that failed.
         let summary = uquad::app::replay::run_loading(run_dir, &self.out, || self.profile(run_dir))
-            .with_context(|| format!("replay of {} failed", run_dir.display()))?;
+            .map_err(|e| match e.is::<Refused>() {
+                true => e,
+                false => e.context(format!("replay of {} failed", run_dir.display())),
+            })?;
         tracing::info!(
             raw_frames = summary.raw_frames,
             kalman_steps = summary.kalman_steps,

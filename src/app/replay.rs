@@ -231,13 +231,14 @@ fn replay_on_two_threads<'p>(
     let (spare_tx, spare_rx) = mpsc::channel();
     let (texts_tx, texts_rx) = mpsc::sync_channel(1);
     std::thread::scope(|scope| {
-        let helper = scope.spawn(move || {
+        let helper = std::thread::Builder::new().spawn_scoped(scope, move || {
             let logs = RunLogs::read(run_dir);
             let frames = logs.as_ref().map_or(0, |l| l.raw.len());
             // Neither send blocks (room for one); the loop may have failed and gone already.
             let _ = logs_tx.send(logs);
             let _ = texts_tx.send(replay_output::format_chunks(full_rx, spare_tx, frames));
         });
+        let helper = helper.context("cannot start the replay's reader and formatter thread")?;
         let replayed = (move || -> anyhow::Result<ReplaySummary> {
             let profile = profile()?;
             let logs = replay_output::next_polling(&logs_rx)

@@ -1,7 +1,7 @@
 //! The logs a replay writes: its records gathered in chunks during the loop, formatted as the
 //! chunks fill (on a second thread when the replay has one, so that printing some fifty
 //! thousand numbers overlaps the closed loop instead of following it), and written only once
-//! the replay has succeeded (a failed replay leaves an earlier replay's logs as they were).
+//! the loop has succeeded (a failed loop leaves an earlier replay's logs as they were).
 
 use crate::core::flight::{FlightRecord, Outputs};
 use crate::core::watchdog::Event;
@@ -149,7 +149,12 @@ fn write_text(path: &Path, text: &str) -> std::io::Result<()> {
         .create(true)
         .truncate(false)
         .open(path)?;
-    file.write_all(text.as_bytes())?;
+    if let Err(e) = file.write_all(text.as_bytes()) {
+        // Emptied rather than left as the new text followed by the old one's tail, which
+        // could pass for a log.
+        let _ = file.set_len(0);
+        return Err(e);
+    }
     file.set_len(text.len() as u64)
 }
 

@@ -564,7 +564,8 @@ mod tests {
         assert_eq!(fmt_time_us(5), "0.000005");
     }
 
-    /// The plain reading: every character a digit but one point, checked arithmetic.
+    /// The plain reading, as times were parsed before the one-pass version: every character
+    /// a digit but one point, checked arithmetic.
     fn reference_time_us(s: &str) -> Option<i64> {
         let bytes = s.as_bytes();
         let (neg, body) = match bytes.split_first() {
@@ -578,18 +579,19 @@ mod tests {
         if whole.is_empty() && frac.is_empty() {
             return None;
         }
+        if !whole.iter().chain(frac).all(u8::is_ascii_digit) {
+            return None;
+        }
         let mut secs: i64 = 0;
         for &c in whole {
-            secs = secs.checked_mul(10)?.checked_add(digit(c)?)?;
+            secs = secs.checked_mul(10)?.checked_add(i64::from(c - b'0'))?;
         }
         let mut micros: i64 = 0;
         for k in 0..6 {
-            micros = micros * 10 + frac.get(k).map_or(Some(0), |&c| digit(c))?;
+            micros = micros * 10 + frac.get(k).map_or(0, |&c| i64::from(c - b'0'));
         }
-        match frac.get(6..) {
-            Some(rest) if !rest.iter().all(u8::is_ascii_digit) => return None,
-            Some([round, ..]) if *round >= b'5' => micros += 1,
-            _ => {}
+        if frac.get(6).is_some_and(|&c| c >= b'5') {
+            micros += 1;
         }
         let t = secs.checked_mul(1_000_000)?.checked_add(micros)?;
         Some(if neg { -t } else { t })

@@ -1,7 +1,7 @@
 //! Exact, fast printing of the logs' numbers: `%.Nf` decimals, the original's `%ld.%06ld`
-//! times and plain integers. Logs print tens of thousands of numbers per run and the generic
-//! formatter dominated replay time; these print through a stack buffer, two digits at a time,
-//! copied into the line once.
+//! times, plain integers and the shortest `{:e}` form of innov.log's ratios. Logs print tens
+//! of thousands of numbers per run and the generic formatter dominated replay time; these
+//! print through a stack buffer (decimals eight digits at a time), copied into the line once.
 
 use std::fmt::Write as _;
 
@@ -74,7 +74,8 @@ fn push_parts(out: &mut String, negative: bool, int_part: u64, frac: u64, decima
         // The sixteen digits of `frac`, of which the last `decimals` are printed.
         buf[BUF_LEN - 8..].copy_from_slice(&eight_digits((frac % 100_000_000) as u32));
         if decimals > 8 {
-            let high = eight_digits((frac / 100_000_000) as u32);
+            // `% 10⁸` keeps eight_digits' range (and its ASCII) whatever the caller passed.
+            let high = eight_digits(((frac / 100_000_000) % 100_000_000) as u32);
             buf[BUF_LEN - 16..BUF_LEN - 8].copy_from_slice(&high);
         }
         pos -= decimals + 1;
@@ -105,34 +106,10 @@ pub fn push_shortest_exp(out: &mut String, v: f64) {
         out.push_str("0e0");
         return;
     }
-    let mut buffer = zmij::Buffer::new();
-    let printed = buffer.format_finite(v.abs()).as_bytes();
-    let (mantissa, exp) = match printed.iter().rposition(|&b| b == b'e') {
-        Some(e) => (&printed[..e], parse_exp(&printed[e + 1..])),
-        None => (printed, 0),
-    };
-    let (whole, fraction) = match mantissa.iter().position(|&b| b == b'.') {
-        Some(p) => (&mantissa[..p], &mantissa[p + 1..]),
-        None => (mantissa, &[][..]),
-    };
-    // The significant digits, and the power of ten of the first.
-    let mut digits = [0u8; 40];
-    let (len, sci_exp) = if whole == b"0" {
-        let zeros = fraction.iter().take_while(|&&b| b == b'0').count();
-        let significant = &fraction[zeros..];
-        digits[..significant.len()].copy_from_slice(significant);
-        (significant.len(), exp - 1 - zeros as i32)
-    } else {
-        digits[..whole.len()].copy_from_slice(whole);
-        digits[whole.len()..whole.len() + fraction.len()].copy_from_slice(fraction);
-        (whole.len() + fraction.len(), exp + whole.len() as i32 - 1)
-    };
-    let len = digits[..len]
-        .iter()
-        .rposition(|&b| b != b'0')
-        .map_or(1, |k| k + 1);
+    let mut digits = [0u8; DIGITS_LEN];
+    let (len, sci_exp) = shortest_digits(v.abs(), &mut digits);
     // d.ddd then e and the exponent, laid out in one buffer and copied once.
-    let mut text = [0u8; 48];
+    let mut text = [0u8; DIGITS_LEN + 2];
     text[0] = digits[0];
     let mut end = 1;
     if len > 1 {
@@ -144,6 +121,42 @@ pub fn push_shortest_exp(out: &mut String, v: f64) {
     // SAFETY: zmij prints ASCII digits only, so the String stays UTF-8.
     unsafe { out.as_mut_vec() }.extend_from_slice(&text[..end + 1]);
     push_parts(out, sci_exp < 0, u64::from(sci_exp.unsigned_abs()), 0, 0);
+}
+
+/// Room for a shortest form's significant digits (zmij prints at most 17, in at most 24 bytes).
+const DIGITS_LEN: usize = 40;
+
+/// The shortest significant digits of `a` > 0 (finite) into `digits`, without trailing zeros:
+/// how many, and the power of ten of the first. zmij lays them out in fixed or exponent
+/// notation by magnitude ("0.001234", "12.34", "1.234e33"); read back from either.
+fn shortest_digits(a: f64, digits: &mut [u8; DIGITS_LEN]) -> (usize, i32) {
+    let mut buffer = zmij::Buffer::new();
+    let printed = buffer.format_finite(a).as_bytes();
+    let (mantissa, exp) = match printed.iter().rposition(|&b| b == b'e') {
+        Some(e) => (&printed[..e], parse_exp(&printed[e + 1..])),
+        None => (printed, 0),
+    };
+    let (whole, fraction) = match mantissa.iter().position(|&b| b == b'.') {
+        Some(p) => (&mantissa[..p], &mantissa[p + 1..]),
+        None => (mantissa, &[][..]),
+    };
+    let (significant, sci_exp): (&[u8], i32) = if whole == b"0" {
+        let zeros = fraction.iter().take_while(|&&b| b == b'0').count();
+        (&fraction[zeros..], exp - 1 - zeros as i32)
+    } else {
+        (whole, exp + whole.len() as i32 - 1)
+    };
+    let mut len = 0;
+    let rest = if whole == b"0" { &[][..] } else { fraction };
+    for (d, &b) in digits.iter_mut().zip(significant.iter().chain(rest)) {
+        *d = b;
+        len += 1;
+    }
+    let len = digits[..len]
+        .iter()
+        .rposition(|&b| b != b'0')
+        .map_or(1, |k| k + 1);
+    (len, sci_exp)
 }
 
 /// Whether the shortest digits of `a` ≥ 0 could be a choice between two equally short and
@@ -312,6 +325,11 @@ mod tests {
             // Few significant bits: where ties live.
             values.push((x >> 40) as f64 * 2f64.powi((x % 64) as i32 - 40));
         }
+        // Every power of two: uneven rounding intervals, rarely drawn at random.
+        values.extend((-1074..=1023i64).map(|k| match k {
+            -1022.. => f64::from_bits(((k + 1023) as u64) << 52),
+            _ => f64::from_bits(1 << (k + 1074)),
+        }));
         for v in values.into_iter().filter(|v| !v.is_nan()) {
             let mut ours = String::new();
             push_shortest_exp(&mut ours, v);

@@ -79,7 +79,16 @@ pub async fn run(mut link: Link, ctx: GcsContext) {
         tokio::select! {
             biased;
             _ = cancel.cancelled() => break,
-            _ = tick.tick() => g.timed(|g| g.on_tick(&mut link)),
+            _ = tick.tick() => g.timed(|g| {
+                // The notices already sent first: the tick reads the flight's newest step,
+                // and a step's notices (the last item reached, at touchdown) are sent before
+                // the step is published; read after, a finished mission would show as not
+                // started for a tick.
+                while let Ok(n) = notices.try_recv() {
+                    g.on_notice(n, &mut link);
+                }
+                g.on_tick(&mut link)
+            }),
             Some(n) = notices.recv() => g.timed(|g| g.on_notice(n, &mut link)),
             Some(d) = designed.recv() => g.timed(|g| g.on_designed(d, &mut link)),
             r = link.recv(&mut buf) => match r {
