@@ -15,7 +15,7 @@
 //! and written once at the end (no sync per record).
 //! Replay is deterministic: the same inputs give byte-identical outputs.
 
-use crate::app::replay_input::RunLogs;
+use crate::app::replay_input::{ControlTimes, RunLogs};
 use crate::app::replay_output::{self, ChunkSink, Records, Texts, ToFormatter};
 use crate::config::{GpsMode, Profile};
 use crate::core::ekf::Ekf;
@@ -199,9 +199,10 @@ pub fn run_observed(
 
 /// The whole replay: the closed loop, then the logs written (only when the loop succeeded).
 ///
-/// With `parallel`, a second thread reads the run's logs while this one loads the profile,
-/// then formats the records chunk by chunk while this one runs the loop: the loop is the one
-/// part that cannot be shared, and most of the rest fits beside it.
+/// With `parallel`, a second thread reads the run's IMU-side logs while this one loads the
+/// profile and reads the control side's times (about even shares), then formats the records
+/// chunk by chunk while this one runs the loop: the loop is the one part that cannot be
+/// shared, and most of the rest fits beside it.
 fn replay<'p>(
     run_dir: &Path,
     out_dir: &Path,
@@ -232,7 +233,7 @@ fn replay_on_two_threads<'p>(
     let (texts_tx, texts_rx) = mpsc::sync_channel(1);
     std::thread::scope(|scope| {
         let helper = std::thread::Builder::new().spawn_scoped(scope, move || {
-            let logs = RunLogs::read(run_dir);
+            let logs = RunLogs::read_imu_side(run_dir);
             let frames = logs.as_ref().map_or(0, |l| l.raw.len());
             // Neither send blocks (room for one); the loop may have failed and gone already.
             let _ = logs_tx.send(logs);
@@ -241,8 +242,10 @@ fn replay_on_two_threads<'p>(
         let helper = helper.context("cannot start the replay's reader and formatter thread")?;
         let replayed = (move || -> anyhow::Result<ReplaySummary> {
             let profile = profile()?;
-            let logs = replay_output::next_polling(&logs_rx)
+            let control_times = ControlTimes::read(run_dir)?;
+            let mut logs = replay_output::next_polling(&logs_rx)
                 .unwrap_or_else(|| Err(anyhow::anyhow!("the log reader thread panicked")))?;
+            logs.add(control_times);
             let sink = ToFormatter {
                 full: full_tx,
                 spare: spare_rx,

@@ -23,12 +23,20 @@ pub struct RunLogs {
 impl RunLogs {
     /// Reads `run_dir`'s logs; imu_raw.log must be there.
     pub fn read(run_dir: &Path) -> anyhow::Result<RunLogs> {
+        let mut logs = RunLogs::read_imu_side(run_dir)?;
+        logs.add(ControlTimes::read(run_dir)?);
+        Ok(logs)
+    }
+
+    /// imu_raw.log (which must be there), kalman_in.log's times and gps.log: all but the
+    /// control side's times ([`ControlTimes`]), which a replay's two threads share out.
+    pub fn read_imu_side(run_dir: &Path) -> anyhow::Result<RunLogs> {
         let mut cut_off = Vec::new();
         let raw = read_log(run_dir, "imu_raw.log", usize::MAX, &mut cut_off, |f| {
             ImuRawRecord::parse_fields(f)
         })?
         .with_context(|| format!("{} has no imu_raw.log", run_dir.display()))?;
-        // Only the time columns of these are read: the rest of a line is not looked at.
+        // Only the time columns are read: the rest of a line is not looked at.
         let kalman_us = read_log(
             run_dir,
             "kalman_in.log",
@@ -36,8 +44,6 @@ impl RunLogs {
             &mut cut_off,
             logs::parse_time_column_pair,
         )?;
-        let mut times = |name| read_log(run_dir, name, 1, &mut cut_off, logs::parse_time_column);
-        let (cmd_us, ctrl_us) = (times("w.log")?, times("int.log")?);
         let gps_text = read_text(run_dir, "gps.log")?;
         let gps_local = gps_text
             .as_ref()
@@ -52,8 +58,8 @@ impl RunLogs {
             raw,
             clock: RecordedClock {
                 kalman_us: kalman_us.unwrap_or_default(),
-                ctrl_us: ctrl_us.unwrap_or_default(),
-                cmd_us: cmd_us.unwrap_or_default(),
+                ctrl_us: Vec::new(),
+                cmd_us: Vec::new(),
             },
             gps,
             gps_local,
@@ -61,11 +67,40 @@ impl RunLogs {
         })
     }
 
+    /// The control side's times, read apart.
+    pub fn add(&mut self, times: ControlTimes) {
+        self.clock.cmd_us = times.cmd_us;
+        self.clock.ctrl_us = times.ctrl_us;
+        self.cut_off.extend(times.cut_off);
+    }
+
     /// Logs a warning for each cut-off last line that was dropped.
     pub fn report_cut_off(&self) {
         for (path, why) in &self.cut_off {
             tracing::warn!(file = %path.display(), "dropped a cut-off last record: {why}");
         }
+    }
+}
+
+/// The recorded times of the control side: w.log's (motor commands) and int.log's (control
+/// steps); empty where the run has no such log.
+pub struct ControlTimes {
+    cmd_us: Vec<i64>,
+    ctrl_us: Vec<i64>,
+    cut_off: Vec<(PathBuf, LineError)>,
+}
+
+impl ControlTimes {
+    /// Reads them from `run_dir` (only the time column of each line).
+    pub fn read(run_dir: &Path) -> anyhow::Result<ControlTimes> {
+        let mut cut_off = Vec::new();
+        let mut times = |name| read_log(run_dir, name, 1, &mut cut_off, logs::parse_time_column);
+        let (cmd_us, ctrl_us) = (times("w.log")?, times("int.log")?);
+        Ok(ControlTimes {
+            cmd_us: cmd_us.unwrap_or_default(),
+            ctrl_us: ctrl_us.unwrap_or_default(),
+            cut_off,
+        })
     }
 }
 
