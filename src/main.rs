@@ -816,9 +816,12 @@ impl ReplayArgs {
         // The profile is loaded while a second thread reads the run's logs; a profile refused
         // is said as it is (exit status 2), not as a replay that failed.
         let summary = uquad::app::replay::run_loading(run_dir, &self.out, || self.profile(run_dir))
-            .map_err(|e| match e.is::<Refused>() {
-                true => e,
-                false => e.context(format!("replay of {} failed", run_dir.display())),
+            .map_err(|e| {
+                if e.is::<Refused>() {
+                    e
+                } else {
+                    e.context(format!("replay of {} failed", run_dir.display()))
+                }
             })?;
         tracing::info!(
             raw_frames = summary.raw_frames,

@@ -196,6 +196,7 @@ fn parse_exp(text: &[u8]) -> i32 {
     };
     let magnitude = digits
         .iter()
+        .filter(|d| d.is_ascii_digit())
         .fold(0i32, |e, &d| e * 10 + i32::from(d - b'0'));
     if negative { -magnitude } else { magnitude }
 }
