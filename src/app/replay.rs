@@ -170,13 +170,7 @@ pub fn run_on_this_thread(
     profile: &Profile,
     out_dir: &Path,
 ) -> anyhow::Result<ReplaySummary> {
-    replay(
-        run_dir,
-        out_dir,
-        false,
-        || Ok(Cow::Borrowed(profile)),
-        |_| {},
-    )
+    run_observed(run_dir, profile, out_dir, false, |_| {})
 }
 
 /// [`run`], calling `on_step` with the filter after every Kalman step (for checks and tools);

@@ -168,14 +168,7 @@ fn may_tie(a: f64) -> bool {
     if a >= 4_503_599_627_370_496.0 {
         return true;
     }
-    let bits = a.to_bits();
-    let biased_exp = ((bits >> 52) & 0x7ff) as i32;
-    let fraction = bits & ((1u64 << 52) - 1);
-    let (mantissa, exp) = if biased_exp == 0 {
-        (fraction, -1074)
-    } else {
-        (fraction | (1u64 << 52), biased_exp - 1075)
-    };
+    let (mantissa, exp) = binary_parts(a);
     if mantissa == 0 {
         return false;
     }
@@ -185,6 +178,18 @@ fn may_tie(a: f64) -> bool {
     k > 0
         && k <= 26
         && u128::from(mantissa >> zeros) * 5u128.pow(k as u32) < 1_000_000_000_000_000_000
+}
+
+/// A finite `v` ≥ 0 as mantissa · 2^exp, exactly (subnormals included).
+fn binary_parts(v: f64) -> (u64, i32) {
+    let bits = v.to_bits();
+    let biased_exp = ((bits >> 52) & 0x7ff) as i32;
+    let fraction = bits & ((1u64 << 52) - 1);
+    if biased_exp == 0 {
+        (fraction, -1074)
+    } else {
+        (fraction | (1u64 << 52), biased_exp - 1075)
+    }
 }
 
 /// A printed exponent: optional sign and digits.
@@ -247,14 +252,7 @@ pub fn push_fixed(out: &mut String, v: f64, decimals: u32) {
 /// exp < 0, and mantissa·pow10 < 2¹⁰³ fits in u128. On a tie the parity is the last printed
 /// digit's: `int_odd` (the integer part's) when no decimals are printed.
 fn round_scaled(frac: f64, pow10: u64, int_odd: bool) -> u64 {
-    let bits = frac.to_bits();
-    let biased_exp = ((bits >> 52) & 0x7ff) as i32;
-    let fraction = bits & ((1u64 << 52) - 1);
-    let (mantissa, exp) = if biased_exp == 0 {
-        (fraction, -1074)
-    } else {
-        (fraction | (1u64 << 52), biased_exp - 1075)
-    };
+    let (mantissa, exp) = binary_parts(frac);
     let scaled = u128::from(mantissa) * u128::from(pow10);
     let shift = exp.unsigned_abs();
     if shift >= 120 {
