@@ -296,6 +296,7 @@ pub fn command(line: &str, filter: &mut Filter, operator: &mpsc::Sender<Operator
             OperatorInput::Key(k) => format!("{k:?}"),
             OperatorInput::Command(c, _) => c.to_string(),
             OperatorInput::Beat(_) => "a beat".to_string(),
+            OperatorInput::GpsFix => "a fix".to_string(),
             OperatorInput::Mission(m) => format!("mission {}", m.name),
         };
         reply += &match operator.try_send(input) {

@@ -60,8 +60,12 @@ struct Bench {
 
 impl Bench {
     fn new(ramp_frames: u32) -> Self {
-        // Armed at start: these tests are about the sequence's order, not the commander's.
-        let flying = [uquad::config::parse_set("commander.start=flying").unwrap()];
+        // Armed at start: these tests are about the sequence's order, not the commander's (and
+        // without a receiver, whose silence from arming would disarm on the ground).
+        let flying = [
+            uquad::config::parse_set("commander.start=flying").unwrap(),
+            uquad::config::parse_set("gps.mode=\"fake-zero\"").unwrap(),
+        ];
         let profile = uquad::config::load(&root().join("config/uquad.toml"), &flying).unwrap();
         let (plant, imu) = uquad::sim::vehicle(&profile, 7);
         let (estimator, controller) = uquad::app::flight::live_sides(&profile);
@@ -114,6 +118,10 @@ impl Bench {
                 self.feedback = self.controller.control(&est, send, &mut self.out).feedback;
             }
             FrameAction::Abort(a) => self.aborts.push(a.clone()),
+            FrameAction::StopEscs => {
+                self.esc = EscPhase::Stopped;
+                self.esc_reason = Some("disarmed".into());
+            }
             FrameAction::Wait | FrameAction::Ended => {}
         }
         action

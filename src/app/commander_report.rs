@@ -51,7 +51,11 @@ pub struct CommanderReport {
     pub touchdown: Option<TouchdownEntry>,
     pub takeoff: Option<TakeoffEntry>,
     pub failsafes: Vec<FailsafeEntry>,
+    /// The first refusals (mode.log has every one): `refusals_total` counts them all and
+    /// `refusal_last` is the newest, so a flood of refused commands is summarised, not lost.
     pub refusals: Vec<RefusalEntry>,
+    pub refusals_total: u64,
+    pub refusal_last: Option<RefusalEntry>,
 }
 
 fn secs(t_us: i64) -> f64 {
@@ -73,6 +77,15 @@ impl CommanderSummary {
             }),
             failsafes: Vec::new(),
             refusals: Vec::new(),
+            refusals_total: self.refusals_total,
+            refusal_last: match &self.refusal_last {
+                Some(Event::Refusal { t_us, command, why }) => Some(RefusalEntry {
+                    command: command.clone(),
+                    t_s: secs(*t_us),
+                    why: why.clone(),
+                }),
+                _ => None,
+            },
         };
         for e in &self.events {
             match e {
@@ -123,6 +136,13 @@ impl CommanderSummary {
         }
         for f in &r.refusals {
             s += &format!("\n  refused {} at {:.1} s: {}", f.command, f.t_s, f.why);
+        }
+        let unlisted = r.refusals_total.saturating_sub(r.refusals.len() as u64);
+        if let (true, Some(f)) = (unlisted > 0, &r.refusal_last) {
+            s += &format!(
+                "\n  {unlisted} more refusals (mode.log has them), the last {} at {:.1} s: {}",
+                f.command, f.t_s, f.why
+            );
         }
         s
     }

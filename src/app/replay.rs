@@ -308,7 +308,10 @@ fn closed_loop(
         let sample = match estimator.on_frame(&rec.frame, times, EscState::ABSENT, out) {
             FrameAction::Step(s) => s,
             FrameAction::Abort(why) => bail!("{why}"),
-            FrameAction::Wait | FrameAction::StartEscs | FrameAction::Ended => continue,
+            FrameAction::Wait
+            | FrameAction::StartEscs
+            | FrameAction::StopEscs
+            | FrameAction::Ended => continue,
         };
         let Some(est) = estimator.estimate(sample, times, &feedback, None, out) else {
             continue;

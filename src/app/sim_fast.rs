@@ -256,6 +256,8 @@ impl<'a> FastSim<'a> {
         if self.gps_live && fix.is_some() && !self.faults.active(Fault::GpsLoss, t) {
             self.pending_fix = fix;
             self.newest_fix = fix;
+            // The commander hears of it at the next frame, as `fly`'s estimator task does.
+            self.inputs.push(OperatorInput::GpsFix);
         }
         if self.faults.active(Fault::GpsLoss, t) {
             self.pending_fix = None;
@@ -349,6 +351,9 @@ impl<'a> FastSim<'a> {
             FrameAction::Abort(why) => {
                 self.fly.error = Some(why.to_string());
                 return self.driver.stop("shutdown", self.t_us, &mut self.cycles);
+            }
+            FrameAction::StopEscs => {
+                return self.driver.stop("disarmed", self.t_us, &mut self.cycles);
             }
             FrameAction::Step(sample) => sample,
         };
@@ -490,10 +495,7 @@ impl<'a> FastSim<'a> {
             .zip(self.driver.stop_outcome())
             .map(|(trip, o)| o.halt(trip));
         fly.log_drops = self.out.drops;
-        fly.commander = crate::core::commander::Summary {
-            events: self.estimator.history().to_vec(),
-            figures: self.trace.figures(),
-        };
+        fly.commander = self.estimator.summary(self.trace.figures());
         fly.discarded_bytes = self.decoder.stats().discarded_bytes;
         fly.rejected_frames = self.decoder.stats().rejected_frames;
         for r in fly.closing_records() {

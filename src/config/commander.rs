@@ -26,6 +26,14 @@ pub struct CommanderConfig {
     pub touchdown_s: f64,
     /// Largest horizontal error of the GPS fix for arming (gps.mode = "gpsd"), m.
     pub gps_max_eph_m: f64,
+    /// Armed and started up on the ground with no takeoff for this long → disarmed, s
+    /// (PX4's COM_DISARM_PRFLT).
+    pub disarm_ground_s: f64,
+    /// Tilt beyond this for `crash_s` in any armed mode → halt `crash`, rad.
+    pub crash_tilt_rad: f64,
+    pub crash_s: f64,
+    /// A takeoff that has not left the ground within this → halt `crash`, s.
+    pub takeoff_timeout_s: f64,
 }
 
 impl Default for CommanderConfig {
@@ -41,6 +49,10 @@ impl Default for CommanderConfig {
             touchdown_thrust: 0.8,
             touchdown_s: 1.0,
             gps_max_eph_m: 5.0,
+            disarm_ground_s: 10.0,
+            crash_tilt_rad: 1.0,
+            crash_s: 1.0,
+            takeoff_timeout_s: 15.0,
         }
     }
 }
@@ -124,6 +136,11 @@ impl super::Config {
             fence_action: self.fence.action,
             ekf_bad_s: f.ekf_bad_s,
             ekf_action: f.ekf_action,
+            gps_live: self.gps.mode == super::GpsMode::Gpsd,
+            disarm_ground_s: c.disarm_ground_s,
+            crash_tilt_rad: c.crash_tilt_rad,
+            crash_s: c.crash_s,
+            takeoff_timeout_s: c.takeoff_timeout_s,
             z_min_m: self.control.manual.z_min_m,
             z_max_m: self.control.manual.z_max_m,
             mission: self.mission.limits(),

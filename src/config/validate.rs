@@ -614,7 +614,6 @@ fn commander_rules(c: &Config) -> Vec<Check> {
         ),
         ("commander.land_m_s", m.land_m_s, 3.0, "m/s"),
         ("commander.touchdown_v_m_s", m.touchdown_v_m_s, 1.0, "m/s"),
-        ("commander.touchdown_thrust", m.touchdown_thrust, 1.0, ""),
         ("commander.touchdown_s", m.touchdown_s, 10.0, "s"),
         ("commander.gps_max_eph_m", m.gps_max_eph_m, 100.0, "m"),
     ];
@@ -631,7 +630,109 @@ fn commander_rules(c: &Config) -> Vec<Check> {
         )
         .and(m.land_slow_m_s <= m.land_m_s, "at most commander.land_m_s"),
     );
+    checks.extend([
+        in_range(
+            "commander.disarm_ground_s",
+            m.disarm_ground_s,
+            positive_to(600.0),
+            "s",
+        ),
+        in_range(
+            "commander.crash_tilt_rad",
+            m.crash_tilt_rad,
+            0.3..=std::f64::consts::PI,
+            "rad",
+        ),
+        in_range("commander.crash_s", m.crash_s, positive_to(10.0), "s"),
+        takeoff_timeout_rule(c),
+        touchdown_thrust_rule(c),
+        flight_time_rule(c),
+    ]);
     checks
+}
+
+/// A landing or a takeoff must end within this, s: a ground station may set speeds and
+/// accelerations one at a time, and some small enough together never finish.
+const FLIGHT_PHASE_MAX_S: f64 = 600.0;
+
+/// How long a set point takes over `height_m` at `speed_m_s`, reaching that speed at
+/// `acc_m_s2` (and slowing again), s.
+fn phase_s(height_m: f64, speed_m_s: f64, acc_m_s2: f64) -> f64 {
+    height_m / speed_m_s + speed_m_s / acc_m_s2
+}
+
+/// A takeoff to `fence.alt_max_m` and a landing from it (the last metre at
+/// `commander.land_slow_m_s`) each within [`FLIGHT_PHASE_MAX_S`].
+fn flight_time_rule(c: &Config) -> Check {
+    let m = &c.commander;
+    let h_m = c.fence.alt_max_m;
+    let takeoff_s = phase_s(h_m, m.climb_m_s, m.climb_acc_m_s2);
+    let landing_s = phase_s((h_m - 1.0).max(0.0), m.land_m_s, m.climb_acc_m_s2)
+        + phase_s(1.0, m.land_slow_m_s, m.climb_acc_m_s2);
+    let worst_s = takeoff_s.max(landing_s);
+    Check::new(
+        "commander.climb_acc_m_s2",
+        !(worst_s > FLIGHT_PHASE_MAX_S) && worst_s.is_finite(),
+        format!(
+            "{} (with climb_m_s {}, land_m_s {}, land_slow_m_s {}: a takeoff to fence.alt_max_m \
+             = {h_m} m takes {takeoff_s:.0} s, a landing from it {landing_s:.0} s)",
+            m.climb_acc_m_s2, m.climb_m_s, m.land_m_s, m.land_slow_m_s
+        ),
+        format!(
+            "speeds and acceleration with which a takeoff and a landing each end within \
+             {FLIGHT_PHASE_MAX_S} s"
+        ),
+    )
+}
+
+/// The takeoff's timeout must leave the spool-up (1 s), the set point's climb to the lift-off
+/// height (0.3 m) and 3 s for the vehicle to follow.
+fn takeoff_timeout_rule(c: &Config) -> Check {
+    let m = &c.commander;
+    let needed_s = 1.0 + phase_s(0.3, m.climb_m_s, m.climb_acc_m_s2) + 3.0;
+    in_range(
+        "commander.takeoff_timeout_s",
+        m.takeoff_timeout_s,
+        positive_to(600.0),
+        "s",
+    )
+    .and(
+        !(m.takeoff_timeout_s < needed_s),
+        &format!(
+            "at least {needed_s:.1} s (the 1 s spool-up, the climb to 0.3 m at \
+             commander.climb_m_s and climb_acc_m_s2, 3 s to follow)"
+        ),
+    )
+}
+
+/// A touchdown is seen only once the thrust falls under `commander.touchdown_thrust` of the
+/// weight; the controller's slowest command, w_min = 2·w_hover − w_max, gives (w_min/w_hover)²
+/// of it, which grows with the mass. So the threshold must clear that floor, with a margin, at
+/// the profile's mass (the manual mass keys may still raise the floor in flight: the
+/// touchdown also takes the floor itself, see `core::commander`).
+fn touchdown_thrust_rule(c: &Config) -> Check {
+    const MARGIN: f64 = 0.05;
+    let m = &c.commander;
+    let heaviest_kg = c.vehicle.mass_kg;
+    let w_hover_rad_s = crate::core::model::w_hover_rad_s(heaviest_kg);
+    let floor = (2.0 - c.motor.w_max_rad_s / w_hover_rad_s).max(0.0).powi(2);
+    let range = in_range(
+        "commander.touchdown_thrust",
+        m.touchdown_thrust,
+        positive_to(1.0),
+        "",
+    );
+    if !floor.is_finite() {
+        return range;
+    }
+    range.and(
+        !(m.touchdown_thrust < floor + MARGIN),
+        &format!(
+            "above {:.2}: the thrust of the slowest motor command at {heaviest_kg} kg is \
+             {floor:.2} of the weight, and a landing must fall under the threshold to end",
+            floor + MARGIN
+        ),
+    )
 }
 
 /// The ground-station link: addresses that parse, a radio speed a radio has, rates that a

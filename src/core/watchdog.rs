@@ -16,6 +16,9 @@ pub enum TripReason {
     Estimator,
     /// The operator's `kill`, or a failsafe whose action is kill.
     Kill,
+    /// The commander saw a crash or a flip (tilted too long, or a takeoff that never left the
+    /// ground).
+    Crash,
 }
 
 impl TripReason {
@@ -28,7 +31,43 @@ impl TripReason {
             TripReason::SanityTilt => "sanity-tilt",
             TripReason::Estimator => "estimator",
             TripReason::Kill => "kill",
+            TripReason::Crash => "crash",
         }
+    }
+
+    /// Every reason, in the order above.
+    pub const ALL: [TripReason; 8] = [
+        TripReason::Deadline,
+        TripReason::ImuTimeout,
+        TripReason::EscAck,
+        TripReason::SanityTemp,
+        TripReason::SanityTilt,
+        TripReason::Estimator,
+        TripReason::Kill,
+        TripReason::Crash,
+    ];
+
+    /// The causes for which the motors may be cut in the air: the watchdog's own (the loop's
+    /// deadline, a silent IMU, unacknowledged ESCs, the original's sanity rules), `kill`, a
+    /// crash, and an estimator that can no longer give an attitude. Every other fault lands on
+    /// what is left. One list, read by the safety campaign and the commander's exhaustive
+    /// check alike.
+    pub fn may_halt_in_air(self) -> bool {
+        // Every reason is one; the list is written out so that a new reason must be placed.
+        match self {
+            TripReason::Deadline
+            | TripReason::ImuTimeout
+            | TripReason::EscAck
+            | TripReason::SanityTemp
+            | TripReason::SanityTilt
+            | TripReason::Estimator
+            | TripReason::Kill
+            | TripReason::Crash => true,
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<TripReason> {
+        TripReason::ALL.into_iter().find(|r| r.name() == name)
     }
 }
 
@@ -88,6 +127,8 @@ pub enum Event {
     Frame(i64),
     /// The commander asks for a halt (`kill`).
     Kill(i64),
+    /// The commander saw a crash or a flip.
+    Crash(i64),
     /// The commander disarms on the ground: no more flight commands, so the deadline no
     /// longer applies (the IMU timeout does, until the stop has settled).
     Disarming(i64),
@@ -296,6 +337,7 @@ impl Watchdog {
                 None
             }
             Event::Kill(at) => self.decide(TripReason::Kill, at, now_us),
+            Event::Crash(at) => self.decide(TripReason::Crash, at, now_us),
             Event::Disarming(_) => {
                 self.disarmed = true;
                 self.flying = false;

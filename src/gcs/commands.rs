@@ -6,7 +6,8 @@
 //!   ArduPilot reads it; NaN: `control.hover_z_m`); COMMAND_INT in a relative or local frame.
 //! - NAV_LAND → `land`; NAV_LOITER_UNLIM → `hold` where it is; DO_FLIGHTTERMINATION → `kill`.
 //! - DO_SET_MODE with a custom mode (HEARTBEAT's numbering): hold → `hold`, land → `land`;
-//!   the others are entered by their own commands.
+//!   the others are entered by their own commands. A sub mode, or base-mode flags other than
+//!   custom-mode-enabled and armed, are refused: never read as another mode.
 //! - REQUEST_MESSAGE, SET_MESSAGE_INTERVAL, REQUEST_AUTOPILOT_CAPABILITIES,
 //!   GET_HOME_POSITION: answered by the link.
 
@@ -59,7 +60,7 @@ pub fn map(cmd: MavCmd, a: Args) -> Result<Request, Refusal> {
         MavCmd::MAV_CMD_DO_PAUSE_CONTINUE if p[0] == 0.0 => Ok(Commander(Command::Pause)),
         MavCmd::MAV_CMD_DO_PAUSE_CONTINUE if p[0] == 1.0 => Ok(Commander(Command::Resume)),
         MavCmd::MAV_CMD_DO_FLIGHTTERMINATION if p[0] > 0.5 => Ok(Commander(Command::Kill)),
-        MavCmd::MAV_CMD_DO_SET_MODE => set_mode(p[0], p[1]),
+        MavCmd::MAV_CMD_DO_SET_MODE => set_mode(p[0], p[1], p[2]),
         MavCmd::MAV_CMD_REQUEST_MESSAGE => Ok(Message(whole(p[0])?)),
         MavCmd::MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES => Ok(Message(AUTOPILOT_VERSION_DATA::ID)),
         MavCmd::MAV_CMD_GET_HOME_POSITION => Ok(Message(HOME_POSITION_DATA::ID)),
@@ -120,25 +121,46 @@ fn takeoff(a: Args) -> Result<Request, Refusal> {
     Ok(Request::Commander(Command::Takeoff(height)))
 }
 
-fn set_mode(base: f32, custom: f32) -> Result<Request, Refusal> {
-    let custom_bit = f32::from(MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED.bits());
-    // The base mode is a bit field sent as a float.
-    if (base as u32) & (custom_bit as u32) == 0 {
-        return Err(denied(
-            "set mode: only custom modes (HEARTBEAT's numbering) are taken".into(),
-        ));
+/// DO_SET_MODE (and SET_MODE): a custom mode in HEARTBEAT's numbering, with no sub mode and
+/// no base-mode flag but custom-mode-enabled (and the armed flag, which states the vehicle's
+/// state rather than asks for one). Anything else would be guessing at another numbering (a
+/// PX4 main and sub mode, a base mode's manual or guided flags): refused, never mapped.
+fn set_mode(base: f32, custom: f32, sub: f32) -> Result<Request, Refusal> {
+    let asked = format!("set mode (base {base}, custom {custom}, sub {sub})");
+    let custom_bit = u32::from(MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED.bits());
+    let armed_bit = u32::from(MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED.bits());
+    let whole = |v: f32| (0.0..=16_777_215.0).contains(&v) && v.fract() == 0.0;
+    if !whole(base) || !whole(custom) {
+        return Err(denied(format!("{asked}: not whole numbers")));
     }
-    let whole = custom >= 0.0 && custom.fract() == 0.0;
-    match mode_of_custom(custom as u32).filter(|_| whole) {
+    // The base mode is a bit field sent as a float.
+    let base_bits = base as u32;
+    if base_bits & custom_bit == 0 {
+        return Err(denied(format!(
+            "{asked}: only custom modes (HEARTBEAT's numbering) are taken"
+        )));
+    }
+    if base_bits & !(custom_bit | armed_bit) != 0 {
+        return Err(denied(format!(
+            "{asked}: base-mode flags other than custom mode and armed are not handled"
+        )));
+    }
+    // An unused parameter may be sent as NaN.
+    if !(sub == 0.0 || sub.is_nan()) {
+        return Err(denied(format!(
+            "{asked}: uquad's modes have no sub modes (is this another autopilot's numbering?)"
+        )));
+    }
+    match mode_of_custom(custom as u32) {
         Some(Mode::Hold) => Ok(Request::Commander(Command::Hold(None))),
         Some(Mode::Land) => Ok(Request::Commander(Command::Land)),
         Some(Mode::Mission) => Ok(Request::Commander(Command::Start)),
         Some(Mode::Return) => Ok(Request::Commander(Command::Return)),
         Some(m) => Err(denied(format!(
-            "set mode {}: entered by its own command (arm, takeoff, disarm, kill)",
+            "{asked}: {} is entered by its own command (arm, takeoff, disarm, kill)",
             m.name()
         ))),
-        None => Err(denied(format!("set mode: no custom mode {custom}"))),
+        None => Err(denied(format!("{asked}: no custom mode {custom}"))),
     }
 }
 
@@ -201,6 +223,43 @@ mod tests {
             long([0.0, 3.0, 0., 0., 0., 0., 0.]),
         );
         assert!(no_custom.is_err());
+    }
+
+    #[test]
+    fn set_mode_in_another_numbering_is_refused_not_mapped() {
+        let set = |p: [f32; 3]| {
+            map(
+                MavCmd::MAV_CMD_DO_SET_MODE,
+                long([p[0], p[1], p[2], 0., 0., 0., 0.]),
+            )
+        };
+        // PX4's AUTO (main 4) with sub mode LOITER (3): uquad's 4 is land; it must not land.
+        let (result, why) = set([129.0, 4.0, 3.0]).unwrap_err();
+        assert_eq!(result, MavResult::MAV_RESULT_DENIED);
+        assert!(
+            why.contains("sub 3") && why.contains("no sub modes"),
+            "{why}"
+        );
+        // Base-mode flags uquad does not handle (guided, auto, stabilize, manual input).
+        for base in [
+            1.0 + 8.0,
+            1.0 + 4.0,
+            1.0 + 16.0,
+            1.0 + 64.0,
+            1.0 + 2.0,
+            1.0 + 32.0,
+        ] {
+            assert!(set([base, 3.0, 0.0]).is_err(), "base {base}");
+        }
+        // Not whole numbers: refused rather than truncated.
+        assert!(set([1.0, 3.5, 0.0]).is_err());
+        assert!(set([1.5, 3.0, 0.0]).is_err());
+        assert!(set([1.0, f32::NAN, 0.0]).is_err());
+        // The armed flag states the vehicle's state; an unused sub mode may come as NaN.
+        assert_eq!(
+            set([129.0, 3.0, f32::NAN]),
+            Ok(Request::Commander(Command::Hold(None)))
+        );
     }
 
     #[test]

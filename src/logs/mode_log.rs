@@ -1,5 +1,6 @@
 //! The `mode` stream (mode.log): the commander's inputs (operator commands with the pre-arm
-//! verdict an `arm` got, link beats, manual keys, a ground station's missions) and outputs
+//! verdict an `arm` got, link beats, GPS fixes delivered, manual keys, a ground station's
+//! missions) and outputs
 //! (mode changes, failsafes, refusals, mission items reached), one per line after the time
 //! in µs. `uquad replay` reads the inputs back and
 //! writes the outputs again, so a replayed run's mode.log is the same bytes.
@@ -12,6 +13,7 @@
 //! 31000000 refused disarm | in the air (land): land first, or kill
 //! 2000000 beat gcs
 //! 2100000 key 101
+//! 2200000 fix
 //! 2500000 mission mission-1.toml gains caeb2603ff2b78ed
 //! ```
 //!
@@ -46,6 +48,7 @@ pub fn write_input(
 ) {
     let _ = match input {
         OperatorInput::Beat(src) => writeln!(out, "{t_us} beat {}", src.name()),
+        OperatorInput::GpsFix => writeln!(out, "{t_us} fix"),
         OperatorInput::Key(k) => writeln!(out, "{t_us} key {}", k.key()),
         OperatorInput::Mission(plan) => writeln!(
             out,
@@ -113,6 +116,7 @@ fn parse_input(
     };
     let input = match kind {
         "beat" => OperatorInput::Beat(source(rest)?),
+        "fix" if rest.is_empty() => OperatorInput::GpsFix,
         "key" => {
             let k = rest.parse::<u8>().ok().and_then(ManualCommand::from_key);
             OperatorInput::Key(k.ok_or_else(|| format!("unknown key {rest:?}"))?)

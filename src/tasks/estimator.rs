@@ -73,6 +73,8 @@ pub struct EstimatorTask {
     pub auto_arm: bool,
     /// The watchdog's state: a halt ends the run, and the commander records its `kill`.
     pub watchdog: Arc<WatchdogStatus>,
+    /// The newest live fix not yet offered to a Kalman step.
+    pub pending_fix: Option<LiveFix>,
 }
 
 impl EstimatorTask {
@@ -88,6 +90,7 @@ impl EstimatorTask {
             };
             let times = FrameTimes::at(f.stamp_us);
             self.operate(f.stamp_us);
+            self.poll_fix(f.stamp_us);
             let phase = self.esc_status.phase();
             let stop_reason = (phase == EscPhase::Stopped)
                 .then(|| self.esc_status.stop_reason())
@@ -103,6 +106,10 @@ impl EstimatorTask {
                     continue;
                 }
                 FrameAction::Abort(why) => return Err(why.into()),
+                FrameAction::StopEscs => {
+                    self.esc.halt("disarmed");
+                    continue;
+                }
                 FrameAction::Ended => break,
                 FrameAction::Step(sample) => sample,
             };
@@ -114,7 +121,7 @@ impl EstimatorTask {
             let Some(fb) = self.wait_feedback(step, &mut late_feedback).await else {
                 break;
             };
-            let live = self.newest_fix();
+            let live = self.pending_fix.take();
             let Some(est) = self.side.estimate(sample, times, &fb, live, &mut self.out) else {
                 continue;
             };
@@ -141,10 +148,7 @@ impl EstimatorTask {
             late_feedback,
             ekf_errors: c.ekf_errors,
             gps_updates: c.gps_updates,
-            commander: CommanderSummary {
-                events: self.side.history().to_vec(),
-                figures: self.side.commander().figures(),
-            },
+            commander: self.side.summary(self.side.commander().figures()),
             ekf_gated: c.gated,
         })
     }
@@ -204,14 +208,20 @@ impl EstimatorTask {
         }
     }
 
-    /// The live fix published since the previous step, if any (never waited for).
-    fn newest_fix(&mut self) -> Option<LiveFix> {
-        let rx = self.gps_live.as_mut()?;
-        if rx.has_changed().unwrap_or(false) {
-            *rx.borrow_and_update()
-        } else {
-            None
+    /// A live fix published since the previous frame (never waited for): the commander
+    /// hears of it at once, from arming on; the next Kalman step fuses it if still current.
+    fn poll_fix(&mut self, t_us: i64) {
+        let Some(rx) = self.gps_live.as_mut() else {
+            return;
+        };
+        if !rx.has_changed().unwrap_or(false) {
+            return;
         }
+        let Some(fix) = *rx.borrow_and_update() else {
+            return;
+        };
+        self.pending_fix = Some(fix);
+        self.apply(OperatorInput::GpsFix, t_us);
     }
 
     /// The controller's feedback for `step`; `None` when the controller is gone or on cancel.

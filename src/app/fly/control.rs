@@ -122,6 +122,7 @@ pub(super) fn spawn(
                     prearm,
                     auto_arm,
                     watchdog: h.wd_status.clone(),
+                    pending_fix: None,
                 }
                 .run()
                 .instrument(tracing::info_span!("estimator"))

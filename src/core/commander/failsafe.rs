@@ -48,53 +48,134 @@ impl Failsafe {
 }
 
 impl Commander {
-    /// The graded failsafes, in the air: each condition is checked on every step; a
-    /// failsafe is recorded when its condition begins and acts once while it lasts.
+    /// The failsafes judged on a Kalman step, in the air: the fence (on the dead-reckoned
+    /// position grown by its uncertainty while no fix comes) and the estimator's gates. The
+    /// link and GPS are judged at every frame from arming ([`Commander::tick`]).
     pub(super) fn failsafes(
         &mut self,
         o: &Observation,
         out: &mut Vec<Event>,
     ) -> Option<EscRequest> {
-        let (t, p) = (o.t_us, self.p);
-        let secs = |since: i64| (t - since) as f64 / 1e6;
-        let link_lost = self
-            .link_seen_us
-            .is_some_and(|s| secs(s) > p.link_timeout_s);
-        let gps_stale = self.last_fix_us.is_some_and(|s| secs(s) > p.gps_timeout_s);
-        // Without fixes attitude and altitude are held at once; the action waits its grace.
-        self.hold_xy = !gps_stale;
-        self.gps_lost_us = if gps_stale {
-            Some(self.gps_lost_us.unwrap_or(t))
-        } else {
-            None
-        };
-        let gps_due = self
-            .gps_lost_us
-            .is_some_and(|s| secs(s) >= p.gps_loss_land_s);
-        let fence = !gps_stale && self.last_fix_us.is_some() && self.outside_fence(o);
+        let p = self.p;
+        // A position never observed (no receiver, no fix fused) has no fence to keep.
+        let observed = p.gps_live || self.last_fix_us.is_some();
+        let fence = observed && self.outside_fence(o);
         let ekf_bad = self.estimator_bad(o);
+        let mut request = None;
+        if !p.gps_live {
+            // Fused fixes (fake or recorded GPS): judged on the step that fuses them, as the
+            // original's profiles always were.
+            request = self.gps_failsafe(o.t_us, Some(o), out);
+        }
         let checks = [
-            (Failsafe::LinkLoss, link_lost, link_lost, p.link_action),
-            (Failsafe::GpsLoss, gps_stale, gps_due, p.gps_loss_action),
             (Failsafe::Geofence, fence, fence, p.fence_action),
             (Failsafe::Estimator, ekf_bad, ekf_bad, p.ekf_action),
         ];
-        let mut request = None;
         for (kind, on, act_now, action) in checks {
-            request = request.or(self.edge(kind, on, act_now, action, o, out));
+            request = request.or(self.edge(kind, on, act_now, action, o.t_us, Some(o), out));
         }
         request
     }
 
+    /// The link's and the GPS's failsafes at `t_us`, in the air: the link silent for
+    /// `link_timeout_s` since its last beat or command; no fix for `gps_timeout_s` since the
+    /// last one, or since arming if none came (gps.mode = "gpsd"; otherwise once one was
+    /// fused). Without fixes attitude and altitude are held at once; the action waits its
+    /// grace.
+    pub(super) fn timed_failsafes(
+        &mut self,
+        t_us: i64,
+        out: &mut Vec<Event>,
+    ) -> Option<EscRequest> {
+        let p = self.p;
+        let (link_lost, _) = self.timed_conditions(t_us);
+        let est = self.observed;
+        let link = self.edge(
+            Failsafe::LinkLoss,
+            link_lost,
+            link_lost,
+            p.link_action,
+            t_us,
+            est.as_ref(),
+            out,
+        );
+        let gps = if p.gps_live {
+            self.gps_failsafe(t_us, est.as_ref(), out)
+        } else {
+            None
+        };
+        link.or(gps)
+    }
+
+    /// The GPS's failsafe at `t_us`: attitude and altitude held at once while stale, the
+    /// action after its grace.
+    fn gps_failsafe(
+        &mut self,
+        t_us: i64,
+        est: Option<&Observation>,
+        out: &mut Vec<Event>,
+    ) -> Option<EscRequest> {
+        let p = self.p;
+        let (_, gps_stale) = self.timed_conditions(t_us);
+        self.hold_xy = !gps_stale;
+        // Lost since the moment the last fix went stale: the same whichever frame notices it.
+        self.gps_lost_us = gps_stale.then(|| self.gps_stale_since(t_us));
+        let gps_due = self
+            .gps_lost_us
+            .is_some_and(|s| (t_us - s) as f64 / 1e6 >= p.gps_loss_land_s);
+        let action = p.gps_loss_action;
+        self.edge(
+            Failsafe::GpsLoss,
+            gps_stale,
+            gps_due,
+            action,
+            t_us,
+            est,
+            out,
+        )
+    }
+
+    /// Whether the link is lost and the GPS stale at `t_us`.
+    pub(super) fn timed_conditions(&self, t_us: i64) -> (bool, bool) {
+        let p = &self.p;
+        let secs = |since: i64| (t_us - since) as f64 / 1e6;
+        let link_lost = self
+            .link_seen_us
+            .is_some_and(|s| secs(s) > p.link_timeout_s);
+        let gps_stale = self
+            .gps_reference_us()
+            .is_some_and(|s| secs(s) > p.gps_timeout_s);
+        (link_lost, gps_stale)
+    }
+
+    /// The time the GPS's freshness is judged from: the newest fix delivered, or the arming
+    /// when none came since (gpsd); the newest fused fix otherwise.
+    fn gps_reference_us(&self) -> Option<i64> {
+        if self.p.gps_live {
+            // The pre-arm check asked for a recent fix; with none since, arming starts the clock.
+            self.fix_rx_us.or(self.armed_us)
+        } else {
+            self.last_fix_us
+        }
+    }
+
+    fn gps_stale_since(&self, t_us: i64) -> i64 {
+        let timeout_us = (self.p.gps_timeout_s * 1e6) as i64;
+        self.gps_reference_us()
+            .map_or(t_us, |r| r.saturating_add(timeout_us).min(t_us))
+    }
+
     /// One failsafe's condition at this step: recorded when it begins, acted on once when
     /// `act_now`, forgotten when it ends.
+    #[allow(clippy::too_many_arguments)]
     fn edge(
         &mut self,
         kind: Failsafe,
         on: bool,
         act_now: bool,
         action: Action,
-        o: &Observation,
+        t_us: i64,
+        est: Option<&Observation>,
         out: &mut Vec<Event>,
     ) -> Option<EscRequest> {
         let k = kind as usize;
@@ -104,15 +185,11 @@ impl Commander {
         }
         if !self.recorded[k] {
             self.recorded[k] = true;
-            out.push(Event::Failsafe {
-                t_us: o.t_us,
-                kind,
-                action,
-            });
+            out.push(Event::Failsafe { t_us, kind, action });
         }
         if act_now && !self.acted[k] {
             self.acted[k] = true;
-            return self.act(action, kind, o, out);
+            return self.act(action, kind, t_us, est, out);
         }
         None
     }
@@ -136,28 +213,33 @@ impl Commander {
             .any(|s| (o.t_us - s) as f64 / 1e6 >= limit_s)
     }
 
+    /// Outside the fence: the estimate, dead-reckoned while no fix comes (not grown by its
+    /// uncertainty yet: with today's noise values the filter's covariance is no bound).
     fn outside_fence(&self, o: &Observation) -> bool {
         let Some(h) = self.home_m else {
             return false;
         };
         let r = (o.pos_m[0] - h[0]).hypot(o.pos_m[1] - h[1]);
-        r > self.p.fence_radius_m || o.pos_m[2] - h[2] > self.p.fence_alt_max_m
+        // Not a number (a position never observed): outside.
+        !(r <= self.p.fence_radius_m && o.pos_m[2] - h[2] <= self.p.fence_alt_max_m)
     }
 
+    /// A failsafe's action. Without a position a return cannot be flown: it lands in place.
     fn act(
         &mut self,
         action: Action,
         kind: Failsafe,
-        o: &Observation,
+        t_us: i64,
+        est: Option<&Observation>,
         out: &mut Vec<Event>,
     ) -> Option<EscRequest> {
-        let (t_us, why) = (o.t_us, format!("failsafe {}", kind.name()));
+        let why = format!("failsafe {}", kind.name());
         match action {
             Action::Kill => return Some(EscRequest::Kill),
-            Action::Land => self.begin_land(Some(o), t_us, &why, out),
+            Action::Return if self.hold_xy => self.begin_return(est, t_us, &why, out),
+            Action::Land | Action::Return => self.begin_land(est, t_us, &why, out),
             Action::Hold if self.mode != Mode::Hold => self.set_mode(Mode::Hold, t_us, &why, out),
-            Action::Return => self.begin_return(Some(o), t_us, &why, out),
-            _ => {}
+            Action::Hold => {}
         }
         None
     }

@@ -149,6 +149,9 @@ pub enum OperatorInput {
     Key(ManualCommand),
     /// A ground station's mission, its gains designed: it replaces the loaded one.
     Mission(std::sync::Arc<crate::core::mission::MissionPlan>),
+    /// The GPS receiver delivered a fix (gps.mode = "gpsd"): not the operator's, but an input
+    /// of the commander's like a link's beat, recorded so that a replay judges the same.
+    GpsFix,
 }
 
 impl OperatorInput {

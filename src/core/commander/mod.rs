@@ -15,6 +15,7 @@
 mod checks;
 mod failsafe;
 mod figures;
+mod ground;
 mod input;
 mod mission_mode;
 mod profile;
@@ -112,6 +113,16 @@ pub struct Params {
     pub fence_action: Action,
     pub ekf_bad_s: f64,
     pub ekf_action: Action,
+    /// Fixes come from a receiver (gps.mode = "gpsd"): their arrival is an input of its own
+    /// ([`OperatorInput::GpsFix`]), watched from arming; otherwise the fused fixes count.
+    pub gps_live: bool,
+    /// Armed, started up and on the ground with no takeoff for this long: disarmed, s.
+    pub disarm_ground_s: f64,
+    /// Tilt beyond `crash_tilt_rad` for `crash_s`, or a takeoff still on the ground after
+    /// `takeoff_timeout_s`: the halt `crash`.
+    pub crash_tilt_rad: f64,
+    pub crash_s: f64,
+    pub takeoff_timeout_s: f64,
     /// The manual altitude keys' bounds, m.
     pub z_min_m: f64,
     pub z_max_m: f64,
@@ -154,6 +165,8 @@ pub enum EscRequest {
     Stop,
     /// The watchdog's halt (kill).
     Kill,
+    /// The watchdog's halt for a crash or a flip (`crash`).
+    Crash,
 }
 
 /// One Kalman step as the commander sees it.
@@ -165,8 +178,12 @@ pub struct Observation {
     pub vz_m_s: f64,
     /// Thrust of the last command over the weight.
     pub thrust_ratio: f64,
-    /// The accelerometer's specific force along the body's vertical, m/s².
-    pub acc_z_m_s2: f64,
+    /// The accelerometer's specific force in the body's axes (z up through the rotors), m/s².
+    pub acc_m_s2: [f64; 3],
+    /// The estimate's tilt from level (roll and pitch together), rad.
+    pub tilt_rad: f64,
+    /// The barometer's altitude this step, m (not a number when it failed).
+    pub baro_alt_m: f64,
     /// A GPS fix was fused in this step.
     pub gps_fused: bool,
     /// The step's innovation test ratios per measurement group (above 1: outside the gate).
@@ -221,6 +238,9 @@ pub struct Summary {
     pub events: Vec<Event>,
     /// `fly`: the estimate's figures; `sim`: the true vehicle's.
     pub figures: Figures,
+    /// Every refusal of the run (`events` keeps the first ones), and the newest.
+    pub refusals_total: u64,
+    pub refusal_last: Option<Event>,
 }
 
 /// Room for this many replaced missions before the list grows (an allocation at an
@@ -261,6 +281,22 @@ pub struct Commander {
     /// fires again).
     recorded: [bool; 4],
     acted: [bool; 4],
+    /// When the vehicle armed: the failsafes' clock starts here, inputs seen or not.
+    armed_us: Option<i64>,
+    /// The newest fix the receiver delivered (gps.mode = "gpsd").
+    fix_rx_us: Option<i64>,
+    /// Armed on the ground with the start-up over (the first Kalman step), since.
+    ground_since_us: Option<i64>,
+    /// Tilted beyond `crash_tilt_rad`, since.
+    tilt_since_us: Option<i64>,
+    /// The takeoff began at; it has left the ground.
+    takeoff_us: Option<i64>,
+    lifted: bool,
+    /// The barometer's altitude smoothed, and where it read at the takeoff's start, m.
+    baro_m: f64,
+    takeoff_baro_m: f64,
+    /// The newest Kalman step seen.
+    observed: Option<Observation>,
     /// Disarmed after a flight: the ESCs cannot be started again in this run.
     spent: bool,
     /// The takeoff's overshoot and the touchdown, on the estimate.
@@ -311,6 +347,15 @@ impl Commander {
             touchdown_since_us: None,
             recorded: [false; 4],
             acted: [false; 4],
+            armed_us: None,
+            fix_rx_us: None,
+            ground_since_us: None,
+            tilt_since_us: None,
+            takeoff_us: None,
+            lifted: false,
+            baro_m: f64::NAN,
+            takeoff_baro_m: f64::NAN,
+            observed: None,
             spent: false,
             climb: ClimbTrace::default(),
             descent: DescentTrace::default(),
@@ -351,6 +396,10 @@ impl Commander {
         self.mode
     }
 
+    pub fn params(&self) -> &Params {
+        &self.p
+    }
+
     pub fn figures(&self) -> Figures {
         Figures {
             takeoff: self.climb.takeoff(),
@@ -367,6 +416,7 @@ impl Commander {
     pub fn start(&mut self, t_us: i64, out: &mut Vec<Event>) -> Option<EscRequest> {
         self.set_mode(Mode::Disarmed, t_us, "start", out);
         if self.p.start == Start::Flying {
+            self.armed_us = Some(t_us);
             self.set_mode(Mode::Armed, t_us, "commander.start = flying", out);
             return Some(EscRequest::Start);
         }
@@ -430,7 +480,7 @@ impl Commander {
         est: Option<&Observation>,
         out: &mut Vec<Event>,
     ) -> Option<EscRequest> {
-        match self.check(cmd, arm_verdict, est) {
+        match self.check(cmd, t_us, arm_verdict, est) {
             Err(why) => {
                 self.refuse(cmd, t_us, why, out);
                 None
@@ -469,6 +519,7 @@ impl Commander {
     fn check(
         &self,
         cmd: Command,
+        t_us: i64,
         arm_verdict: Result<(), String>,
         est: Option<&Observation>,
     ) -> Result<(), String> {
@@ -490,7 +541,8 @@ impl Commander {
             Command::Takeoff(_) if m != Mode::Armed => {
                 Err(format!("{}: takeoff needs armed", m.name()))
             }
-            Command::Takeoff(_) => self.estimator_ready(est),
+            Command::Takeoff(_) => self.estimator_ready(est).and(self.fix_ready(t_us)),
+            Command::Start if m == Mode::Armed => self.check_start(est).and(self.fix_ready(t_us)),
             Command::Start => self.check_start(est),
             Command::Pause if m != Mode::Mission => Err(format!("{}: no mission flying", m.name())),
             Command::Resume => self.check_resume(),
@@ -526,6 +578,7 @@ impl Commander {
         let why = format!("command {cmd}");
         match cmd {
             Command::Arm => {
+                self.armed_us = Some(t_us);
                 self.set_mode(Mode::Armed, t_us, &why, out);
                 Some(EscRequest::Start)
             }
@@ -594,6 +647,10 @@ impl Commander {
 
     fn disarm(&mut self, t_us: i64, why: &str, out: &mut Vec<Event>) {
         self.spent = true;
+        self.armed_us = None;
+        self.ground_since_us = None;
+        self.tilt_since_us = None;
+        self.takeoff_us = None;
         self.set_mode(Mode::Disarmed, t_us, why, out);
     }
 
@@ -616,6 +673,9 @@ impl Commander {
         };
         self.climb.begin(ground[2], alt_m);
         self.takeoff_steps = 0;
+        self.takeoff_us = Some(t_us);
+        self.takeoff_baro_m = self.baro_m;
+        self.lifted = false;
         self.set_mode(Mode::Takeoff, t_us, why, out);
     }
 
@@ -672,6 +732,8 @@ impl Commander {
             .map_or(0.01, |t| (o.t_us - t) as f64 / 1e6)
             .clamp(0.0, 0.1);
         self.last_t_us = Some(o.t_us);
+        self.observed = Some(*o);
+        self.baro_m = smooth_baro(self.baro_m, o.baro_alt_m);
         self.yaw_cal_rad = o.yaw_cal_rad;
         if o.gps_fused {
             self.last_fix_us = Some(o.t_us);
@@ -680,10 +742,14 @@ impl Commander {
             let alt = self.p.hover_z_m;
             self.begin_takeoff(o, alt, o.t_us, "commander.start = flying", out);
         }
-        let request = if self.mode.airborne() {
-            self.failsafes(o, out)
-        } else {
-            None
+        if self.mode == Mode::Armed {
+            // The first Kalman step: the start-up (ESC ramp, calibration) is over.
+            self.ground_since_us.get_or_insert(o.t_us);
+        }
+        let request = self.crashed(o);
+        let request = match request {
+            None if self.mode.airborne() => self.failsafes(o, out),
+            r => r,
         };
         let request = request.or_else(|| self.fly(o, dt_s, out));
         self.climb.sample(self.mode, o.pos_m[2], o.vz_m_s);
@@ -764,7 +830,7 @@ impl Commander {
         // than the thrust gives (the ground's push). The second is needed because the filter's
         // model has no ground: with the thrust under the weight, its estimate keeps falling
         // after the vehicle has stopped on the ground.
-        let ground_push = o.acc_z_m_s2 > (o.thrust_ratio + GROUND_PUSH) * GRAVITY_M_S2;
+        let ground_push = o.acc_m_s2[2] > (o.thrust_ratio + GROUND_PUSH) * GRAVITY_M_S2;
         let still = o.vz_m_s.abs() < p.touchdown_v_m_s || ground_push;
         let resting = still && o.thrust_ratio < p.touchdown_thrust;
         match (resting, self.touchdown_since_us) {
@@ -793,6 +859,16 @@ impl Commander {
             (true, Some(_)) => {}
         }
         None
+    }
+}
+
+/// The barometer's altitude through a first-order filter (τ ≈ 0.2 s at 100 Hz): single noisy
+/// samples do not make a lift-off. A failed reading restarts it.
+fn smooth_baro(smoothed_m: f64, reading_m: f64) -> f64 {
+    if smoothed_m.is_nan() {
+        reading_m
+    } else {
+        smoothed_m + 0.05 * (reading_m - smoothed_m)
     }
 }
 

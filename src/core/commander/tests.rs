@@ -27,6 +27,11 @@ fn params() -> Params {
         fence_action: Action::Land,
         ekf_bad_s: 2.0,
         ekf_action: Action::Land,
+        gps_live: false,
+        disarm_ground_s: 10.0,
+        crash_tilt_rad: 1.0,
+        crash_s: 1.0,
+        takeoff_timeout_s: 15.0,
         z_min_m: 0.2,
         z_max_m: 3.0,
         mission: crate::core::mission::Limits {
@@ -57,7 +62,9 @@ fn at(t_us: i64, z_m: f64) -> Observation {
         pos_m: [0.0, 0.0, z_m],
         vz_m_s: 0.0,
         thrust_ratio: 1.0,
-        acc_z_m_s2: GRAVITY_M_S2,
+        acc_m_s2: [0.0, 0.0, GRAVITY_M_S2],
+        tilt_rad: 0.0,
+        baro_alt_m: z_m,
         gps_fused: t_us % 1_000_000 == 0,
         ratios: TestRatios {
             attitude: 0.0,
@@ -104,6 +111,7 @@ fn follow_with(
         o.pos_m[0] = g.pos_m[0];
         o.pos_m[1] = g.pos_m[1];
         o.vz_m_s = g.vz_m_s;
+        c.tick(t, ev);
         g = c.on_estimate(&o, ev).0;
         t += STEP_US;
     }
@@ -377,7 +385,6 @@ fn the_ground_push_is_a_touchdown_even_when_the_estimate_keeps_falling() {
         let o = Observation {
             vz_m_s: -0.8,
             thrust_ratio: 0.5,
-            acc_z_m_s2: GRAVITY_M_S2,
             ..at(t, -0.3)
         };
         if let (_, Some(r)) = c.on_estimate(&o, &mut ev) {
@@ -442,6 +449,7 @@ fn a_lost_gps_holds_attitude_then_lands_after_its_grace_time() {
         if t % 1_000_000 == 0 {
             c.link_beat(LinkSource::Gcs, t);
         }
+        c.tick(t, &mut ev);
         g = c.on_estimate(&o, &mut ev).0;
         if (15_100_000..25_000_000).contains(&t) {
             assert!(!g.hold_xy && c.mode() == Mode::Hold, "at {t}");
@@ -458,8 +466,8 @@ fn a_lost_gps_holds_attitude_then_lands_after_its_grace_time() {
         } => Some(*t_us),
         _ => None,
     });
-    // Last fix at 12 s, lost after 3 s, land 10 s later.
-    assert_eq!(land_at, Some(25_010_000));
+    // Last fix at 12 s, lost 3 s later (at 15 s, whichever step notices), land 10 s later.
+    assert_eq!(land_at, Some(25_000_000));
 }
 
 #[test]
@@ -524,7 +532,7 @@ fn a_kill_action_asks_for_the_halt() {
     let mut kill = None;
     let mut t = STEP_US;
     while kill.is_none() && t < 5_000_000 {
-        kill = c.on_estimate(&at(t, 0.0), &mut ev).1;
+        kill = c.tick(t, &mut ev).or(c.on_estimate(&at(t, 0.0), &mut ev).1);
         t += STEP_US;
     }
     assert_eq!(kill, Some(EscRequest::Kill));
@@ -951,4 +959,124 @@ fn a_return_failsafe_flies_home_then_lands() {
         "{:?}",
         g.pos_m
     );
+}
+
+/// A commander with a receiver (gps.mode = "gpsd"), armed at 1 s with the last fix at 0.5 s.
+fn armed_with_receiver() -> (Commander, Vec<Event>) {
+    let mut p = params();
+    p.gps_live = true;
+    let mut c = Commander::new(p);
+    let mut ev = Vec::new();
+    c.start(0, &mut ev);
+    c.gps_fix(500_000);
+    c.command(Command::Arm, 1_000_000, Ok(()), None, &mut ev);
+    (c, ev)
+}
+
+#[test]
+fn a_receiver_silent_from_arming_disarms_on_the_ground_during_the_start_up() {
+    let (mut c, mut ev) = armed_with_receiver();
+    // No Kalman step yet (the ESC ramp, the calibration): only the frames' ticks.
+    let mut t = 1_000_000;
+    let stop = loop {
+        if let Some(r) = c.tick(t, &mut ev) {
+            break (t, r);
+        }
+        t += STEP_US;
+        assert!(t < 10_000_000, "{ev:?}");
+    };
+    // Last fix at 0.5 s, stale after 3 s.
+    assert_eq!(stop, (3_510_000, EscRequest::Stop));
+    assert_eq!(c.mode(), Mode::Disarmed);
+    assert_eq!(failsafes(&ev), [(Failsafe::GpsLoss, Action::Land)]);
+}
+
+#[test]
+fn a_takeoff_with_a_receiver_needs_a_fix_delivered_lately() {
+    let (mut c, mut ev) = armed_with_receiver();
+    c.gps_fix(2_000_000);
+    c.on_estimate(&at(2_000_000, 0.0), &mut ev);
+    let est = at(5_500_000, 0.0);
+    c.command(
+        Command::Takeoff(None),
+        5_500_000,
+        Ok(()),
+        Some(&est),
+        &mut ev,
+    );
+    assert_eq!(c.mode(), Mode::Armed);
+    assert!(refusals(&ev)[0].starts_with("gps: no fix within"), "{ev:?}");
+    c.gps_fix(5_600_000);
+    c.command(
+        Command::Takeoff(None),
+        5_700_000,
+        Ok(()),
+        Some(&est),
+        &mut ev,
+    );
+    assert_eq!(c.mode(), Mode::Takeoff);
+}
+
+#[test]
+fn an_armed_vehicle_left_on_the_ground_disarms() {
+    let (mut c, mut ev) = armed();
+    let mut t = STEP_US;
+    let stop = loop {
+        c.link_beat(LinkSource::Gcs, t);
+        let r = c.tick(t, &mut ev).or(c.on_estimate(&at(t, 0.0), &mut ev).1);
+        if let Some(r) = r {
+            break (t, r);
+        }
+        t += STEP_US;
+        assert!(t < 20_000_000);
+    };
+    // The start-up ended with the estimate at 0: 10 s later.
+    assert_eq!(stop, (10_000_000, EscRequest::Stop));
+    assert_eq!(c.mode(), Mode::Disarmed);
+    assert!(failsafes(&ev).is_empty());
+}
+
+#[test]
+fn a_link_lost_on_the_ground_disarms() {
+    let (mut c, mut ev) = armed();
+    c.link_beat(LinkSource::Gcs, 0);
+    let mut t = STEP_US;
+    while c.tick(t, &mut ev).is_none() {
+        c.on_estimate(&at(t, 0.0), &mut ev);
+        t += STEP_US;
+        assert!(t < 5_000_000);
+    }
+    assert_eq!(t, 2_010_000);
+    assert_eq!(c.mode(), Mode::Disarmed);
+    assert_eq!(failsafes(&ev), [(Failsafe::LinkLoss, Action::Land)]);
+}
+
+#[test]
+fn a_flip_or_a_takeoff_that_never_leaves_the_ground_is_a_crash() {
+    // Lying on its side: the estimate may say level (a failed gyro), the accelerometer not.
+    let (mut c, mut ev) = taking_off(params());
+    let mut t = STEP_US;
+    let crash = loop {
+        let mut o = at(t, 0.0);
+        if t >= 2_000_000 {
+            o.acc_m_s2 = [GRAVITY_M_S2, 0.0, 0.5];
+        }
+        if let (_, Some(r)) = c.on_estimate(&o, &mut ev) {
+            break (t, r);
+        }
+        t += STEP_US;
+        assert!(t < 20_000_000);
+    };
+    assert_eq!(crash, (3_000_000, EscRequest::Crash));
+    // Level but still on the ground 15 s after the takeoff.
+    let (mut c, mut ev) = taking_off(params());
+    let mut t = STEP_US;
+    let crash = loop {
+        if let (_, Some(r)) = c.on_estimate(&at(t, 0.05), &mut ev) {
+            break (t, r);
+        }
+        t += STEP_US;
+        assert!(t < 30_000_000);
+    };
+    assert_eq!(crash, (15_010_000, EscRequest::Crash));
 }

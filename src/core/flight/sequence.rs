@@ -167,6 +167,9 @@ pub enum FrameAction {
     Abort(Abort),
     /// The run has ended (a halt or an abort): stop feeding frames.
     Ended,
+    /// Zero and disable the ESCs: the commander disarmed on the ground (a failsafe during the
+    /// start-up or before the takeoff, or no takeoff in time); the run goes on.
+    StopEscs,
 }
 
 /// What the controller side hands back to the estimator side after each step.
@@ -224,6 +227,8 @@ pub struct EstimatorCounts {
     pub ekf_errors: u64,
     pub gps_updates: u64,
     pub dt_clamped: u64,
+    /// Live fixes older than the GPS timeout when their step came: not fused.
+    pub stale_fixes: u64,
     /// Steps that left a measurement group out of their update (outside the innovation gate).
     pub gated: GatedCounts,
 }
@@ -265,16 +270,20 @@ pub struct EstimatorSide {
     /// Manual keys for the controller's planner, one per step.
     keys: VecDeque<crate::core::control::ManualCommand>,
     started: bool,
-    /// The commander's events so far, for the report (at most [`HISTORY_MAX`]).
+    /// The commander's events so far, for the report: every mode change, failsafe and item
+    /// reached; the first [`REFUSALS_MAX`] refusals.
     history: Vec<commander::Event>,
+    /// Every refusal counted, and the newest (the report's summary of those not kept).
+    refusals: (u64, Option<commander::Event>),
     /// Why the last operator input was refused, if it was (a ground station's answer).
     last_refusal: Option<String>,
+    /// The commander stopped the ESCs at this frame's tick: the step's command says so.
+    stop_pending: bool,
 }
 
-/// Mode changes and failsafes a run keeps for its report, and refusals apart (an operator
-/// repeating a refused command must not push the failsafes out); more are only logged.
-pub const HISTORY_MAX: usize = 1000;
-pub const REFUSALS_MAX: usize = 100;
+/// Refusals a run keeps whole for its report; beyond, they are counted and the newest kept
+/// (mode.log has every one). Mode changes, failsafes and halts are never dropped.
+pub const REFUSALS_MAX: u64 = 100;
 
 impl EstimatorSide {
     pub fn new(core: EstimatorCore, gps: GpsFeed, commander: Commander) -> Self {
@@ -293,7 +302,9 @@ impl EstimatorSide {
             keys: VecDeque::with_capacity(4),
             started: false,
             history: Vec::with_capacity(32),
+            refusals: (0, None),
             last_refusal: None,
+            stop_pending: false,
         }
     }
 
@@ -316,6 +327,16 @@ impl EstimatorSide {
         &self.history
     }
 
+    /// The run's commander summary for its report, with `figures`.
+    pub fn summary(&self, figures: commander::Figures) -> commander::Summary {
+        commander::Summary {
+            events: self.history.clone(),
+            figures,
+            refusals_total: self.refusals.0,
+            refusal_last: self.refusals.1.clone(),
+        }
+    }
+
     /// The commander's start, once, before the first frame or input.
     fn start(&mut self, out: &mut impl Outputs) {
         if !self.started {
@@ -330,12 +351,11 @@ impl EstimatorSide {
     fn record_events(&mut self, out: &mut impl Outputs) {
         for e in self.events.drain(..) {
             let refusal = matches!(e, commander::Event::Refusal { .. });
-            let kept = self
-                .history
-                .iter()
-                .filter(|h| matches!(h, commander::Event::Refusal { .. }) == refusal);
-            let cap = if refusal { REFUSALS_MAX } else { HISTORY_MAX };
-            if kept.count() < cap {
+            if refusal {
+                self.refusals.0 += 1;
+                self.refusals.1 = Some(e.clone());
+            }
+            if !refusal || self.refusals.0 <= REFUSALS_MAX {
                 self.history.push(e.clone());
             }
             out.record(FlightRecord::Note(commander_line(&e)));
@@ -375,7 +395,14 @@ impl EstimatorSide {
                 self.key(k, out);
                 None
             }
-            OperatorInput::Command(cmd, _) => {
+            OperatorInput::GpsFix => {
+                self.commander.gps_fix(t_us);
+                None
+            }
+            OperatorInput::Command(cmd, src) => {
+                // A link that gives a command is an operator link from then on: its silence
+                // is a link-loss, whether or not it ever sent a heartbeat.
+                self.commander.link_beat(src, t_us);
                 let v = verdict.unwrap_or(Ok(()));
                 let o = self.observed;
                 self.commander
@@ -463,6 +490,10 @@ impl EstimatorSide {
                 out.watchdog(Event::Kill(t_us));
                 false
             }
+            Some(EscRequest::Crash) => {
+                out.watchdog(Event::Crash(t_us));
+                false
+            }
             Some(EscRequest::Start) | None => false,
         }
     }
@@ -498,6 +529,27 @@ impl EstimatorSide {
         }
         self.start(out);
         self.counts.frames += 1;
+        // The commander's clock first: a stop it asks for goes with this frame's action.
+        let stop = self.tick(times.t_frame_us, out);
+        match self.front_end(frame, times, esc, out) {
+            FrameAction::Step(s) => {
+                self.stop_pending |= stop;
+                FrameAction::Step(s)
+            }
+            FrameAction::Wait | FrameAction::StartEscs if stop => FrameAction::StopEscs,
+            action => action,
+        }
+    }
+
+    /// The frame through the IMU's front end: settling, the ESC start, the calibration, or a
+    /// sample for a Kalman step.
+    fn front_end(
+        &mut self,
+        frame: &RawFrame,
+        times: FrameTimes,
+        esc: EscState<'_>,
+        out: &mut impl Outputs,
+    ) -> FrameAction {
         let record = FlightRecord::Frame {
             times,
             frame: *frame,
@@ -531,6 +583,14 @@ impl EstimatorSide {
                 FrameAction::Step(s)
             }
         }
+    }
+
+    /// The commander's clock at a frame: its timed failsafes and the ground's rules, from
+    /// arming on (the ESC ramp and the calibration too). `true`: stop the ESCs (disarmed).
+    fn tick(&mut self, t_us: i64, out: &mut impl Outputs) -> bool {
+        let request = self.commander.tick(t_us, &mut self.events);
+        self.record_events(out);
+        self.esc_request(request, t_us, out)
     }
 
     /// The calibration ended: noted, checked for plausibility (an implausible one refuses the
@@ -602,9 +662,16 @@ impl EstimatorSide {
         {
             out.record(FlightRecord::FakeGps(t_cmd));
         }
+        // A fix older than the GPS timeout is not current: fusing it as if it were would pull
+        // the estimate to where the vehicle was (a fix held back through the calibration).
+        let max_age_us = (self.commander.params().gps_timeout_s * 1e6) as i64;
         if let Some(l) = live {
-            self.gps.offer_live(l.sample);
-            self.offered = Some(l);
+            if times.t_frame_us - l.stamp_us <= max_age_us {
+                self.gps.offer_live(l.sample);
+                self.offered = Some(l);
+            } else {
+                self.counts.stale_fixes += 1;
+            }
         }
         let row = self.core.steps() as usize;
         let st = self.clock.times(row, times, self.prev_frame_us);
@@ -658,7 +725,11 @@ impl EstimatorSide {
             // Small tilts: the body's vertical speed is the world's.
             vz_m_s: est.x[idx::VQZ],
             thrust_ratio: thrust_n / (fb.mass_kg * crate::core::model::GRAVITY_M_S2),
-            acc_z_m_s2: est.sample.acc_m_s2[2],
+            acc_m_s2: est.sample.acc_m_s2,
+            tilt_rad: (est.x[idx::PSI].cos() * est.x[idx::PHI].cos())
+                .clamp(-1.0, 1.0)
+                .acos(),
+            baro_alt_m: est.sample.alt_m,
             gps_fused: est.gps_used,
             ratios: est.ratios,
             yaw_cal_rad: est.theta_cal_rad,
@@ -669,7 +740,8 @@ impl EstimatorSide {
         est.guidance = guidance;
         est.gains = Some(self.commander.gains().clone());
         est.manual = self.keys.pop_front();
-        est.stop_escs = self.esc_request(request, est.t_us, out);
+        let stop = self.esc_request(request, est.t_us, out);
+        est.stop_escs = stop || std::mem::take(&mut self.stop_pending);
     }
 
     fn count(&mut self, est: &Estimate) {

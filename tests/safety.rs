@@ -1,0 +1,179 @@
+//! Safety across the whole flight, on the simulated clock: failsafes armed at arming (a GPS
+//! lost before its first fix was fused), the ground's rules (a link lost while armed on the
+//! ground, no takeoff), a crash caught (a stuck gyro tumbling the vehicle at the ground), and
+//! settings under which a landing could never end refused.
+
+mod common;
+use common::*;
+
+/// Runs `uquad sim --fast` on the default profile with `args`; its report and stderr (printed
+/// by every failing assertion).
+fn sim(args: &[&str]) -> (serde_json::Value, String, tempfile::TempDir) {
+    let logs = tempfile::tempdir().unwrap();
+    let report = logs.path().join("report.json");
+    let (r, l) = (
+        report.to_str().unwrap().to_string(),
+        logs.path().to_str().unwrap().to_string(),
+    );
+    let mut all = vec!["sim", "--fast", "--config", "config/uquad.toml"];
+    all.extend_from_slice(args);
+    all.extend_from_slice(&["--report", &r, "--log-dir", &l]);
+    let o = uquad(&root(), &all);
+    let stderr = String::from_utf8_lossy(&o.stderr).to_string();
+    let text = std::fs::read_to_string(&report).unwrap_or_else(|_| panic!("no report: {stderr}"));
+    (serde_json::from_str(&text).unwrap(), stderr, logs)
+}
+
+/// The report's modes with their reasons.
+fn modes(r: &serde_json::Value) -> Vec<(String, String)> {
+    r["modes"]
+        .as_array()
+        .unwrap_or_else(|| panic!("no modes: {r}"))
+        .iter()
+        .map(|m| {
+            let s = |k: &str| m[k].as_str().unwrap_or("?").to_string();
+            (s("mode"), s("why"))
+        })
+        .collect()
+}
+
+fn failsafe_kinds(r: &serde_json::Value) -> Vec<String> {
+    r["failsafes"]
+        .as_array()
+        .unwrap_or_else(|| panic!("no failsafes: {r}"))
+        .iter()
+        .map(|f| f["kind"].as_str().unwrap_or("?").to_string())
+        .collect()
+}
+
+/// Every simulated ESC ends disabled, its last writes a zero speed, then the disable.
+fn assert_escs_stopped(r: &serde_json::Value, stderr: &str) {
+    let escs = r["esc_end"].as_array().unwrap_or_else(|| panic!("{r}"));
+    assert_eq!(escs.len(), 4, "{r}\n{stderr}");
+    for e in escs {
+        assert_eq!(e["enabled"], false, "{e}\n{stderr}");
+        assert_eq!(
+            e["last_writes"],
+            serde_json::json!(["speed 0", "disable"]),
+            "{e}\n{stderr}"
+        );
+    }
+}
+
+#[test]
+fn gps_lost_before_its_first_fix_was_fused_is_a_failsafe_on_the_ground() {
+    // Armed at 2 s; the fixes stop at 3 s, during the ESC ramp, long before the first Kalman
+    // step (about 8.5 s) could fuse one. Before, the takeoff at 10 s flew dead-reckoned.
+    let (r, stderr, _logs) = sim(&[
+        "--script",
+        "arm@2,takeoff@10",
+        "--inject",
+        "gps-loss@3",
+        "--duration",
+        "60",
+    ]);
+    assert_eq!(failsafe_kinds(&r), ["gps-loss"], "{r}\n{stderr}");
+    let m = modes(&r);
+    assert_eq!(
+        m.last().unwrap(),
+        &(
+            "disarmed".to_string(),
+            "failsafe gps-loss on the ground".to_string()
+        ),
+        "{m:?}\n{stderr}"
+    );
+    assert!(!m.iter().any(|(mode, _)| mode == "takeoff"), "{m:?}");
+    // The last fix came just before 3 s; control.gps_hold_timeout_s later it is stale.
+    let t = r["failsafes"][0]["t_s"].as_f64().unwrap();
+    assert!(t < 8.0, "the failsafe came at {t} s: {r}");
+    assert!(r["halt"].is_null(), "{r}");
+    assert_escs_stopped(&r, &stderr);
+}
+
+#[test]
+fn a_link_lost_while_armed_on_the_ground_disarms() {
+    let (r, stderr, _logs) = sim(&[
+        "--script",
+        "arm@2",
+        "--inject",
+        "link-loss@12",
+        "--duration",
+        "120",
+    ]);
+    assert_eq!(failsafe_kinds(&r), ["link-loss"], "{r}\n{stderr}");
+    let m = modes(&r);
+    assert_eq!(
+        m.last().unwrap().1,
+        "failsafe link-loss on the ground",
+        "{m:?}"
+    );
+    // The link's last beat at 11 s, lost 2 s later; the run ends with the motors stopped.
+    let t = r["failsafes"][0]["t_s"].as_f64().unwrap();
+    assert!((13.0..13.2).contains(&t), "{t}: {r}");
+    assert!(r["simulated_s"].as_f64().unwrap() < 14.0, "{r}");
+    assert_escs_stopped(&r, &stderr);
+}
+
+#[test]
+fn an_armed_vehicle_that_does_not_take_off_disarms() {
+    // The takeoff comes at 40 s: long after commander.disarm_ground_s (10 s) from the end of
+    // the start-up (about 8.5 s).
+    let (r, stderr, _logs) = sim(&["--script", "arm@2,takeoff@40", "--duration", "60"]);
+    let m = modes(&r);
+    let (mode, why) = &m[2];
+    assert_eq!(mode, "disarmed", "{m:?}\n{stderr}");
+    assert_eq!(why, "no takeoff within commander.disarm_ground_s = 10 s");
+    let disarmed_s = r["modes"][2]["t_s"].as_f64().unwrap();
+    assert!((17.0..20.0).contains(&disarmed_s), "{r}");
+    assert!(failsafe_kinds(&r).is_empty(), "{r}");
+    assert_eq!(r["refusals"].as_array().map(Vec::len), Some(1), "{r}");
+    assert_escs_stopped(&r, &stderr);
+}
+
+#[test]
+fn a_stuck_gyro_tumbling_the_vehicle_at_the_ground_is_a_crash() {
+    // Before: rolled over at the ground for 190 s, mode takeoff, motors running, exit 0.
+    let (r, stderr, _logs) = sim(&[
+        "--mission",
+        "config/missions/square.toml",
+        "--inject",
+        "gyro-stuck@12",
+        "--duration",
+        "240",
+    ]);
+    assert_eq!(r["halt"]["reason"], "crash", "{r}\n{stderr}");
+    assert_eq!(r["halt"]["confirmed"], true, "{r}");
+    // The takeoff began at 10 s; commander.takeoff_timeout_s later it has not left the ground.
+    let halt_s = r["halt"]["event_s"].as_f64().unwrap();
+    assert!((25.0..25.1).contains(&halt_s), "{r}");
+    assert_eq!(modes(&r).last().unwrap().0, "kill", "{r}");
+    assert_escs_stopped(&r, &stderr);
+}
+
+#[test]
+fn settings_under_which_a_landing_never_ends_are_refused() {
+    let check = |set: &str| {
+        let o = uquad(
+            &root(),
+            &["check-config", "config/uquad.toml", "--set", set],
+        );
+        (
+            o.status.success(),
+            String::from_utf8_lossy(&o.stdout).to_string() + &String::from_utf8_lossy(&o.stderr),
+        )
+    };
+    let (ok, text) = check("commander.touchdown_thrust=0.55");
+    assert!(!ok, "{text}");
+    assert!(
+        text.contains("commander.touchdown_thrust: 0.55") && text.contains("slowest motor command"),
+        "{text}"
+    );
+    let (ok, text) = check("commander.climb_acc_m_s2=1e-9");
+    assert!(!ok, "{text}");
+    assert!(text.contains("a landing from it"), "{text}");
+    let (ok, text) = check("commander.land_slow_m_s=1e-6");
+    assert!(!ok, "{text}");
+    // The defaults pass.
+    let (ok, text) = check("commander.touchdown_thrust=0.8");
+    assert!(ok, "{text}");
+}
