@@ -672,7 +672,7 @@ fn flight_time_rule(c: &Config) -> Check {
     let worst_s = takeoff_s.max(landing_s);
     Check::new(
         "commander.climb_acc_m_s2",
-        !(worst_s > FLIGHT_PHASE_MAX_S) && worst_s.is_finite(),
+        worst_s <= FLIGHT_PHASE_MAX_S,
         format!(
             "{} (with climb_m_s {}, land_m_s {}, land_slow_m_s {}: a takeoff to fence.alt_max_m \
              = {h_m} m takes {takeoff_s:.0} s, a landing from it {landing_s:.0} s)",
@@ -697,7 +697,7 @@ fn takeoff_timeout_rule(c: &Config) -> Check {
         "s",
     )
     .and(
-        !(m.takeoff_timeout_s < needed_s),
+        m.takeoff_timeout_s >= needed_s,
         &format!(
             "at least {needed_s:.1} s (the 1 s spool-up, the climb to 0.3 m at \
              commander.climb_m_s and climb_acc_m_s2, 3 s to follow)"
@@ -726,7 +726,7 @@ fn touchdown_thrust_rule(c: &Config) -> Check {
         return range;
     }
     range.and(
-        !(m.touchdown_thrust < floor + MARGIN),
+        m.touchdown_thrust >= floor + MARGIN,
         &format!(
             "above {:.2}: the thrust of the slowest motor command at {heaviest_kg} kg is \
              {floor:.2} of the weight, and a landing must fall under the threshold to end",
