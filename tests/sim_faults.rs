@@ -126,15 +126,28 @@ fn esc_nack_halts_within_12_ms_and_names_the_escs_that_never_confirmed() {
 }
 
 #[test]
-fn a_blind_estimator_halts_within_half_a_second() {
-    // The barometer reads 0 Pa from 30 s: no altitude, every update refused; 10 in a row
-    // (watchdog.estimator_max_refused) halt.
-    let (r, _logs) = sim_report(&["--duration", "40", "--inject", "baro-fail@30"]);
-    assert_eq!(r["halt"]["reason"], "estimator", "{r}");
-    let halt_s = r["halt"]["halt_s"].as_f64().unwrap();
-    assert!((30.0..=30.5).contains(&halt_s), "halted at {halt_s} s: {r}");
+fn a_lost_barometer_lands_on_what_is_left() {
+    // The barometer reads 0 Pa from 30 s: no altitude. The attitude is still there, so no
+    // halt: the altitude's test ratio is not a number, the `estimator` failsafe lands
+    // (failsafe.ekf_bad_s = 2 s later) on the fixes' vertical velocity and the accelerometer,
+    // and the touchdown disarms.
+    let (r, _logs) = sim_report(&["--inject", "baro-fail@30"]);
+    assert!(r["halt"].is_null(), "{r}");
+    let fs = &r["failsafes"][0];
+    assert_eq!(fs["kind"], "estimator", "{r}");
+    assert_eq!(fs["action"], "land", "{r}");
+    let fs_s = fs["t_s"].as_f64().unwrap();
+    assert!((31.9..=32.1).contains(&fs_s), "failsafe at {fs_s} s: {r}");
+    let modes = r["modes"].as_array().unwrap();
+    assert_eq!(modes.last().unwrap()["mode"], "disarmed", "{r}");
+    assert_eq!(modes.last().unwrap()["why"], "touchdown", "{r}");
+    let v = r["touchdown"]["v_m_s"].as_f64().unwrap();
+    assert!(v <= 0.5, "touchdown at {v} m/s: {r}");
+    for c in r["safety"]["contacts"].as_array().unwrap() {
+        assert!(c["v_m_s"].as_f64().unwrap() <= 0.5, "{r}");
+    }
+    assert!(r["ekf_gated"]["altitude"].as_u64().unwrap() > 0, "{r}");
     assert_escs_end_zero_then_disable(&r);
-    assert!(err_log(&r).contains("watchdog: halt, reason estimator"));
 }
 
 #[test]

@@ -3,6 +3,7 @@
 //! flight's two sides as a profile builds them (`flight`), the run folder (`run_dir`) and its
 //! streams read back (`run_logs`), the simulation options (`sim`) and the reports (`report`).
 
+pub mod campaign;
 pub mod commander_report;
 pub mod export;
 pub mod flight;

@@ -7,6 +7,7 @@ use crate::core::watchdog::Halt;
 use crate::logs::{PerStream, Record};
 use crate::sim::esc::EscEnd;
 use crate::sim::hover::HoverStats;
+use crate::sim::safety::SafetyFigures;
 use crate::sim::track::TrackStats;
 use anyhow::Context;
 use serde::Serialize;
@@ -141,6 +142,9 @@ pub struct SimReport {
     pub track: Option<TrackStats>,
     pub simulated_s: f64,
     pub esc_end: Vec<EscEnd>,
+    /// `sim --fast`: what the true vehicle did that the safety campaign judges.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub safety: Option<SafetyFigures>,
 }
 
 /// Writes a report as pretty JSON to `path`.
@@ -345,6 +349,8 @@ pub struct SimSummary {
     pub track: Option<TrackStats>,
     pub simulated_s: f64,
     pub esc_end: Vec<EscEnd>,
+    /// `sim --fast`: what the true vehicle did that the safety campaign judges.
+    pub safety: Option<SafetyFigures>,
 }
 
 impl SimSummary {
@@ -356,6 +362,7 @@ impl SimSummary {
             track: self.track,
             simulated_s: self.simulated_s,
             esc_end: self.esc_end.clone(),
+            safety: self.safety.clone(),
         }
     }
 

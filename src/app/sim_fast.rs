@@ -32,6 +32,7 @@ use crate::sim::faults::{Fault, FaultSchedule, LOG_STALL_US, WireFaults};
 use crate::sim::gps::SimGps;
 use crate::sim::hover::{CycleTrace, FlightView, HoverWindow, TrueState, progress_line};
 use crate::sim::operator::SimOperator;
+use crate::sim::safety::SafetyTrace;
 use crate::sim::track::TrackTrace;
 use crate::sim::{FRAME_US, frame_start_byte, imu::SimImu, physics::Plant};
 use crate::tasks::prearm::PreArm;
@@ -140,6 +141,7 @@ struct FastSim<'a> {
     armed_once: bool,
     trace: CycleTrace,
     track: TrackTrace,
+    safety: SafetyTrace,
 }
 
 pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSummary> {
@@ -231,6 +233,7 @@ impl<'a> FastSim<'a> {
             armed_once: false,
             trace: CycleTrace::default(),
             track: TrackTrace::default(),
+            safety: SafetyTrace::default(),
             faults,
         }
     }
@@ -423,6 +426,9 @@ impl<'a> FastSim<'a> {
     /// Asks the watchdog policy; a trip is kept (the first one decides).
     fn decide(&mut self, ask: impl FnOnce(&mut Watchdog, i64) -> Option<Trip>) {
         if let Some(trip) = ask(&mut self.watchdog, self.t_us) {
+            if self.trip.is_none() {
+                self.safety.halt(&self.plant);
+            }
             self.trip.get_or_insert(trip);
         }
     }
@@ -463,6 +469,8 @@ impl<'a> FastSim<'a> {
             .ekf()
             .map_or([f64::NAN; 3], |e| [e.x[0], e.x[1], e.x[2]]);
         self.track.sample(&guidance, self.plant.position_m(), est_m);
+        let started_up = self.estimator.counts().steps > 0;
+        self.safety.sample(self.t_us, &self.plant, mode, started_up);
     }
 
     /// The end of the run: zero and disable, as fly's shutdown does; the closing lines; the
@@ -508,7 +516,9 @@ impl<'a> FastSim<'a> {
         }
         fly.log_records = self.out.records;
         let mission = self.estimator.commander().mission_figures();
+        let safety = self.safety.finish(&mut self.plant, self.step_us);
         Ok(SimSummary {
+            safety: Some(safety),
             fly: self.fly,
             hover: self.hover.stats(),
             track: self.track.stats(mission),

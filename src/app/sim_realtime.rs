@@ -149,6 +149,7 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
         hover: result.hover,
         track: None,
         simulated_s: result.simulated_us as f64 / 1e6,
+        safety: None,
     })
 }
 

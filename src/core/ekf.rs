@@ -259,6 +259,10 @@ pub struct Ekf {
     /// A fix has been fused (with [`GpsFusion::PositionVelocity`] the first one places the
     /// position).
     pub fix_seen: bool,
+    /// The last IMU update had no barometer altitude (a failed barometer): with
+    /// [`GpsFusion::PositionVelocity`] the altitude is then left out, not refused, and the
+    /// fixes' vertical velocity holds the vertical until it returns.
+    pub baro_lost: bool,
 }
 
 struct Trig {
@@ -501,6 +505,7 @@ impl Ekf {
             x,
             p,
             fix_seen: false,
+            baro_lost: false,
         }
     }
 
@@ -546,6 +551,13 @@ impl Ekf {
         for i in 0..N_STATES {
             self.p[(i, i)] += self.params.q_diag[i];
         }
+        if self.baro_lost {
+            // The profile's vertical process noise is sized against the barometer's row, which
+            // is fused every step; without it the height is the integral of the vertical
+            // velocity, and that velocity wanders only as the accelerometer's noise does.
+            self.p[(idx::Z, idx::Z)] += Q_Z_NO_BARO_M2 - self.params.q_diag[idx::Z];
+            self.p[(idx::VQZ, idx::VQZ)] += Q_VZ_NO_BARO - self.params.q_diag[idx::VQZ];
+        }
         self.x = x_pred;
     }
 
@@ -577,9 +589,20 @@ impl Ekf {
                 }
             }
             None => {
+                let lost = !sample.alt_m.is_finite();
+                if lost && !self.baro_lost {
+                    self.vertical_from_barometer();
+                }
+                self.baro_lost = lost;
                 let z: [f64; IMU_ROWS] =
                     std::array::from_fn(|i| if i < 9 { imu9[i] } else { sample.alt_m });
-                let r = self.params.r_imu_diag;
+                let mut r = self.params.r_imu_diag;
+                if lost {
+                    // The accelerometer's vertical row then carries the height between fixes:
+                    // read at its own noise, it teaches the thrust model's error (baz), so the
+                    // estimate stands still when the vehicle does (on the ground, too).
+                    r[5] = R_AZ_NO_BARO;
+                }
                 self.update::<IMU_ROWS>(&z, &IMU_OBS, &IMU_GROUPS, az_pred, &r)
             }
             Some(g) => {
@@ -597,6 +620,17 @@ impl Ekf {
                 }
                 self.update::<GPS_ROWS>(&z, &GPS_OBS, &GPS_GROUPS, az_pred, &r)
             }
+        }
+    }
+
+    /// The barometer has just gone: the height and vertical speed it held were good to
+    /// centimetres (the profile's P, sized for its 2012 noise values, says metres), so the
+    /// fixes that take over correct them gently instead of replacing them.
+    fn vertical_from_barometer(&mut self) {
+        for (i, var) in [(idx::Z, VAR_Z_AT_LOSS_M2), (idx::VQZ, VAR_VZ_AT_LOSS)] {
+            self.p.row_mut(i).fill(0.0);
+            self.p.column_mut(i).fill(0.0);
+            self.p[(i, i)] = var;
         }
     }
 
@@ -628,18 +662,32 @@ impl Ekf {
             s[(i, i)] += r_diag[i];
         }
         let ratios = test_ratios(&innovation, &s, groups, self.params.gate_sigma);
-        if z.iter().any(|v| !v.is_finite()) {
+        let lost = non_finite_groups(z, groups);
+        // Without the barometer the other rows still hold the attitude (position-velocity
+        // fusion: the fixes then hold the vertical); any other row not a number refuses the
+        // update. Its NaN ratio is the `estimator` failsafe's.
+        let any_lost = z.iter().any(|v| !v.is_finite());
+        let only_altitude = lost.altitude && !lost.attitude && !lost.gps;
+        let untested_lost = z
+            .iter()
+            .zip(groups)
+            .any(|(v, g)| !v.is_finite() && *g == Group::Untested);
+        let degrade = self.params.gps_fusion == GpsFusion::PositionVelocity
+            && only_altitude
+            && !untested_lost;
+        if any_lost && !degrade {
             return UpdateOutcome {
                 ratios,
                 gated: GatedGroups::default(),
                 result: Err(EkfError::NonFiniteMeasurement),
             };
         }
-        let gated = if self.params.gate_fusion {
+        let mut gated = if self.params.gate_fusion {
             ratios.outside_gate()
         } else {
             GatedGroups::default()
         };
+        gated.altitude |= lost.altitude;
         if gated.any() {
             leave_out(gated, groups, &mut innovation, &mut pht, &mut s);
         }
@@ -691,6 +739,36 @@ fn test_ratios<const M: usize>(
             let ratio = y * y / (gate_sq * s[(i, i)]);
             if ratio > *slot || ratio.is_nan() {
                 *slot = ratio;
+            }
+        }
+    }
+    out
+}
+
+/// The vertical process noise per step without a barometer: the height follows its velocity
+/// (a small floor keeps P positive), m²; the velocity wanders by 0.01 m/s a step (the
+/// accelerometer's noise of about 0.5 m/s² over 10 ms, with room for the thrust model's
+/// error), (m/s)².
+const Q_Z_NO_BARO_M2: f64 = 1e-6;
+const Q_VZ_NO_BARO: f64 = 1e-4;
+/// The accelerometer's vertical row without a barometer, (m/s²)²: a frame's noise on the
+/// airframe, vibration included (about 1 m/s²).
+const R_AZ_NO_BARO: f64 = 1.0;
+/// The height's and vertical speed's variances when the barometer goes, m² and (m/s)²: a
+/// 0.3 m and 0.1 m/s standard deviation.
+const VAR_Z_AT_LOSS_M2: f64 = 0.09;
+const VAR_VZ_AT_LOSS: f64 = 0.01;
+
+/// The groups with a row that is not a number.
+fn non_finite_groups<const M: usize>(z: &[f64; M], groups: &[Group; M]) -> GatedGroups {
+    let mut out = GatedGroups::default();
+    for (v, g) in z.iter().zip(groups) {
+        if !v.is_finite() {
+            match g {
+                Group::Attitude => out.attitude = true,
+                Group::Altitude => out.altitude = true,
+                Group::Gps => out.gps = true,
+                Group::Untested => {}
             }
         }
     }

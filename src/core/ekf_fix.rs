@@ -19,15 +19,26 @@ use nalgebra::{SMatrix, SVector};
 /// vertical, and a horizontal error must not move it (nor the altitude the horizontal).
 const HORIZONTAL: [usize; 4] = [idx::X, idx::Y, idx::VQX, idx::VQY];
 const VERTICAL: [usize; 2] = [idx::Z, idx::VQZ];
-/// Rows: x, y, z, north and west velocity.
-const ROWS: usize = 5;
+/// Rows: x, y, z, north, west and up velocity (the last only while the barometer is lost).
+const ROWS: usize = 6;
+/// The vertical velocity row's gain goes to the vertical speed alone: a correction of the
+/// height at a fix is a step the altitude loop flies (a few tenths of a metre saturate it),
+/// while the height integrated from a corrected speed moves smoothly.
+const VERTICAL_SPEED: [usize; 1] = [idx::VQZ];
 
 impl Ekf {
     /// Fuses fix `g` into position and velocity.
     pub(crate) fn fuse_fix(&mut self, g: &GpsSample) -> UpdateOutcome {
         let rg = self.params.r_gps_diag;
         let rv = self.params.r_gps_vel;
-        let r = [rg[GPS_ROWS - 3], rg[GPS_ROWS - 2], rg[GPS_ROWS - 1], rv, rv];
+        let r = [
+            rg[GPS_ROWS - 3],
+            rg[GPS_ROWS - 2],
+            rg[GPS_ROWS - 1],
+            rv,
+            rv,
+            rv,
+        ];
         let vel = g.vel_m_s.unwrap_or([f64::NAN; 3]);
         let z = [
             g.xy_m[0],
@@ -35,14 +46,18 @@ impl Ekf {
             g.z_m.unwrap_or(f64::NAN),
             vel[0],
             vel[1],
+            vel[2],
         ];
-        // Rows without a measurement (no altitude, no velocity) are left out.
+        // Rows without a measurement (no altitude, no velocity) are left out. The barometer
+        // owns the vertical; without it the receiver's vertical velocity holds the vertical
+        // speed (its altitude wanders by metres: a landing needs the speed, not the height).
         let used: [bool; ROWS] = [
             true,
             true,
             g.z_m.is_some(),
             g.vel_m_s.is_some(),
             g.vel_m_s.is_some(),
+            g.vel_m_s.is_some() && self.baro_lost,
         ];
         if (0..ROWS).any(|i| used[i] && !z[i].is_finite()) {
             return outcome(
@@ -90,10 +105,10 @@ impl Ekf {
         let mut k = pht * s_inv;
         for st in 0..N_STATES {
             for c in 0..ROWS {
-                let keep = if c == 2 {
-                    &VERTICAL[..]
-                } else {
-                    &HORIZONTAL[..]
+                let keep = match c {
+                    2 => &VERTICAL[..],
+                    5 => &VERTICAL_SPEED[..],
+                    _ => &HORIZONTAL[..],
                 };
                 if !keep.contains(&st) {
                     k[(st, c)] = 0.0;
@@ -105,7 +120,7 @@ impl Ekf {
         outcome(ratios, false, Ok(()))
     }
 
-    /// H: the position rows read x, y, z; the velocity rows the body velocity turned by the
+    /// H: the position rows read x, y, z; the velocity rows (north, west, up) the body velocity turned by the
     /// estimated attitude (its partials in the angles are left out with their gain). Rows not
     /// used are zero.
     fn observation(&self, used: &[bool; ROWS]) -> SMatrix<f64, ROWS, N_STATES> {
@@ -116,7 +131,7 @@ impl Ekf {
             }
         }
         let r = rotation_portable(self.x[idx::PSI], self.x[idx::PHI], self.x[idx::THETA]);
-        for (row, rr) in r.iter().take(2).enumerate() {
+        for (row, rr) in r.iter().enumerate() {
             if used[3 + row] {
                 for (j, v) in rr.iter().enumerate() {
                     h[(3 + row, idx::VQX + j)] = *v;
@@ -203,6 +218,46 @@ mod tests {
             z_m: Some(5.0),
             vel_m_s: vel,
         }
+    }
+
+    #[test]
+    fn without_the_barometer_the_fixes_hold_the_vertical_and_nothing_is_refused() {
+        let (mut ekf, still, mut input) = filter();
+        for k in 0..300 {
+            input.gps = (k % 100 == 0).then(|| fix(0.0, 0.0, Some([0.0; 3])));
+            ekf.step(&still, &input).1.unwrap();
+        }
+        assert!(!ekf.baro_lost);
+        // The barometer goes (not a number): the step goes on without it, its ratio says so.
+        let mut no_baro = still;
+        no_baro.alt_m = f64::NAN;
+        input.gps = None;
+        let (rep, res) = ekf.step(&no_baro, &input);
+        assert_eq!(res, Ok(()));
+        assert!(rep.ratios.altitude.is_nan() && rep.gated.altitude && ekf.baro_lost);
+        assert!(ekf.p[(idx::Z, idx::Z)] < 0.2, "the height it left is kept");
+        // A fix climbing at 1 m/s, its receiver reading 5 m: the vertical speed follows it,
+        // the height does not step (it follows the speed from then on).
+        let z_before = ekf.x[idx::Z];
+        input.gps = Some(fix(0.0, 0.0, Some([0.0, 0.0, 1.0])));
+        ekf.step(&no_baro, &input).1.unwrap();
+        assert!(ekf.x[idx::VQZ] > 0.5, "vertical speed {}", ekf.x[idx::VQZ]);
+        assert!(
+            (ekf.x[idx::Z] - z_before).abs() < 0.05,
+            "height {}",
+            ekf.x[idx::Z]
+        );
+        input.gps = None;
+        for _ in 0..100 {
+            ekf.step(&no_baro, &input).1.unwrap();
+        }
+        assert!(ekf.x[idx::Z] > z_before + 0.3, "height {}", ekf.x[idx::Z]);
+        // With the original's joint fusion the same step is refused, as it always was.
+        let (mut joint, _, mut input) = filter();
+        joint.params.gps_fusion = GpsFusion::Joint;
+        input.gps = None;
+        let (_, res) = joint.step(&no_baro, &input);
+        assert_eq!(res, Err(crate::core::ekf::EkfError::NonFiniteMeasurement));
     }
 
     #[test]

@@ -10,6 +10,7 @@ pub mod hover;
 pub mod imu;
 pub mod operator;
 pub mod physics;
+pub mod safety;
 pub mod track;
 
 use crate::config::Profile;

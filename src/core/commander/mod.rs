@@ -823,8 +823,10 @@ impl Commander {
         } else {
             p.land_slow_m_s
         };
-        // Aim below the ground so the set point keeps pressing down until touchdown.
-        let floor = ground - 2.0;
+        // Aim below the ground, and below the estimate, so the set point keeps pressing down
+        // until touchdown: an estimate without a barometer may sink below the ground while
+        // the vehicle stands on it, and a floor above it would lift the vehicle again.
+        let floor = ground.min(o.pos_m[2]) - 2.0;
         self.profile.advance(floor, v, p.climb_acc_m_s2, dt_s);
         // Still: the estimate's vertical speed is near zero, or the accelerometer feels more
         // than the thrust gives (the ground's push). The second is needed because the filter's
