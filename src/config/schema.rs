@@ -250,6 +250,9 @@ pub struct Ekf {
     pub gps_fusion: crate::core::ekf::GpsFusion,
     /// With "position-velocity": noise of the receiver's horizontal velocity, (m/s)².
     pub r_gps_vel: f64,
+    /// Drag per m/s of airspeed, 1/s (PX4's EKF2_MCOEF): without fixes it holds the
+    /// horizontal velocity; 0: off.
+    pub drag_per_s: f64,
 }
 
 impl Default for Ekf {
@@ -266,6 +269,7 @@ impl Default for Ekf {
             gate_fusion: true,
             gps_fusion: p.gps_fusion,
             r_gps_vel: p.r_gps_vel,
+            drag_per_s: p.drag_per_s,
         }
     }
 }
@@ -285,6 +289,7 @@ impl Ekf {
             gate_fusion: self.gate_fusion,
             gps_fusion: self.gps_fusion,
             r_gps_vel: self.r_gps_vel,
+            drag_per_s: self.drag_per_s,
         }
     }
 }

@@ -859,6 +859,12 @@ fn ekf_rules(c: &Config) -> Vec<Check> {
         )
         .note("finite")])
         .chain([in_range("ekf.r_gps_vel", c.ekf.r_gps_vel, variance, "(m/s)²").note("a variance")])
+        .chain([in_range(
+            "ekf.drag_per_s",
+            c.ekf.drag_per_s,
+            0.0..=10.0,
+            "1/s",
+        )])
         .collect()
 }
 

@@ -55,6 +55,20 @@ impl Integrators {
     }
 }
 
+/// The largest velocity error flown on the drag's velocity ([`Horizontal::Velocity`]), m/s.
+const DRAG_VELOCITY_ERROR_M_S: f64 = 0.5;
+
+/// What the controller holds horizontally.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Horizontal {
+    /// The position and velocity (fixes fused lately).
+    Position,
+    /// The velocity only: observed without fixes (the drag), the position is not.
+    Velocity,
+    /// Neither: attitude, altitude and yaw.
+    Attitude,
+}
+
 /// Update rule of one integrator (ERRATA 7): the step e·T_s is clamped to ±`step_max`, the
 /// accumulator to ±`cap`; errors above `threshold` (when set) are not integrated. Also the
 /// `control.integral.<state>` configuration table, where `step_max` and `cap` are required
@@ -260,20 +274,21 @@ impl Controller {
     /// One control step (spec 4.4): e = sp − x̂; w = sp.w + K·e; integrators updated with
     /// T_s; w += K_int·x_int. Returns the raw controller output (before ramp and saturation).
     pub fn step(&mut self, x_hat: &State, sp: &SetPoint, t_s: f64) -> [f64; 4] {
-        self.step_with_hold(x_hat, sp, t_s, true)
+        self.step_with_hold(x_hat, sp, t_s, Horizontal::Position)
     }
 
-    /// [`Controller::step`], with the horizontal position held or not. Without position hold
-    /// (no GPS fix lately: x, y and the body velocities vqx, vqy are then the filter's
-    /// integration of accelerations and drift without bound) their errors count as zero and
-    /// the x, y integrators keep their values: the controller holds attitude, altitude and
-    /// yaw, and what the x, y integrators learnt (a motor's trim) stays applied.
+    /// [`Controller::step`], with what is held horizontally. Without a position (no GPS fix
+    /// lately: x, y are then the filter's integration and drift without bound) their errors
+    /// count as zero, and so do the body velocities' unless the filter still observes them
+    /// (the drag, `core::ekf_drag`): the controller holds attitude, altitude and yaw, and
+    /// damps the velocity when it can. The x, y integrators keep their values: what they
+    /// learnt (a motor's trim) stays applied.
     pub fn step_with_hold(
         &mut self,
         x_hat: &State,
         sp: &SetPoint,
         t_s: f64,
-        hold_position: bool,
+        hold: Horizontal,
     ) -> [f64; 4] {
         let mut e = [0.0; N_CONTROLLED];
         for (i, ei) in e.iter_mut().enumerate() {
@@ -283,9 +298,20 @@ impl Controller {
         // horizontal position error is turned into it. (With ψ, φ integrators the x, y gains
         // are zero and this changes nothing.)
         [e[0], e[1]] = HeadingFrame::of(sp.x[5]).turn([e[0], e[1]]);
-        if !hold_position {
-            for i in HORIZONTAL_STATES {
-                e[i] = 0.0;
+        let hold_position = hold == Horizontal::Position;
+        let free = match hold {
+            Horizontal::Position => &[][..],
+            Horizontal::Velocity => &HORIZONTAL_STATES[..2],
+            Horizontal::Attitude => &HORIZONTAL_STATES[..],
+        };
+        for &i in free {
+            e[i] = 0.0;
+        }
+        if hold == Horizontal::Velocity {
+            // The drag's velocity reads any steady push as airspeed: damped within a bound,
+            // so the tilt it asks for stays small whatever it reads.
+            for i in [6, 7] {
+                e[i] = e[i].clamp(-DRAG_VELOCITY_ERROR_M_S, DRAG_VELOCITY_ERROR_M_S);
             }
         }
         if self.error_limits {
@@ -652,9 +678,21 @@ mod tests {
         for i in [0, 1, 2, 6, 7] {
             x_hat[i] = 0.1;
         }
-        let held = c.clone().step_with_hold(&x_hat, &sp, 0.01, true);
+        let held = c
+            .clone()
+            .step_with_hold(&x_hat, &sp, 0.01, Horizontal::Position);
+        let damped = c
+            .clone()
+            .step_with_hold(&x_hat, &sp, 0.01, Horizontal::Velocity);
         let seeds = c.x_int().to_vec();
-        let free = c.step_with_hold(&x_hat, &sp, 0.01, false);
+        let free = c.step_with_hold(&x_hat, &sp, 0.01, Horizontal::Attitude);
+        // Velocity only: z's error and vqx's, vqy's.
+        assert!(
+            damped
+                .iter()
+                .zip(&free)
+                .all(|(d, f)| (d - f + 0.2).abs() < 1e-9)
+        );
         // Held: 5 errors of -0.1; not held: only z's. The integrators: x, y frozen at their
         // seeds, z moved by e·T = -1e-3.
         assert_eq!(c.x_int()[..2], seeds[..2]);

@@ -108,6 +108,9 @@ pub struct EkfParams {
     pub gps_fusion: GpsFusion,
     /// Noise of a fix's horizontal velocity rows ([`GpsFusion::PositionVelocity`]), (m/s)².
     pub r_gps_vel: f64,
+    /// The drag's specific force per m/s of airspeed across the thrust axis, 1/s (PX4's
+    /// EKF2_MCOEF): without fixes it holds the horizontal velocity (`core::ekf_drag`); 0: off.
+    pub drag_per_s: f64,
 }
 
 /// How a GPS fix is fused.
@@ -146,6 +149,7 @@ impl EkfParams {
             gate_fusion: false,
             gps_fusion: GpsFusion::Joint,
             r_gps_vel: 0.01,
+            drag_per_s: 0.0,
         }
     }
 }
@@ -263,6 +267,8 @@ pub struct Ekf {
     /// [`GpsFusion::PositionVelocity`] the altitude is then left out, not refused, and the
     /// fixes' vertical velocity holds the vertical until it returns.
     pub baro_lost: bool,
+    /// Steps since the last fix (saturating); the drag holds the velocity past a threshold.
+    pub steps_without_fix: u32,
 }
 
 struct Trig {
@@ -506,6 +512,7 @@ impl Ekf {
             p,
             fix_seen: false,
             baro_lost: false,
+            steps_without_fix: 0,
         }
     }
 
@@ -526,6 +533,10 @@ impl Ekf {
     ) -> (StepReport, Result<(), EkfError>) {
         let theta_m = unwrap_theta(sample.euler_rad[2], self.x[idx::THETA]);
         let (dt_used_us, dt_clamped) = self.clamp_dt_us(input.dt_us);
+        self.steps_without_fix = match input.gps {
+            Some(_) => 0,
+            None => self.steps_without_fix.saturating_add(1),
+        };
         let u = &input.u_rad_s;
         self.predict(u, dt_used_us as f64 / 1e6, input.mass_kg);
         let az_pred = total_thrust_n(u) / input.mass_kg + self.x[idx::BAZ];
@@ -550,6 +561,12 @@ impl Ekf {
         kernels::propagate_covariance(&f, &mut self.p);
         for i in 0..N_STATES {
             self.p[(i, i)] += self.params.q_diag[i];
+        }
+        if self.drag_active() {
+            // bax, bay are then the drag, tied to the velocity: not a bias free to wander.
+            for i in [idx::BAX, idx::BAY] {
+                self.p[(i, i)] += Q_BAXY_DRAG - self.params.q_diag[i];
+            }
         }
         if self.baro_lost {
             // The profile's vertical process noise is sized against the barometer's row, which
@@ -603,7 +620,11 @@ impl Ekf {
                     // estimate stands still when the vehicle does (on the ground, too).
                     r[5] = R_AZ_NO_BARO;
                 }
-                self.update::<IMU_ROWS>(&z, &IMU_OBS, &IMU_GROUPS, az_pred, &r)
+                let out = self.update::<IMU_ROWS>(&z, &IMU_OBS, &IMU_GROUPS, az_pred, &r);
+                if self.drag_active() && out.result.is_ok() {
+                    self.fuse_drag(sample.acc_m_s2);
+                }
+                out
             }
             Some(g) => {
                 let z: [f64; GPS_ROWS] = std::array::from_fn(|i| {
@@ -751,6 +772,9 @@ fn test_ratios<const M: usize>(
 /// error), (m/s)².
 const Q_Z_NO_BARO_M2: f64 = 1e-6;
 const Q_VZ_NO_BARO: f64 = 1e-4;
+/// The drag's process noise per step while it holds the velocity, (m/s²)².
+const Q_BAXY_DRAG: f64 = 1e-6;
+
 /// The accelerometer's vertical row without a barometer, (m/s²)²: a frame's noise on the
 /// airframe, vibration included (about 1 m/s²).
 const R_AZ_NO_BARO: f64 = 1.0;

@@ -5,6 +5,7 @@
 pub mod commander;
 pub mod control;
 pub mod ekf;
+pub mod ekf_drag;
 pub mod ekf_fix;
 pub mod ekf_kernels;
 pub mod esc;

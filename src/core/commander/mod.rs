@@ -186,6 +186,9 @@ pub struct Observation {
     pub baro_alt_m: f64,
     /// A GPS fix was fused in this step.
     pub gps_fused: bool,
+    /// The estimate's vertical is observed (a barometer, or fixes' vertical velocity); false:
+    /// the accelerometer alone carries it, and a stop on the ground goes unseen.
+    pub vertical_observed: bool,
     /// The step's innovation test ratios per measurement group (above 1: outside the gate).
     pub ratios: TestRatios,
     /// The yaw measured at calibration (the hover's heading), rad.
@@ -214,6 +217,9 @@ pub struct Guidance {
     pub yaw_rad: Option<f64>,
     /// The mission item flown (or paused), 0-based as loaded.
     pub mission_item: Option<usize>,
+    /// The most thrust the motors may give, as a share of the weight: a landing whose
+    /// estimate has no vertical reference left lowers it on the ground it cannot see.
+    pub thrust_cap: Option<f64>,
 }
 
 impl Guidance {
@@ -229,6 +235,7 @@ impl Guidance {
         path: None,
         yaw_rad: None,
         mission_item: None,
+        thrust_cap: None,
     };
 }
 
@@ -256,6 +263,11 @@ const GROUND_PUSH: f64 = 0.1;
 /// up while it catches up (an overshoot).
 const SPOOL_UP_STEPS: u32 = crate::core::motor::FLIGHT_RAMP_STEPS;
 
+/// How fast the thrust cap falls once a landing without a vertical reference reaches the
+/// ground by its estimate, share of the weight per second: from hover to the touchdown's 0.8
+/// in 4 s; a vehicle still 0.5 m up meets the ground at about 0.8 m/s.
+const BLIND_RAMP_PER_S: f64 = 0.03;
+
 /// A landing is slow over this last height, m.
 const LAST_METRE_M: f64 = 1.0;
 
@@ -276,6 +288,9 @@ pub struct Commander {
     /// Since when each measurement group (attitude, altitude, GPS) has been outside its gate.
     ekf_bad_since_us: [Option<i64>; 3],
     touchdown_since_us: Option<i64>,
+    /// A landing without a vertical reference reached the ground by its estimate: the thrust
+    /// cap falls from then.
+    blind_since_us: Option<i64>,
     /// Per failsafe, by [`Failsafe`] order: recorded, and its action taken, while its
     /// condition lasts (so the operator can choose another mode meanwhile; a new occurrence
     /// fires again).
@@ -345,6 +360,7 @@ impl Commander {
             gps_lost_us: None,
             ekf_bad_since_us: [None; 3],
             touchdown_since_us: None,
+            blind_since_us: None,
             recorded: [false; 4],
             acted: [false; 4],
             armed_us: None,
@@ -641,6 +657,7 @@ impl Commander {
         }
         // A landing left and begun again starts its touchdown watch afresh.
         self.touchdown_since_us = None;
+        self.blind_since_us = None;
         self.descent = DescentTrace::default();
         self.set_mode(Mode::Land, t_us, why, out);
     }
@@ -769,7 +786,16 @@ impl Commander {
             path: self.path,
             yaw_rad: self.yaw_rad,
             mission_item: self.mission_item(),
+            thrust_cap: self.thrust_cap(),
         }
+    }
+
+    /// The landing's thrust cap, once it has no vertical reference and has reached the
+    /// ground by its estimate.
+    fn thrust_cap(&self) -> Option<f64> {
+        let t0 = self.blind_since_us.filter(|_| self.mode == Mode::Land)?;
+        let t_us = self.observed.map_or(t0, |o| o.t_us);
+        Some((1.0 - BLIND_RAMP_PER_S * (t_us - t0) as f64 / 1e6).max(0.0))
     }
 
     /// The set point's profile for the mode, and the mode's end.
@@ -818,6 +844,16 @@ impl Commander {
         // Slow from high enough to be at the slow speed by the last metre.
         let brake_m = (p.land_m_s.powi(2) - p.land_slow_m_s.powi(2)).max(0.0)
             / (2.0 * BRAKE_SHARE * p.climb_acc_m_s2);
+        // With the vertical unobserved nothing tells the estimate the vehicle has stopped on
+        // the ground (the accelerometer reads the same in a steady descent): once the
+        // estimate is down to the ground the thrust is capped lower and lower, so the
+        // ground's push is felt (or, if the estimate was high, the last of the descent is
+        // flown on a slowly falling thrust).
+        match (o.vertical_observed, height <= 0.0, self.blind_since_us) {
+            (true, _, _) => self.blind_since_us = None,
+            (false, true, None) => self.blind_since_us = Some(o.t_us),
+            _ => {}
+        }
         let v = if height > LAST_METRE_M + brake_m {
             p.land_m_s
         } else {

@@ -66,6 +66,7 @@ fn at(t_us: i64, z_m: f64) -> Observation {
         tilt_rad: 0.0,
         baro_alt_m: z_m,
         gps_fused: t_us % 1_000_000 == 0,
+        vertical_observed: true,
         ratios: TestRatios {
             attitude: 0.0,
             altitude: 0.0,

@@ -11,7 +11,9 @@
 
 use crate::core::commander::{Guidance, Mode};
 use crate::core::control::Gains;
-use crate::core::control::{Controller, HoverPlanner, ManualCommand, ManualOutcome, SetPoint};
+use crate::core::control::{
+    Controller, Horizontal, HoverPlanner, ManualCommand, ManualOutcome, SetPoint,
+};
 use crate::core::ekf::{
     Ekf, EkfError, EkfParams, GatedGroups, Input, State, StepInput, TestRatios,
 };
@@ -45,6 +47,10 @@ pub struct Estimate {
     /// Yaw measured at calibration (the hover set point's θ).
     pub theta_cal_rad: f64,
     pub gps_used: bool,
+    /// The filter observes the horizontal velocity without fixes (the drag).
+    pub velocity_observed: bool,
+    /// The filter observes the vertical (a barometer, or fixes' vertical velocity).
+    pub vertical_observed: bool,
     pub dt_clamped: bool,
     pub ekf_error: Option<EkfError>,
     /// The commander's guidance for this step's control, and the gains designed along its
@@ -154,6 +160,8 @@ impl EstimatorCore {
             x: ekf.x,
             theta_cal_rad: self.theta_cal_rad,
             gps_used: gps.is_some(),
+            velocity_observed: ekf.drag_active(),
+            vertical_observed: ekf.vertical_observed(),
             dt_clamped: report.dt_clamped,
             ekf_error: result.err(),
             guidance: Guidance::OFF,
@@ -375,10 +383,9 @@ impl ControllerCore {
         let (sp, mass_kg) = self.guided_set_point(est);
         let limits = MotorLimits::new(mass_kg, self.make_planner.w_max_rad_s);
         let t_s = self.period_us(t_ctrl_us) as f64 / 1e6;
-        let position_hold = self.position_hold(est);
-        let mut w_ctrl = self
-            .controller
-            .step_with_hold(&est.x, &sp, t_s, position_hold);
+        let hold = self.horizontal_hold(est);
+        let position_hold = hold == Horizontal::Position;
+        let mut w_ctrl = self.controller.step_with_hold(&est.x, &sp, t_s, hold);
         // The observer starts once the flight ramp is over: before, the vehicle stands on the
         // ground, which holds any torque, and the motors are far from the hover speeds the
         // correction is linearised around.
@@ -390,6 +397,9 @@ impl ControllerCore {
             for (w, dw) in w_ctrl.iter_mut().zip(c) {
                 *w += dw;
             }
+        }
+        if let Some(cap) = est.guidance.thrust_cap {
+            crate::core::motor::cap_thrust(&mut w_ctrl, cap, mass_kg);
         }
         let w_sent = command_for_step(&w_ctrl, ramp_step, &limits);
         if let Some(o) = &mut self.observer {
@@ -458,15 +468,19 @@ impl ControllerCore {
     }
 
     /// The horizontal position is held while a fix was fused lately and the commander has
-    /// not let it go (a lost GPS).
-    fn position_hold(&mut self, est: &Estimate) -> bool {
+    /// not let it go (a lost GPS); else the velocity, while the filter observes it.
+    fn horizontal_hold(&mut self, est: &Estimate) -> Horizontal {
         if est.gps_used {
             self.last_gps_us = Some(est.t_us);
         }
-        est.guidance.hold_xy
-            && self
-                .last_gps_us
-                .is_some_and(|t| est.t_us - t <= self.gps_hold_timeout_us)
+        let fixes = self
+            .last_gps_us
+            .is_some_and(|t| est.t_us - t <= self.gps_hold_timeout_us);
+        match (est.guidance.hold_xy && fixes, est.velocity_observed) {
+            (true, _) => Horizontal::Position,
+            (false, true) => Horizontal::Velocity,
+            (false, false) => Horizontal::Attitude,
+        }
     }
 
     /// The integrators and how many are meaningful.

@@ -731,6 +731,7 @@ impl EstimatorSide {
                 .acos(),
             baro_alt_m: est.sample.alt_m,
             gps_fused: est.gps_used,
+            vertical_observed: est.vertical_observed,
             ratios: est.ratios,
             yaw_cal_rad: est.theta_cal_rad,
         };
