@@ -47,7 +47,32 @@ impl Failsafe {
     }
 }
 
+impl Failsafe {
+    const ALL: [Failsafe; 4] = [
+        Failsafe::LinkLoss,
+        Failsafe::GpsLoss,
+        Failsafe::Geofence,
+        Failsafe::Estimator,
+    ];
+}
+
 impl Commander {
+    /// The failsafe acting now whose condition persists and whose action is not a hold: an
+    /// operator's hold or mission would fly on against it (a lost link is not one: a command
+    /// is the link back).
+    pub(super) fn acting_failsafe(&self) -> Option<Failsafe> {
+        let p = &self.p;
+        Failsafe::ALL.into_iter().find(|&k| {
+            let action = match k {
+                Failsafe::LinkLoss => return false,
+                Failsafe::GpsLoss => p.gps_loss_action,
+                Failsafe::Geofence => p.fence_action,
+                Failsafe::Estimator => p.ekf_action,
+            };
+            self.acted[k as usize] && action != Action::Hold
+        })
+    }
+
     /// The failsafes judged on a Kalman step, in the air: the fence (on the dead-reckoned
     /// position grown by its uncertainty while no fix comes) and the estimator's gates. The
     /// link and GPS are judged at every frame from arming ([`Commander::tick`]).

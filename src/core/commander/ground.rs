@@ -78,6 +78,35 @@ impl Commander {
     /// an estimate on a failed gyro may not see) for `crash_s`, or a takeoff that has not
     /// left the ground (by the estimate and the barometer) `takeoff_timeout_s` after it began
     /// and has not reached its height.
+    /// In the air by its mode (hold, mission, return) but on the ground by its estimate
+    /// (under `control.manual.z_min_m` above the takeoff point) for half of
+    /// `disarm_ground_s`: something holds it down, or it came down; it lands, and the
+    /// touchdown disarms.
+    pub(super) fn grounded_in_flight(&mut self, o: &Observation, out: &mut Vec<Event>) {
+        let ground_m = self.home_m.map_or(0.0, |h| h[2]);
+        let low = matches!(self.mode, Mode::Hold | Mode::Mission | Mode::Return)
+            && self.p.start != super::Start::Flying
+            && o.pos_m[2] - ground_m < self.p.z_min_m;
+        if !low {
+            self.low_since_us = None;
+            return;
+        }
+        // Half the ground's time: the landing that follows must end within it.
+        let since = *self.low_since_us.get_or_insert(o.t_us);
+        if (o.t_us - since) as f64 / 1e6 >= 0.5 * self.p.disarm_ground_s {
+            self.low_since_us = None;
+            let why = format!(
+                "on the ground in {} for half of commander.disarm_ground_s = {} s",
+                self.mode.name(),
+                self.p.disarm_ground_s
+            );
+            self.begin_land(Some(o), o.t_us, &why, out);
+            // The landing begins where the vehicle is: on the ground.
+            self.profile.z_m = o.pos_m[2];
+            self.profile.vz_m_s = 0.0;
+        }
+    }
+
     pub(super) fn crashed(&mut self, o: &Observation) -> Option<EscRequest> {
         // Profiles that start flying (the original's, the 2012 flights) keep their behaviour:
         // their replays stay byte-exact.

@@ -302,6 +302,8 @@ pub struct Commander {
     fix_rx_us: Option<i64>,
     /// Armed on the ground with the start-up over (the first Kalman step), since.
     ground_since_us: Option<i64>,
+    /// In the air by its mode but on the ground by its estimate, since.
+    low_since_us: Option<i64>,
     /// Tilted beyond `crash_tilt_rad`, since.
     tilt_since_us: Option<i64>,
     /// The takeoff began at; it has left the ground.
@@ -366,6 +368,7 @@ impl Commander {
             armed_us: None,
             fix_rx_us: None,
             ground_since_us: None,
+            low_since_us: None,
             tilt_since_us: None,
             takeoff_us: None,
             lifted: false,
@@ -554,6 +557,12 @@ impl Commander {
             }
             Command::Disarm if m == Mode::Disarmed => Err("already disarmed".into()),
             Command::Disarm => Ok(()),
+            Command::Hold(_) | Command::Start | Command::Resume
+                if m.airborne() && self.acting_failsafe().is_some() =>
+            {
+                let k = self.acting_failsafe().map_or("?", |k| k.name());
+                Err(format!("failsafe {k} is acting and its cause persists"))
+            }
             Command::Takeoff(_) if m != Mode::Armed => {
                 Err(format!("{}: takeoff needs armed", m.name()))
             }
@@ -564,11 +573,25 @@ impl Commander {
             Command::Resume => self.check_resume(),
             Command::Return if m == Mode::Return => Err("already return".into()),
             Command::Return if m == Mode::Land => Err("landing: a landing goes on".into()),
+            // Holding "here" on the ground (a takeoff still spooling up, a landing that has
+            // come down) would hold the ground, motors running, with nothing to end it.
+            Command::Hold(None) if m.airborne() && self.below_hold(est) => Err(format!(
+                "{}: on the ground (under control.manual.z_min_m = {} m above the takeoff \
+                 point); hold X Y Z, land, or disarm",
+                m.name(),
+                self.p.z_min_m
+            )),
             Command::Hold(_) | Command::Land | Command::Return if !m.airborne() => {
                 Err(format!("{}: not in the air", m.name()))
             }
             Command::Hold(_) | Command::Land | Command::Return | Command::Pause => Ok(()),
         }
+    }
+
+    /// The estimate is under the lowest hold above the takeoff point (or there is none).
+    fn below_hold(&self, est: Option<&Observation>) -> bool {
+        let ground_m = self.home_m.map_or(0.0, |h| h[2]);
+        est.is_none_or(|o| o.pos_m[2] - ground_m < self.p.z_min_m)
     }
 
     /// The estimator is running and inside its gates (a takeoff needs it).
@@ -764,6 +787,7 @@ impl Commander {
             self.ground_since_us.get_or_insert(o.t_us);
         }
         let request = self.crashed(o);
+        self.grounded_in_flight(o, out);
         let request = match request {
             None if self.mode.airborne() => self.failsafes(o, out),
             r => r,
@@ -916,5 +940,7 @@ fn outside_gate(r: &TestRatios) -> bool {
     bad(r.attitude) || bad(r.altitude) || r.gps.is_some_and(bad)
 }
 
+#[cfg(test)]
+mod explore;
 #[cfg(test)]
 mod tests;

@@ -1,0 +1,100 @@
+//! `uquad campaign`, end to end: a short campaign (every fault alone in every phase) holds
+//! the seven invariants, and a broken setting is caught with the command line that reruns the
+//! run that broke one.
+
+mod common;
+use common::*;
+
+/// Runs `uquad campaign` with `args`; its exit status, report and stdout + stderr.
+fn campaign(args: &[&str]) -> (bool, serde_json::Value, String) {
+    let dir = tempfile::tempdir().unwrap();
+    let report = dir.path().join("campaign.json");
+    let r = report.to_str().unwrap().to_string();
+    let mut all = vec!["campaign", "--config", "config/uquad.toml", "--jobs", "2"];
+    all.extend_from_slice(args);
+    all.extend_from_slice(&["--report", &r]);
+    let o = uquad(&root(), &all);
+    let text = format!(
+        "{}\n{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let json = std::fs::read_to_string(&report).unwrap_or_else(|_| panic!("no report: {text}"));
+    (
+        o.status.success(),
+        serde_json::from_str(&json).unwrap(),
+        text,
+    )
+}
+
+#[test]
+fn every_fault_alone_in_every_phase_holds_the_invariants() {
+    // The first 90 runs: the ten faults, each alone, in each of the nine phases.
+    let (ok, r, text) = campaign(&["--runs", "90"]);
+    assert!(ok, "{text}");
+    assert_eq!(r["runs"], 90, "{text}");
+    assert_eq!(r["violations"].as_array().unwrap().len(), 0, "{text}");
+    assert!(r["wall_s"].as_f64().unwrap() > 0.0, "{text}");
+    let outcomes = r["outcomes"].as_object().unwrap();
+    assert_eq!(outcomes.len(), 10, "every fault: {text}");
+    for (fault, phases) in outcomes {
+        assert_eq!(
+            phases.as_object().unwrap().len(),
+            9,
+            "{fault} in every phase: {text}"
+        );
+    }
+    // The stuck gyro, which the estimator cannot see yet, is listed apart, never silently.
+    for k in r["known_exceptions"].as_array().unwrap() {
+        assert!(k["fault"].as_str().unwrap().contains("gyro-stuck"), "{k}");
+    }
+    assert!(text.contains("fault        disarmed"), "the table: {text}");
+}
+
+#[test]
+fn a_broken_invariant_is_named_with_the_run_that_broke_it() {
+    // Without the drag's velocity, a GPS lost at the takeoff drifts out of the fence: run 42
+    // (seed 43) of the campaign is that one.
+    let (ok, r, text) = campaign(&["--runs", "43", "--set", "ekf.drag_per_s=0"]);
+    assert!(!ok, "a violation exits non-zero: {text}");
+    let v = &r["violations"][0];
+    assert_eq!(v["invariant"], 5, "{text}");
+    let line = v["run"].as_str().unwrap();
+    assert!(
+        line.contains("--seed 43") && line.contains("--inject gps-loss@"),
+        "{line}"
+    );
+    assert!(line.contains("--set 'ekf.drag_per_s=0'"), "{line}");
+    // The command line reruns it: the same distance.
+    let words: Vec<String> = line
+        .split(" --")
+        .skip(1)
+        .flat_map(|w| {
+            let (flag, value) = w.split_once(' ').unwrap_or((w, ""));
+            [format!("--{flag}"), value.trim_matches('\'').to_string()]
+        })
+        .filter(|w| !w.is_empty())
+        .collect();
+    let logs = tempfile::tempdir().unwrap();
+    let report = logs.path().join("r.json");
+    let mut args = vec!["sim".to_string()];
+    args.extend(words);
+    args.extend(["--report".into(), report.to_str().unwrap().into()]);
+    args.extend(["--log-dir".into(), logs.path().to_str().unwrap().into()]);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let o = uquad(&root(), &args);
+    let rerun: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(&report)
+            .unwrap_or_else(|_| panic!("rerun {args:?}: {}", String::from_utf8_lossy(&o.stderr))),
+    )
+    .unwrap();
+    let far_m = rerun["safety"]["max_from_start_m"].as_f64().unwrap();
+    assert!(far_m > 60.0, "{far_m} m: {rerun}");
+    assert!(
+        v["seen"]
+            .as_str()
+            .unwrap()
+            .contains(&format!("{far_m:.1} m")),
+        "{v}"
+    );
+}
