@@ -135,8 +135,9 @@ fn a_ground_station_sets_a_parameter_arms_takes_off_and_lands() {
     assert_eq!(r["deadline_misses"], 0, "{r}");
     let g = &r["gcs"];
     // arm (refused), arm, takeoff, REQUEST_MESSAGE, SET_MESSAGE_INTERVAL twice, DO_SET_MODE,
-    // land.
-    assert!(u(&g["commands"]) >= 8 && u(&g["param_sets"]) == 1, "{g}");
+    // PX4's hold by DO_SET_MODE and by SET_MODE (both refused), land.
+    assert!(u(&g["commands"]) >= 10 && u(&g["param_sets"]) == 1, "{g}");
+    assert!(u(&g["commands_refused"]) >= 3, "{g}");
     // The set is kept for the next start and noted in the run, which keeps its values.
     let kept = std::fs::read_to_string(run.parent().unwrap().join("params.toml")).unwrap();
     assert!(kept.contains("climb_m_s = 0.4"), "{kept}");

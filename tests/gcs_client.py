@@ -286,6 +286,17 @@ def fly(s, run_dir, started, expected):
     if ack.result != mav.MAV_RESULT_ACCEPTED:
         fail(f"DO_SET_MODE hold: result {ack.result}; texts: {s.texts}")
     s.wait_text("mode hold: command hold")
+    # Another autopilot's numbering is refused, never read as uquad's: PX4's hold (main mode
+    # 4, AUTO; sub mode 3, LOITER) by DO_SET_MODE, then by the superseded SET_MODE.
+    s.command(mav.MAV_CMD_DO_SET_MODE, [129, 4, 3, 0, 0, 0, 0], mav.MAV_RESULT_DENIED)
+    s.wait_text("no sub modes")
+    s.conn.mav.set_mode_send(1, 129, (3 << 24) | (4 << 16))
+    ack = s.wait(
+        "COMMAND_ACK of SET_MODE",
+        lambda m: m.get_type() == "COMMAND_ACK" and m.command == mav.MAV_CMD_DO_SET_MODE,
+    )
+    if ack.result != mav.MAV_RESULT_DENIED:
+        fail(f"SET_MODE in PX4's numbering: result {ack.result}; texts: {s.texts}")
     load = s.last["SYS_STATUS"].load
     s.conn.mav.param_set_send(1, 1, b"CMD_LAND_M_S", 0.3, mav.MAV_PARAM_TYPE_REAL32)
     s.wait_text("CMD_LAND_M_S not set: commander.land_m_s: flight-critical, refused while hold")

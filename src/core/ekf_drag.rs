@@ -4,7 +4,8 @@
 //! its bias states (bax, bay); once no fix has come for [`DRAG_AFTER_STEPS`], the
 //! accelerometer's x and y are read as −k times the velocity, and bax + k·vqx = 0,
 //! bay + k·vqy = 0 keep the model's drag with it: the velocity stays observed, so the
-//! controller can damp it, instead of drifting as the integral of every tilt error.
+//! controller can damp it, instead of drifting as the integral of every tilt error. Not in
+//! the original's spec (its filter, spec 3, models no drag).
 
 use crate::core::ekf::{Ekf, N_STATES, StateMatrix, idx};
 use nalgebra::{SMatrix, SVector};

@@ -941,6 +941,4 @@ fn outside_gate(r: &TestRatios) -> bool {
 }
 
 #[cfg(test)]
-mod explore;
-#[cfg(test)]
 mod tests;

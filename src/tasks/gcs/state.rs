@@ -288,6 +288,16 @@ impl Gcs {
                 };
                 self.on_command(c.command, args, from, link);
             }
+            // The superseded SET_MODE is read as DO_SET_MODE (and answered so): one reading
+            // of a mode request, refusing what uquad's numbering cannot say.
+            #[allow(deprecated)]
+            MavMessage::SET_MODE(m) if self.for_us(m.target_system, 0) => {
+                let mut p = [0.0; 7];
+                p[0] = f32::from(m.base_mode.bits());
+                p[1] = m.custom_mode as f32;
+                let args = Args { p, frame: None };
+                self.on_command(MavCmd::MAV_CMD_DO_SET_MODE, args, from, link);
+            }
             MavMessage::PARAM_REQUEST_LIST(p)
                 if self.for_us(p.target_system, p.target_component) =>
             {

@@ -1,4 +1,4 @@
-//! The commander's rules checked exhaustively: a breadth-first search over abstract inputs
+//! The commander's rules checked exhaustively (`core::commander`, pure): a breadth-first search over abstract inputs
 //! (every command, a link that beats or falls silent, fixes that come or stop, a vehicle
 //! that climbs, is stuck on the ground or flips, an estimator that goes bad, a halt), each
 //! followed by a second of flight on a simple vehicle, to a bounded depth. States that look
@@ -7,10 +7,12 @@
 //! the causes on the one list (`kill`, `crash`, the watchdog's halts); a failsafe condition
 //! that persists leads to a landing or a disarm; nothing stays armed on the ground.
 
-use super::*;
-use crate::core::commander::checks::ArmFacts;
-use crate::core::ekf::TestRatios;
 use std::collections::{HashSet, VecDeque};
+use uquad::core::commander::{
+    Action, ArmFacts, Command, Commander, EscRequest, LinkSource, Mode, Observation, Params, Start,
+};
+use uquad::core::ekf::TestRatios;
+use uquad::core::model::GRAVITY_M_S2;
 
 /// One abstract input, applied at the start of a second of flight.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -95,7 +97,7 @@ fn params() -> Params {
         takeoff_timeout_s: 4.0,
         z_min_m: 0.2,
         z_max_m: 3.0,
-        mission: crate::core::mission::Limits {
+        mission: uquad::core::mission::Limits {
             acc_m_s2: 0.5,
             yaw_rate_rad_s: 0.8,
             yaw_acc_rad_s2: 1.0,
