@@ -248,7 +248,8 @@ pub struct Ekf {
     /// "joint": a fix with the IMU rows into every state (the 2012 flights); "position-velocity":
     /// after them, into position and velocity only.
     pub gps_fusion: crate::core::ekf::GpsFusion,
-    /// With "position-velocity": noise of the receiver's horizontal velocity, (m/s)².
+    /// With "position-velocity": noise of the receiver's velocity (the vertical only while the
+    /// barometer is lost), (m/s)².
     pub r_gps_vel: f64,
     /// Drag per m/s of airspeed, 1/s (PX4's EKF2_MCOEF): without fixes it holds the
     /// horizontal velocity; 0: off.

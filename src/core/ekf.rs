@@ -106,7 +106,8 @@ pub struct EkfParams {
     pub gate_fusion: bool,
     /// How a GPS fix is fused.
     pub gps_fusion: GpsFusion,
-    /// Noise of a fix's horizontal velocity rows ([`GpsFusion::PositionVelocity`]), (m/s)².
+    /// Noise of a fix's velocity rows ([`GpsFusion::PositionVelocity`]; the vertical one only
+    /// while the barometer is lost), (m/s)².
     pub r_gps_vel: f64,
     /// The drag's specific force per m/s of airspeed across the thrust axis, 1/s (PX4's
     /// EKF2_MCOEF): without fixes it holds the horizontal velocity (`core::ekf_drag`); 0: off.
@@ -269,6 +270,8 @@ pub struct Ekf {
     pub baro_lost: bool,
     /// Steps since the last fix (saturating); the drag holds the velocity past a threshold.
     pub steps_without_fix: u32,
+    /// The last step's thrust carried most of the weight (`core::ekf_drag`).
+    pub flying: bool,
 }
 
 struct Trig {
@@ -513,6 +516,7 @@ impl Ekf {
             fix_seen: false,
             baro_lost: false,
             steps_without_fix: 0,
+            flying: false,
         }
     }
 
@@ -537,6 +541,9 @@ impl Ekf {
             Some(_) => 0,
             None => self.steps_without_fix.saturating_add(1),
         };
+        let weight_n = input.mass_kg * crate::core::model::GRAVITY_M_S2;
+        self.flying =
+            total_thrust_n(&input.u_rad_s) > crate::core::ekf_drag::FLYING_THRUST_SHARE * weight_n;
         let u = &input.u_rad_s;
         self.predict(u, dt_used_us as f64 / 1e6, input.mass_kg);
         let az_pred = total_thrust_n(u) / input.mass_kg + self.x[idx::BAZ];
@@ -606,7 +613,9 @@ impl Ekf {
                 }
             }
             None => {
-                let lost = !sample.alt_m.is_finite();
+                // The joint fusion (the 2012 flights) refuses the update as it always did.
+                let lost = !sample.alt_m.is_finite()
+                    && self.params.gps_fusion == GpsFusion::PositionVelocity;
                 if lost && !self.baro_lost {
                     self.vertical_from_barometer();
                 }

@@ -10,6 +10,10 @@
 use crate::core::ekf::{Ekf, N_STATES, StateMatrix, idx};
 use nalgebra::{SMatrix, SVector};
 
+/// The drag is read only while the motors carry most of the weight: on the ground friction
+/// and a slope would read as airspeed, share of the weight.
+pub(crate) const FLYING_THRUST_SHARE: f64 = 0.8;
+
 /// Steps without a fix after which the drag holds the velocity: 1.5 s at 100 Hz, so one fix
 /// missed at 1 Hz is not yet a loss.
 pub(crate) const DRAG_AFTER_STEPS: u32 = 150;
@@ -27,7 +31,7 @@ const R_DRAG: f64 = 0.0025;
 impl Ekf {
     /// The drag holds the horizontal velocity this step.
     pub(crate) fn drag_active(&self) -> bool {
-        self.params.drag_per_s > 0.0 && self.steps_without_fix >= DRAG_AFTER_STEPS
+        self.params.drag_per_s > 0.0 && self.steps_without_fix >= DRAG_AFTER_STEPS && self.flying
     }
 
     /// The vertical is observed: by the barometer, or without it by the fixes' vertical
@@ -62,10 +66,14 @@ impl Ekf {
         // the accelerometer as drag far beyond any airspeed the velocity allows: that axis
         // is left out until the drag agrees again.
         let gate_sq = self.params.gate_sigma * self.params.gate_sigma;
+        // Judged on every row before any is left out: an axis goes whole.
+        let outside = |i: usize| {
+            let ratio = y[i] * y[i] / (gate_sq * s[(i, i)]);
+            ratio > 1.0 || ratio.is_nan()
+        };
+        let axis_out = [outside(0) || outside(2), outside(1) || outside(3)];
         for row in 0..4 {
-            let axis = row % 2;
-            let outside = |i: usize| y[i] * y[i] > gate_sq * s[(i, i)];
-            if outside(axis) || outside(axis + 2) {
+            if axis_out[row % 2] {
                 y[row] = 0.0;
                 pht.column_mut(row).fill(0.0);
                 s.row_mut(row).fill(0.0);

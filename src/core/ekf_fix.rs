@@ -1,7 +1,8 @@
 //! A GPS fix fused into position and velocity only (`ekf.gps_fusion = "position-velocity"`),
 //! after the step's IMU rows: its x, y, z (z left out without an altitude) and, when the
 //! receiver gives one, its horizontal velocity (the body velocity turned by the estimated
-//! attitude). Not in the original's spec (3.7 fuses a fix's position with the IMU rows into
+//! attitude), and its vertical velocity while the barometer is lost. Not in the original's
+//! spec (3.7 fuses a fix's position with the IMU rows into
 //! every state): with a real receiver's metre-level errors that joint update explains a fix's
 //! error partly as tilt and accelerometer bias, and the tilt it then reports is flown; and a
 //! velocity learnt only from 1 Hz positions lags by half a second, which the position loop
@@ -51,13 +52,13 @@ impl Ekf {
         // Rows without a measurement (no altitude, no velocity) are left out. The barometer
         // owns the vertical; without it the receiver's vertical velocity holds the vertical
         // speed (its altitude wanders by metres: a landing needs the speed, not the height).
-        let used: [bool; ROWS] = [
+        let mut used: [bool; ROWS] = [
             true,
             true,
             g.z_m.is_some(),
             g.vel_m_s.is_some(),
             g.vel_m_s.is_some(),
-            g.vel_m_s.is_some() && self.baro_lost,
+            self.baro_lost && vel[2].is_finite(),
         ];
         if (0..ROWS).any(|i| used[i] && !z[i].is_finite()) {
             return outcome(
@@ -71,20 +72,19 @@ impl Ekf {
             self.place(&g.xy_m, &r[..2]);
             return outcome(TestRatios::default(), false, Ok(()));
         }
-        let h = self.observation(&used);
-        let y = SVector::<f64, ROWS>::from_fn(|i, _| {
-            if used[i] {
-                z[i] - (h.row(i) * self.x)[(0, 0)]
-            } else {
-                0.0
-            }
-        });
-        let pht = self.p * h.transpose();
-        let mut s = h * pht;
-        for i in 0..ROWS {
-            s[(i, i)] += if used[i] { r[i] } else { 1.0 };
-        }
+        let (h, mut y, mut pht, mut s) = self.innovation(&z, &r, &used);
         let gate_sq = self.params.gate_sigma * self.params.gate_sigma;
+        // The vertical velocity row (a lost barometer's stand-in) is gated on its own: a
+        // climb's glitch must not move the only vertical reference left.
+        let vz_ratio = y[5] * y[5] / (gate_sq * s[(5, 5)]);
+        if used[5] && self.params.gate_fusion && (vz_ratio > 1.0 || vz_ratio.is_nan()) {
+            used[5] = false;
+            y[5] = 0.0;
+            pht.column_mut(5).fill(0.0);
+            s.row_mut(5).fill(0.0);
+            s.column_mut(5).fill(0.0);
+            s[(5, 5)] = 1.0;
+        }
         // The gps group: the horizontal position and velocity rows (a receiver's glitch in
         // either is left out whole).
         let ratio = [0, 1, 3, 4]
@@ -118,6 +118,36 @@ impl Ekf {
         self.x += k * y;
         self.joseph(&k, &h, &r, &used);
         outcome(ratios, false, Ok(()))
+    }
+
+    /// H, the innovation, P·Hᵀ and S = H·P·Hᵀ + R over the rows `used` (the others zero, with
+    /// a unit S so that it stays invertible).
+    #[allow(clippy::type_complexity)]
+    fn innovation(
+        &self,
+        z: &[f64; ROWS],
+        r: &[f64; ROWS],
+        used: &[bool; ROWS],
+    ) -> (
+        SMatrix<f64, ROWS, N_STATES>,
+        SVector<f64, ROWS>,
+        SMatrix<f64, N_STATES, ROWS>,
+        SMatrix<f64, ROWS, ROWS>,
+    ) {
+        let h = self.observation(used);
+        let y = SVector::<f64, ROWS>::from_fn(|i, _| {
+            if used[i] {
+                z[i] - (h.row(i) * self.x)[(0, 0)]
+            } else {
+                0.0
+            }
+        });
+        let pht = self.p * h.transpose();
+        let mut s = h * pht;
+        for i in 0..ROWS {
+            s[(i, i)] += if used[i] { r[i] } else { 1.0 };
+        }
+        (h, y, pht, s)
     }
 
     /// H: the position rows read x, y, z; the velocity rows (north, west, up) the body velocity turned by the

@@ -128,11 +128,15 @@ impl Tpv {
 
 impl Tpv {
     /// The velocity in the local frame (north, west, up), m/s, when gpsd gives a finite speed
-    /// and course (a missing climb is 0).
+    /// and course. The climb is not a number when gpsd gives none or the fix is not 3D: read
+    /// as 0 it would hold the vertical still where the barometer is lost (`core::ekf_fix`).
     pub fn velocity_m_s(&self) -> Option<[f64; 3]> {
         let (speed, track) = (self.speed?, self.track?);
-        let climb = self.climb.unwrap_or(0.0);
-        if !(speed.is_finite() && track.is_finite() && climb.is_finite()) {
+        let climb = match self.climb {
+            Some(c) if self.mode >= 3 => c,
+            _ => f64::NAN,
+        };
+        if !(speed.is_finite() && track.is_finite()) {
             return None;
         }
         let (s, c) = track.to_radians().sin_cos();
@@ -412,6 +416,7 @@ mod tests {
     #[test]
     fn gpsd_velocity_is_turned_into_the_local_frame() {
         let tpv = |speed: f64, track: f64, climb: Option<f64>| Tpv {
+            mode: 3,
             speed: Some(speed),
             track: Some(track),
             climb,
@@ -421,7 +426,15 @@ mod tests {
         let v = tpv(2.0, 90.0, Some(0.5)).velocity_m_s().unwrap();
         assert!(v[0].abs() < 1e-12 && (v[1] + 2.0).abs() < 1e-12 && v[2] == 0.5);
         let v = tpv(2f64.sqrt(), 315.0, None).velocity_m_s().unwrap();
-        assert!((v[0] - 1.0).abs() < 1e-12 && (v[1] - 1.0).abs() < 1e-12 && v[2] == 0.0);
+        assert!((v[0] - 1.0).abs() < 1e-12 && (v[1] - 1.0).abs() < 1e-12 && v[2].is_nan());
+        let two_d = Tpv {
+            mode: 2,
+            ..tpv(1.0, 0.0, Some(0.5))
+        };
+        assert!(
+            two_d.velocity_m_s().is_some_and(|v| v[2].is_nan()),
+            "no climb in 2D"
+        );
         assert_eq!(tpv(f64::NAN, 0.0, None).velocity_m_s(), None);
         let Report::Tpv(t) = parse_report(TPV_3D).unwrap() else {
             panic!()

@@ -87,11 +87,13 @@ pub fn run(profile: &Profile, opts: &CampaignOptions) -> anyhow::Result<Campaign
     let cases = cases::cases();
     let start = std::time::Instant::now();
     let next = AtomicU64::new(0);
-    let judged = Mutex::new(Vec::with_capacity(opts.runs as usize));
+    let judged = Mutex::new(Vec::with_capacity(opts.runs.min(10_000) as usize));
+    let broken = AtomicU64::new(0);
     let failure: Mutex<Option<anyhow::Error>> = Mutex::new(None);
     std::thread::scope(|scope| {
         for job in 0..opts.jobs.max(1) {
-            let (next, judged, failure, cases) = (&next, &judged, &failure, &cases);
+            let (next, judged, failure, cases, broken) =
+                (&next, &judged, &failure, &cases, &broken);
             let profiles = (profile, &mission_profile);
             scope.spawn(move || {
                 let dir = opts.work_dir.join(format!("job-{job}"));
@@ -101,8 +103,20 @@ pub fn run(profile: &Profile, opts: &CampaignOptions) -> anyhow::Result<Campaign
                         return;
                     }
                     let run = Run::nth(cases, i, opts.seed);
-                    match one(profiles, &run, &dir) {
-                        Ok(j) => progress(lock(judged), j, opts.runs, start),
+                    // A panicking run is a finding with its command line, not the end of the
+                    // campaign.
+                    let flown = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                        one(profiles, &run, &dir)
+                    }))
+                    .unwrap_or_else(|p| Ok(panicked(&run, p.as_ref())));
+                    match flown {
+                        Ok(j) => {
+                            if j.findings.iter().any(|f| !known(&j.run, f)) {
+                                broken.fetch_add(1, Ordering::Relaxed);
+                            }
+                            let b = broken.load(Ordering::Relaxed);
+                            progress(lock(judged), j, opts.runs, b, start)
+                        }
                         Err(e) => {
                             *lock(failure) = Some(e.context(run.command_line(
                                 &opts.config,
@@ -137,17 +151,34 @@ fn progress(
     mut judged: std::sync::MutexGuard<'_, Vec<Judged>>,
     j: Judged,
     runs: u64,
+    broken: u64,
     start: std::time::Instant,
 ) {
     judged.push(j);
     let n = judged.len() as u64;
     if n.is_multiple_of(100) || n == runs {
-        let broke = |j: &&Judged| j.findings.iter().any(|f| !known(&j.run, f));
-        let v = judged.iter().filter(broke).count();
         eprintln!(
-            "campaign: {n}/{runs} runs, {v} with a violation, {:.1} s",
+            "campaign: {n}/{runs} runs, {broken} with a violation, {:.1} s",
             start.elapsed().as_secs_f64()
         );
+    }
+}
+
+/// A run that panicked: invariant 0, the panic's message.
+fn panicked(run: &Run, payload: &(dyn std::any::Any + Send)) -> Judged {
+    let what = payload
+        .downcast_ref::<String>()
+        .map(String::as_str)
+        .or_else(|| payload.downcast_ref::<&str>().copied())
+        .unwrap_or("a panic");
+    Judged {
+        run: run.clone(),
+        outcome: "panic".to_string(),
+        findings: vec![Finding {
+            invariant: 0,
+            seen: format!("the run panicked: {what}"),
+        }],
+        fall_m_s: None,
     }
 }
 
@@ -173,7 +204,7 @@ fn one(profiles: (&Profile, &Profile), run: &Run, dir: &Path) -> anyhow::Result<
         .safety
         .as_ref()
         .filter(|s| s.halt_in_air)
-        .and_then(|s| s.contacts.last())
+        .and_then(|s| s.contacts.iter().rfind(|c| c.mode == "fall"))
         .map(|c| c.v_m_s);
     Ok(Judged {
         outcome: invariants::outcome(&summary),

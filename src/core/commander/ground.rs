@@ -73,20 +73,15 @@ impl Commander {
         ))
     }
 
-    /// A crash or a flip, in any armed mode: tilted beyond `crash_tilt_rad` (the estimate's,
-    /// or the accelerometer's while it feels about one g: a vehicle lying on its side, which
-    /// an estimate on a failed gyro may not see) for `crash_s`, or a takeoff that has not
-    /// left the ground (by the estimate and the barometer) `takeoff_timeout_s` after it began
-    /// and has not reached its height.
     /// In the air by its mode (hold, mission, return) but on the ground by its estimate
-    /// (under `control.manual.z_min_m` above the takeoff point) for half of
-    /// `disarm_ground_s`: something holds it down, or it came down; it lands, and the
-    /// touchdown disarms.
+    /// (under half of `control.manual.z_min_m` above the takeoff point: a hold at the lowest
+    /// height is not the ground) for half of `disarm_ground_s`: something holds it down, or
+    /// it came down; it lands, and the touchdown disarms.
     pub(super) fn grounded_in_flight(&mut self, o: &Observation, out: &mut Vec<Event>) {
         let ground_m = self.home_m.map_or(0.0, |h| h[2]);
         let low = matches!(self.mode, Mode::Hold | Mode::Mission | Mode::Return)
             && self.p.start != super::Start::Flying
-            && o.pos_m[2] - ground_m < self.p.z_min_m;
+            && o.pos_m[2] - ground_m < 0.5 * self.p.z_min_m;
         if !low {
             self.low_since_us = None;
             return;
@@ -107,6 +102,11 @@ impl Commander {
         }
     }
 
+    /// A crash or a flip, in any armed mode: tilted beyond `crash_tilt_rad` (the estimate's,
+    /// or the accelerometer's while it feels about one g: a vehicle lying on its side, which
+    /// an estimate on a failed gyro may not see) for `crash_s`, or a takeoff that has not
+    /// left the ground (by the estimate and the barometer) `takeoff_timeout_s` after it began
+    /// and has not reached its height.
     pub(super) fn crashed(&mut self, o: &Observation) -> Option<EscRequest> {
         // Profiles that start flying (the original's, the 2012 flights) keep their behaviour:
         // their replays stay byte-exact.

@@ -787,7 +787,9 @@ impl Commander {
             self.ground_since_us.get_or_insert(o.t_us);
         }
         let request = self.crashed(o);
-        self.grounded_in_flight(o, out);
+        if request.is_none() {
+            self.grounded_in_flight(o, out);
+        }
         let request = match request {
             None if self.mode.airborne() => self.failsafes(o, out),
             r => r,
