@@ -58,6 +58,27 @@ impl Integrators {
 /// The largest velocity error flown on the drag's velocity ([`Horizontal::Velocity`]), m/s.
 const DRAG_VELOCITY_ERROR_M_S: f64 = 0.5;
 
+/// The horizontal errors as `hold` allows: all with a position; with the velocity only,
+/// none for x, y, and the velocity's toward rest (there is no path to fly without a
+/// position) within a bound (the drag's velocity reads any steady push as airspeed: the
+/// tilt it asks for stays small whatever it reads); none with attitude only.
+fn hold_errors(e: &mut [f64; N_CONTROLLED], x_hat: &State, hold: Horizontal) {
+    match hold {
+        Horizontal::Position => {}
+        Horizontal::Velocity => {
+            (e[0], e[1]) = (0.0, 0.0);
+            for i in [6, 7] {
+                e[i] = (-x_hat[i]).clamp(-DRAG_VELOCITY_ERROR_M_S, DRAG_VELOCITY_ERROR_M_S);
+            }
+        }
+        Horizontal::Attitude => {
+            for i in HORIZONTAL_STATES {
+                e[i] = 0.0;
+            }
+        }
+    }
+}
+
 /// What the controller holds horizontally.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Horizontal {
@@ -299,21 +320,7 @@ impl Controller {
         // are zero and this changes nothing.)
         [e[0], e[1]] = HeadingFrame::of(sp.x[5]).turn([e[0], e[1]]);
         let hold_position = hold == Horizontal::Position;
-        let free = match hold {
-            Horizontal::Position => &[][..],
-            Horizontal::Velocity => &HORIZONTAL_STATES[..2],
-            Horizontal::Attitude => &HORIZONTAL_STATES[..],
-        };
-        for &i in free {
-            e[i] = 0.0;
-        }
-        if hold == Horizontal::Velocity {
-            // The drag's velocity reads any steady push as airspeed: damped within a bound,
-            // so the tilt it asks for stays small whatever it reads.
-            for i in [6, 7] {
-                e[i] = e[i].clamp(-DRAG_VELOCITY_ERROR_M_S, DRAG_VELOCITY_ERROR_M_S);
-            }
-        }
+        hold_errors(&mut e, x_hat, hold);
         if self.error_limits {
             for (i, lim) in ERROR_LIMITS {
                 e[i] = e[i].clamp(-lim, lim);

@@ -542,8 +542,7 @@ impl Ekf {
             None => self.steps_without_fix.saturating_add(1),
         };
         let weight_n = input.mass_kg * crate::core::model::GRAVITY_M_S2;
-        self.flying =
-            total_thrust_n(&input.u_rad_s) > crate::core::ekf_drag::FLYING_THRUST_SHARE * weight_n;
+        self.flying = total_thrust_n(&input.u_rad_s) > FLYING_THRUST_SHARE * weight_n;
         let u = &input.u_rad_s;
         self.predict(u, dt_used_us as f64 / 1e6, input.mass_kg);
         let az_pred = total_thrust_n(u) / input.mass_kg + self.x[idx::BAZ];
@@ -612,29 +611,7 @@ impl Ekf {
                     result: imu.result.and(fix.result),
                 }
             }
-            None => {
-                // The joint fusion (the 2012 flights) refuses the update as it always did.
-                let lost = !sample.alt_m.is_finite()
-                    && self.params.gps_fusion == GpsFusion::PositionVelocity;
-                if lost && !self.baro_lost {
-                    self.vertical_from_barometer();
-                }
-                self.baro_lost = lost;
-                let z: [f64; IMU_ROWS] =
-                    std::array::from_fn(|i| if i < 9 { imu9[i] } else { sample.alt_m });
-                let mut r = self.params.r_imu_diag;
-                if lost {
-                    // The accelerometer's vertical row then carries the height between fixes:
-                    // read at its own noise, it teaches the thrust model's error (baz), so the
-                    // estimate stands still when the vehicle does (on the ground, too).
-                    r[5] = R_AZ_NO_BARO;
-                }
-                let out = self.update::<IMU_ROWS>(&z, &IMU_OBS, &IMU_GROUPS, az_pred, &r);
-                if self.drag_active() && out.result.is_ok() {
-                    self.fuse_drag(sample.acc_m_s2);
-                }
-                out
-            }
+            None => self.correct_imu(sample, imu9, az_pred),
             Some(g) => {
                 let z: [f64; GPS_ROWS] = std::array::from_fn(|i| {
                     if i < 9 {
@@ -651,6 +628,32 @@ impl Ekf {
                 self.update::<GPS_ROWS>(&z, &GPS_OBS, &GPS_GROUPS, az_pred, &r)
             }
         }
+    }
+
+    /// The IMU rows alone (between fixes, and before a fix in position-velocity fusion);
+    /// without the barometer the altitude left out, without fixes the drag fused.
+    fn correct_imu(&mut self, sample: &ImuSample, imu9: [f64; 9], az_pred: f64) -> UpdateOutcome {
+        // The joint fusion (the 2012 flights) refuses the update as it always did.
+        let lost =
+            !sample.alt_m.is_finite() && self.params.gps_fusion == GpsFusion::PositionVelocity;
+        if lost && !self.baro_lost {
+            self.vertical_from_barometer();
+        }
+        self.baro_lost = lost;
+        let z: [f64; IMU_ROWS] =
+            std::array::from_fn(|i| if i < 9 { imu9[i] } else { sample.alt_m });
+        let mut r = self.params.r_imu_diag;
+        if lost {
+            // The accelerometer's vertical row then carries the height between fixes: read at
+            // its own noise, it teaches the thrust model's error (baz), so the estimate stands
+            // still when the vehicle does (on the ground, too).
+            r[5] = R_AZ_NO_BARO;
+        }
+        let out = self.update::<IMU_ROWS>(&z, &IMU_OBS, &IMU_GROUPS, az_pred, &r);
+        if self.drag_active() && out.result.is_ok() {
+            self.fuse_drag(sample.acc_m_s2);
+        }
+        out
     }
 
     /// The barometer has just gone: the height and vertical speed it held were good to
@@ -781,6 +784,10 @@ fn test_ratios<const M: usize>(
 /// error), (m/s)².
 const Q_Z_NO_BARO_M2: f64 = 1e-6;
 const Q_VZ_NO_BARO: f64 = 1e-4;
+/// The drag is read only while the motors carry most of the weight (`core::ekf_drag`): on
+/// the ground friction and a slope would read as airspeed. Share of the weight.
+const FLYING_THRUST_SHARE: f64 = 0.8;
+
 /// The drag's process noise per step while it holds the velocity, (m/s²)².
 const Q_BAXY_DRAG: f64 = 1e-6;
 

@@ -10,10 +10,6 @@
 use crate::core::ekf::{Ekf, N_STATES, StateMatrix, idx};
 use nalgebra::{SMatrix, SVector};
 
-/// The drag is read only while the motors carry most of the weight: on the ground friction
-/// and a slope would read as airspeed, share of the weight.
-pub(crate) const FLYING_THRUST_SHARE: f64 = 0.8;
-
 /// Steps without a fix after which the drag holds the velocity: 1.5 s at 100 Hz, so one fix
 /// missed at 1 Hz is not yet a loss.
 pub(crate) const DRAG_AFTER_STEPS: u32 = 150;

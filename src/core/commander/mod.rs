@@ -890,6 +890,13 @@ impl Commander {
         // the vehicle stands on it, and a floor above it would lift the vehicle again.
         let floor = ground.min(o.pos_m[2]) - 2.0;
         self.profile.advance(floor, v, p.climb_acc_m_s2, dt_s);
+        self.touchdown_watch(o, out)
+    }
+
+    /// Touchdown: at rest with the thrust under `touchdown_thrust` for `touchdown_s`; then the
+    /// figures, the mission's landing item reached, and disarmed.
+    fn touchdown_watch(&mut self, o: &Observation, out: &mut Vec<Event>) -> Option<EscRequest> {
+        let p = self.p;
         // Still: the estimate's vertical speed is near zero, or the accelerometer feels more
         // than the thrust gives (the ground's push). The second is needed because the filter's
         // model has no ground: with the thrust under the weight, its estimate keeps falling

@@ -380,10 +380,10 @@ impl ControllerCore {
             + 1;
         let key = est.guidance.path.map_or(GainKey::Profile, |p| p.2);
         self.swap_gains(est.gains.as_ref(), key);
-        let (sp, mass_kg) = self.guided_set_point(est);
+        let hold = self.horizontal_hold(est);
+        let (sp, mass_kg) = self.guided_set_point(est, hold);
         let limits = MotorLimits::new(mass_kg, self.make_planner.w_max_rad_s);
         let t_s = self.period_us(t_ctrl_us) as f64 / 1e6;
-        let hold = self.horizontal_hold(est);
         let position_hold = hold == Horizontal::Position;
         let mut w_ctrl = self.controller.step_with_hold(&est.x, &sp, t_s, hold);
         // The observer starts once the flight ramp is over: before, the vehicle stands on the
@@ -426,7 +426,7 @@ impl ControllerCore {
 
     /// The planner's set point with the commander's position and climb speed (the planner
     /// keeps the attitude and the weight keys'), and the mass it flies with.
-    fn guided_set_point(&mut self, est: &Estimate) -> (SetPoint, f64) {
+    fn guided_set_point(&mut self, est: &Estimate, hold: Horizontal) -> (SetPoint, f64) {
         let (g, spec) = (est.guidance, self.make_planner);
         let planner = self.planner.get_or_insert_with(|| {
             HoverPlanner::new(
@@ -438,7 +438,9 @@ impl ControllerCore {
                 spec.bounds,
             )
         });
-        if let Some((point, _, _)) = g.path {
+        // A path is flown only on a position: without one its tilts and speeds would fly
+        // the vehicle away from a place it cannot see.
+        if let Some((point, _, _)) = g.path.filter(|_| hold == Horizontal::Position) {
             planner.follow(&point);
             self.following = true;
             return (planner.sp, planner.mass_kg());
