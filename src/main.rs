@@ -88,7 +88,8 @@ most 1 m/s, and at most commander.land_slow_m_s + 0.25 m/s when the faults left 
 (4) a halt in the air only for the watchdog's causes, kill or crash, and `estimator` only when \
 a fault took the attitude (the simulator lets the vehicle fall after it and reports the impact \
 speed); (5) the true vehicle within fence.radius_m + 10 m; (6) a lost link, lost fixes or a \
-silent IMU acted on within its configured time; (7) the report's modes, failsafes, halt and \
+silent IMU acted on within its configured time, and a gps-loss's landing within \
+failsafe.gps_loss_land_s; (7) the report's modes, failsafes, halt and \
 refusal count are mode.log's.\n\n\
 Prints a table of outcomes (a row per fault, a column per phase, the most common outcome), \
 each violation with the `uquad sim` command line that reruns it, and the known exceptions \

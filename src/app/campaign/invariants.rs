@@ -224,6 +224,38 @@ fn failsafes_in_time(
             }
         }
     }
+    gps_loss_action_in_time(s, p, broken);
+}
+
+/// 6, the GPS's second step: a `gps-loss` recorded in the air is followed by its action
+/// (a landing or a return; nothing for `hold`) within `failsafe.gps_loss_land_s`, unless
+/// the vehicle was disarmed or halted by then.
+fn gps_loss_action_in_time(s: &SimSummary, p: &Params, broken: &mut impl FnMut(u8, String)) {
+    let r = s.fly.commander.report();
+    let Some(f) = r.failsafes.iter().find(|f| f.kind == "gps-loss") else {
+        return;
+    };
+    if f.action == "hold" {
+        return;
+    }
+    let due_s = f.t_s + p.gps_loss_land_s + SLACK_S;
+    let armed_then = armed_spans(s)
+        .iter()
+        .any(|&(a, until)| a <= f.t_s && until > due_s);
+    let acted = r.modes.iter().any(|m| {
+        m.t_s >= f.t_s
+            && m.t_s <= due_s
+            && matches!(m.mode, "land" | "return" | "disarmed" | "kill")
+    });
+    if armed_then && s.simulated_s > due_s && !acted {
+        broken(
+            6,
+            format!(
+                "gps-loss at {:.2} s: no {} by {due_s:.2} s (failsafe.gps_loss_land_s {} s)",
+                f.t_s, f.action, p.gps_loss_land_s
+            ),
+        );
+    }
 }
 
 /// 7: the report's modes, failsafes, halt and refusal count are mode.log's.
