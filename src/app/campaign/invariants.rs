@@ -4,6 +4,7 @@
 //! word for the table.
 
 use crate::app::campaign::cases::Run;
+use crate::app::commander_report::CommanderReport;
 use crate::app::report::SimSummary;
 use crate::config::Config;
 use crate::core::commander::Params;
@@ -23,15 +24,17 @@ const SLACK_S: f64 = 0.05;
 /// Every broken invariant of a run.
 pub fn judge(run: &Run, s: &SimSummary, mode_log: &str, cfg: &Config) -> Vec<Finding> {
     let p = cfg.commander_params();
+    // The report's lists, built once for every rule.
+    let r = s.fly.commander.report();
     let mut out = Vec::new();
     let mut broken = |invariant: u8, seen: String| out.push(Finding { invariant, seen });
     escs_stopped(s, &mut broken);
-    disarmed(s, &p, &mut broken);
+    disarmed(s, &r, &p, &mut broken);
     touchdowns(run, s, &p, &mut broken);
     halts_in_air(run, s, &mut broken);
     fence(s, &p, &mut broken);
-    failsafes_in_time(run, s, &p, cfg, &mut broken);
-    report_is_mode_log(s, mode_log, &mut broken);
+    failsafes_in_time(run, s, &r, &p, cfg, &mut broken);
+    report_is_mode_log(s, &r, mode_log, &mut broken);
     out
 }
 
@@ -64,8 +67,7 @@ fn escs_stopped(s: &SimSummary, broken: &mut impl FnMut(u8, String)) {
 
 /// 2: the run ends disarmed (or halted), and the motors never idle on the ground past
 /// `disarm_ground_s` + 1 s once the start-up is over.
-fn disarmed(s: &SimSummary, p: &Params, broken: &mut impl FnMut(u8, String)) {
-    let r = s.fly.commander.report();
+fn disarmed(s: &SimSummary, r: &CommanderReport, p: &Params, broken: &mut impl FnMut(u8, String)) {
     let last = r.modes.last().map_or("disarmed", |m| m.mode);
     if !matches!(last, "disarmed" | "kill") {
         broken(2, format!("the run ended in mode {last}"));
@@ -170,10 +172,10 @@ fn fence(s: &SimSummary, p: &Params, broken: &mut impl FnMut(u8, String)) {
 }
 
 /// When the vehicle armed and when it stopped being armed (disarmed or halted), s.
-fn armed_spans(s: &SimSummary) -> Vec<(f64, f64)> {
+fn armed_spans(r: &CommanderReport, simulated_s: f64) -> Vec<(f64, f64)> {
     let mut spans = Vec::new();
     let mut from = None;
-    for m in s.fly.commander.report().modes {
+    for m in &r.modes {
         match (m.mode, from) {
             ("disarmed" | "kill", Some(a)) => {
                 spans.push((a, m.t_s));
@@ -185,7 +187,7 @@ fn armed_spans(s: &SimSummary) -> Vec<(f64, f64)> {
         }
     }
     if let Some(a) = from {
-        spans.push((a, s.simulated_s));
+        spans.push((a, simulated_s));
     }
     spans
 }
@@ -194,11 +196,12 @@ fn armed_spans(s: &SimSummary) -> Vec<(f64, f64)> {
 fn failsafes_in_time(
     run: &Run,
     s: &SimSummary,
+    r: &CommanderReport,
     p: &Params,
     cfg: &Config,
     broken: &mut impl FnMut(u8, String),
 ) {
-    let r = s.fly.commander.report();
+    let spans = armed_spans(r, s.simulated_s);
     for &(fault, at_s) in &run.inject {
         let (what, timeout_s) = match fault {
             Fault::LinkLoss => ("link-loss", p.link_timeout_s),
@@ -206,7 +209,7 @@ fn failsafes_in_time(
             Fault::ImuStall => ("imu-timeout", cfg.watchdog.imu_timeout_ms as f64 / 1000.0),
             _ => continue,
         };
-        for (armed_s, until_s) in armed_spans(s) {
+        for &(armed_s, until_s) in &spans {
             let due_s = at_s.max(armed_s) + timeout_s + SLACK_S;
             if until_s <= due_s || s.simulated_s <= due_s {
                 continue;
@@ -224,14 +227,19 @@ fn failsafes_in_time(
             }
         }
     }
-    gps_loss_action_in_time(s, p, broken);
+    gps_loss_action_in_time(s.simulated_s, r, &spans, p, broken);
 }
 
 /// 6, the GPS's second step: a `gps-loss` recorded in the air is followed by its action
 /// (a landing or a return; nothing for `hold`) within `failsafe.gps_loss_land_s`, unless
 /// the vehicle was disarmed or halted by then.
-fn gps_loss_action_in_time(s: &SimSummary, p: &Params, broken: &mut impl FnMut(u8, String)) {
-    let r = s.fly.commander.report();
+fn gps_loss_action_in_time(
+    simulated_s: f64,
+    r: &CommanderReport,
+    spans: &[(f64, f64)],
+    p: &Params,
+    broken: &mut impl FnMut(u8, String),
+) {
     let Some(f) = r.failsafes.iter().find(|f| f.kind == "gps-loss") else {
         return;
     };
@@ -239,15 +247,13 @@ fn gps_loss_action_in_time(s: &SimSummary, p: &Params, broken: &mut impl FnMut(u
         return;
     }
     let due_s = f.t_s + p.gps_loss_land_s + SLACK_S;
-    let armed_then = armed_spans(s)
-        .iter()
-        .any(|&(a, until)| a <= f.t_s && until > due_s);
+    let armed_then = spans.iter().any(|&(a, until)| a <= f.t_s && until > due_s);
     let acted = r.modes.iter().any(|m| {
         m.t_s >= f.t_s
             && m.t_s <= due_s
             && matches!(m.mode, "land" | "return" | "disarmed" | "kill")
     });
-    if armed_then && s.simulated_s > due_s && !acted {
+    if armed_then && simulated_s > due_s && !acted {
         broken(
             6,
             format!(
@@ -259,8 +265,12 @@ fn gps_loss_action_in_time(s: &SimSummary, p: &Params, broken: &mut impl FnMut(u
 }
 
 /// 7: the report's modes, failsafes, halt and refusal count are mode.log's.
-fn report_is_mode_log(s: &SimSummary, mode_log: &str, broken: &mut impl FnMut(u8, String)) {
-    let r = s.fly.commander.report();
+fn report_is_mode_log(
+    s: &SimSummary,
+    r: &CommanderReport,
+    mode_log: &str,
+    broken: &mut impl FnMut(u8, String),
+) {
     let (mut modes, mut failsafes, mut refusals) = (Vec::new(), Vec::new(), 0u64);
     for line in mode_log.lines() {
         let mut words = line.split(' ');
