@@ -1,7 +1,8 @@
 //! Safety across the whole flight, on the simulated clock: failsafes armed at arming (a GPS
 //! lost before its first fix was fused), the ground's rules (a link lost while armed on the
 //! ground, no takeoff), a crash caught (a stuck gyro tumbling the vehicle at the ground), and
-//! settings under which a landing could never end refused.
+//! settings under which a landing could never end refused; without GPS a push flown as a
+//! push, and a landing without any vertical reference that still ends slowly.
 
 mod common;
 use common::*;
@@ -194,9 +195,56 @@ fn without_gps_the_velocity_is_damped_not_drifted() {
 }
 
 #[test]
+fn without_gps_a_push_is_flown_as_a_push() {
+    // A GPS lost in a return, then a 3 N push north for 3 s: read as drag it was an airspeed
+    // of 30 m/s the other way, and the controller flew along the push to damp it (126.6 m
+    // from the start, outside the 50 m fence). Flown as the acceleration it is, the vehicle
+    // stays within the fence.
+    let (r, err, _logs) = sim(&[
+        "--seed",
+        "924",
+        "--script",
+        "arm@2,takeoff@10,hold 6 0 1@14,return@24",
+        "--inject",
+        "gps-loss@27.067",
+        "--inject",
+        "gust@32.584",
+    ]);
+    let far_m = r["safety"]["max_from_start_m"].as_f64().unwrap();
+    assert!(far_m < 50.0, "{far_m} m from the start: {r}\n{err}");
+    assert_eq!(modes(&r).last().unwrap().1, "touchdown", "{r}\n{err}");
+}
+
+#[test]
+fn a_blind_landing_metres_above_the_ground_sinks_slowly() {
+    // GPS lost on a mission leg, then the barometer: the estimate reaches the ground with the
+    // vehicle still 1.4 m up. On a thrust that only fell, the last of the descent sped up
+    // to 1.56 m/s; with the sink read from the accelerometer and braked, it touches down
+    // slowly and disarms.
+    let (r, err, _logs) = sim(&[
+        "--seed",
+        "380",
+        "--script",
+        "arm@2,start@10",
+        "--mission",
+        "config/missions/square.toml",
+        "--inject",
+        "gps-loss@64.649",
+        "--inject",
+        "baro-fail@72.676",
+    ]);
+    assert!(r["halt"].is_null(), "{r}\n{err}");
+    assert_eq!(modes(&r).last().unwrap().1, "touchdown", "{r}\n{err}");
+    for c in r["safety"]["contacts"].as_array().unwrap() {
+        assert!(c["v_m_s"].as_f64().unwrap() <= 0.75, "{r}\n{err}");
+    }
+}
+
+#[test]
 fn with_neither_barometer_nor_gps_it_still_lands() {
-    // Attitude only: the fixes stop, then the barometer. The landing caps its thrust lower
-    // once the estimate reaches the ground, so the ground's push is felt and it disarms.
+    // Attitude only: the fixes stop, then the barometer. Once the estimate reaches the
+    // ground the landing sets its thrust outright, falling until the vehicle sinks slowly
+    // and then on the ground, whose shock and push end the landing: it disarms.
     let (r, err, _logs) = sim(&["--inject", "gps-loss@30", "--inject", "baro-fail@31"]);
     assert!(r["halt"].is_null(), "{r}\n{err}");
     assert_eq!(modes(&r).last().unwrap().1, "touchdown", "{r}\n{err}");

@@ -272,6 +272,12 @@ pub struct Ekf {
     pub steps_without_fix: u32,
     /// The last step's thrust carried most of the weight (`core::ekf_drag`).
     pub flying: bool,
+    /// The accelerometer's x and y summed over the drag's window, m/s², and the samples in
+    /// it (`core::ekf_drag`).
+    pub(crate) drag_sum_m_s2: [f64; 2],
+    pub(crate) drag_samples: u32,
+    /// Windows in a row that have read a push (`core::ekf_drag`).
+    pub(crate) push_windows: u32,
 }
 
 struct Trig {
@@ -517,6 +523,9 @@ impl Ekf {
             baro_lost: false,
             steps_without_fix: 0,
             flying: false,
+            drag_sum_m_s2: [0.0; 2],
+            drag_samples: 0,
+            push_windows: 0,
         }
     }
 
@@ -568,10 +577,20 @@ impl Ekf {
         for i in 0..N_STATES {
             self.p[(i, i)] += self.params.q_diag[i];
         }
-        if self.drag_active() {
-            // bax, bay are then the drag, tied to the velocity: not a bias free to wander.
+        if self.drag_modelled() {
+            // bax, bay are then the drag, tied to the velocity: not a bias free to wander
+            // (also on a step the thrust dips, or the tie breaks and the gate opens wide).
             for i in [idx::BAX, idx::BAY] {
                 self.p[(i, i)] += Q_BAXY_DRAG - self.params.q_diag[i];
+            }
+        }
+        if self.pushed_now() {
+            // The gyros alone carry roll and pitch through a push: the profile's attitude
+            // noise is sized against the IMU's angle rows, fused every step, which a push
+            // leaves out (below); without them it would spread a tilt's doubt into the
+            // velocity within a second.
+            for i in [idx::PSI, idx::PHI] {
+                self.p[(i, i)] += Q_ANGLES_PUSHED_RAD2 - self.params.q_diag[i];
             }
         }
         if self.baro_lost {
@@ -649,9 +668,20 @@ impl Ekf {
             // still when the vehicle does (on the ground, too).
             r[5] = R_AZ_NO_BARO;
         }
+        if self.pushed_now() {
+            // The IMU's angles take the accelerometer for the gravity's direction: during a
+            // push they read it as a tilt. The gyros carry the attitude until it ends.
+            r[0] = R_ANGLES_PUSHED_RAD2;
+            r[1] = R_ANGLES_PUSHED_RAD2;
+        }
         let out = self.update::<IMU_ROWS>(&z, &IMU_OBS, &IMU_GROUPS, az_pred, &r);
         if self.drag_active() && out.result.is_ok() {
             self.fuse_drag(sample.acc_m_s2);
+        } else {
+            self.drag_samples = 0;
+            if !self.drag_modelled() {
+                self.push_windows = 0;
+            }
         }
         out
     }
@@ -790,6 +820,13 @@ const FLYING_THRUST_SHARE: f64 = 0.8;
 
 /// The drag's process noise per step while it holds the velocity, (m/s²)².
 const Q_BAXY_DRAG: f64 = 1e-6;
+
+/// The IMU's roll and pitch rows while a push is read (`core::ekf_drag`), rad²: left to
+/// the gyros.
+const R_ANGLES_PUSHED_RAD2: f64 = 1e6;
+/// Roll's and pitch's process noise per step meanwhile, rad²: a gyro's drift, 0.01 rad in a
+/// second.
+const Q_ANGLES_PUSHED_RAD2: f64 = 1e-6;
 
 /// The accelerometer's vertical row without a barometer, (m/s²)²: a frame's noise on the
 /// airframe, vibration included (about 1 m/s²).

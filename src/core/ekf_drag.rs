@@ -4,8 +4,12 @@
 //! its bias states (bax, bay); once no fix has come for [`DRAG_AFTER_STEPS`], the
 //! accelerometer's x and y are read as −k times the velocity, and bax + k·vqx = 0,
 //! bay + k·vqy = 0 keep the model's drag with it: the velocity stays observed, so the
-//! controller can damp it, instead of drifting as the integral of every tilt error. Not in
-//! the original's spec (its filter, spec 3, models no drag).
+//! controller can damp it, instead of drifting as the integral of every tilt error. A push
+//! that is not the air's (a collision, a hand, the simulator's gust) would read as an
+//! airspeed of acc/k the other way, and the controller would fly along the push to damp
+//! it: a push is told from drag by its size on a 0.1 s mean, and flown as the outside
+//! acceleration it is while it lasts. Not in the original's spec (its filter, spec 3,
+//! models no drag).
 
 use crate::core::ekf::{Ekf, N_STATES, StateMatrix, idx};
 use nalgebra::{SMatrix, SVector};
@@ -14,8 +18,17 @@ use nalgebra::{SMatrix, SVector};
 /// missed at 1 Hz is not yet a loss.
 pub(crate) const DRAG_AFTER_STEPS: u32 = 150;
 
-/// The accelerometer's x and y read as drag, (m/s²)²: a frame's noise on the airframe,
-/// vibration included (about 0.5 m/s²).
+/// The drag is read on the accelerometer's mean over this many steps (0.1 s at 100 Hz): a
+/// single frame's noise is an airspeed of 0.5/k ≈ 8 m/s, the mean's a third of it, so a push
+/// (below) stands out of the gate at once.
+pub(crate) const DRAG_WINDOW_STEPS: u32 = 10;
+
+/// A push longer than this many windows (5 s) is read as drag again: the wind's, which the
+/// accelerometer cannot tell from a push; the vehicle then holds its airspeed, as PX4 does.
+const PUSH_MAX_WINDOWS: u32 = 50;
+
+/// The accelerometer's x and y, one frame, (m/s²)²: a frame's noise on the airframe,
+/// vibration included (about 0.5 m/s²). The window's mean has a tenth of it.
 const R_AXY_DRAG: f64 = 0.25;
 
 /// The states the drag corrects.
@@ -25,9 +38,15 @@ const HORIZONTAL: [usize; 4] = [idx::VQX, idx::VQY, idx::BAX, idx::BAY];
 const R_DRAG: f64 = 0.0025;
 
 impl Ekf {
-    /// The drag holds the horizontal velocity this step.
+    /// The model's bax, bay are the drag (no fix for a while): they then wander only as the
+    /// drag does.
+    pub(crate) fn drag_modelled(&self) -> bool {
+        self.params.drag_per_s > 0.0 && self.steps_without_fix >= DRAG_AFTER_STEPS
+    }
+
+    /// The drag holds the horizontal velocity this step: modelled, and in flight.
     pub(crate) fn drag_active(&self) -> bool {
-        self.params.drag_per_s > 0.0 && self.steps_without_fix >= DRAG_AFTER_STEPS && self.flying
+        self.drag_modelled() && self.flying
     }
 
     /// The vertical is observed: by the barometer, or without it by the fixes' vertical
@@ -36,47 +55,80 @@ impl Ekf {
         !self.baro_lost || self.steps_without_fix < DRAG_AFTER_STEPS
     }
 
-    /// Fuses the accelerometer's x and y as the drag of the velocity (ax = −k·vqx,
-    /// ay = −k·vqy), and ties the model's drag to it (bax + k·vqx = 0, bay + k·vqy = 0); each
-    /// row gated, the gain kept to the horizontal velocity and the drag (Joseph form, right
-    /// for the masked gain).
+    /// Adds a frame's accelerometer to the window; a full window is fused, each axis either
+    /// as drag or, while it reads a push, as the push.
     pub(crate) fn fuse_drag(&mut self, acc_m_s2: [f64; 3]) {
+        if !(acc_m_s2[0].is_finite() && acc_m_s2[1].is_finite()) {
+            return;
+        }
+        self.drag_sum_m_s2[0] += acc_m_s2[0];
+        self.drag_sum_m_s2[1] += acc_m_s2[1];
+        self.drag_samples += 1;
+        if self.drag_samples < DRAG_WINDOW_STEPS {
+            return;
+        }
+        let r_mean = R_AXY_DRAG / f64::from(self.drag_samples);
+        let mean_m_s2 = self.drag_sum_m_s2.map(|s| s / f64::from(self.drag_samples));
+        (self.drag_sum_m_s2, self.drag_samples) = ([0.0; 2], 0);
+        let was_pushed = self.pushed_now();
+        let pushed = self.pushed(mean_m_s2, r_mean);
+        // The model's drag is the push's still when a push ends: measured afresh, the tie
+        // does not read the stale push as an airspeed.
+        if pushed || was_pushed {
+            for (axis, mean) in mean_m_s2.into_iter().enumerate() {
+                self.push_measured(axis, mean, r_mean);
+            }
+        }
+        if !pushed {
+            self.fuse_drag_mean(mean_m_s2, r_mean);
+        }
+    }
+
+    /// A push is being read: the accelerometer does not hold the gravity's direction then.
+    pub(crate) fn pushed_now(&self) -> bool {
+        self.drag_active() && (1..=PUSH_MAX_WINDOWS).contains(&self.push_windows)
+    }
+
+    /// This window reads a push: the accelerometer's mean lies further from the drag of the
+    /// estimated velocity (−k·v) than its noise and the drag's allow (`ekf.gate_sigma` of
+    /// them), judged on the horizontal vector: a push along any heading is seen whole, not
+    /// its larger part alone with the rest read as an airspeed. The velocity's own variance
+    /// is left out of the test on purpose: it widens the moment the push is flown, and
+    /// would let the push back in as an airspeed of acc/k the other way. A push that lasts
+    /// [`PUSH_MAX_WINDOWS`] is the wind's (a drag the accelerometer cannot tell from a
+    /// push): read as drag from then on.
+    fn pushed(&mut self, mean_m_s2: [f64; 2], r_mean: f64) -> bool {
+        let k = self.params.drag_per_s;
+        let limit_m_s2 = self.params.gate_sigma * (r_mean + R_DRAG).sqrt();
+        let off_m_s2 =
+            (mean_m_s2[0] + k * self.x[idx::VQX]).hypot(mean_m_s2[1] + k * self.x[idx::VQY]);
+        // Not a number (a diverged velocity): not a push, the drag re-reads it.
+        self.push_windows = if off_m_s2 > limit_m_s2 {
+            self.push_windows.saturating_add(1)
+        } else {
+            0
+        };
+        (1..=PUSH_MAX_WINDOWS).contains(&self.push_windows)
+    }
+
+    /// Fuses the window's mean as the drag of the velocity (ax = −k·vqx, ay = −k·vqy), and
+    /// ties the model's drag to it (bax + k·vqx = 0, bay + k·vqy = 0), unless the window
+    /// reads a push; the gain kept to the horizontal velocity and the drag (Joseph form,
+    /// right for the masked gain).
+    fn fuse_drag_mean(&mut self, mean_m_s2: [f64; 2], r_mean: f64) {
         let k = self.params.drag_per_s;
         let mut h = SMatrix::<f64, 4, N_STATES>::zeros();
         h[(0, idx::VQX)] = -k;
         h[(1, idx::VQY)] = -k;
         (h[(2, idx::BAX)], h[(2, idx::VQX)]) = (1.0, k);
         (h[(3, idx::BAY)], h[(3, idx::VQY)]) = (1.0, k);
-        let z = SVector::<f64, 4>::new(acc_m_s2[0], acc_m_s2[1], 0.0, 0.0);
-        if !z.iter().all(|v| v.is_finite()) {
-            return;
-        }
-        let r = [R_AXY_DRAG, R_AXY_DRAG, R_DRAG, R_DRAG];
-        let mut y = z - h * self.x;
-        let mut pht = self.p * h.transpose();
+        let z = SVector::<f64, 4>::new(mean_m_s2[0], mean_m_s2[1], 0.0, 0.0);
+        let r = [r_mean, r_mean, R_DRAG, R_DRAG];
+        let y = z - h * self.x;
+        let pht = self.p * h.transpose();
         let mut s = h * pht;
         for (i, ri) in r.iter().enumerate() {
             s[(i, i)] += ri;
-        }
-        // A push that is not the air's (a collision, a hand, the simulator's gust) reads on
-        // the accelerometer as drag far beyond any airspeed the velocity allows: that axis
-        // is left out until the drag agrees again.
-        let gate_sq = self.params.gate_sigma * self.params.gate_sigma;
-        // Judged on every row before any is left out: an axis goes whole.
-        let outside = |i: usize| {
-            let ratio = y[i] * y[i] / (gate_sq * s[(i, i)]);
-            ratio > 1.0 || ratio.is_nan()
-        };
-        let axis_out = [outside(0) || outside(2), outside(1) || outside(3)];
-        for row in 0..4 {
-            if axis_out[row % 2] {
-                y[row] = 0.0;
-                pht.column_mut(row).fill(0.0);
-                s.row_mut(row).fill(0.0);
-                s.column_mut(row).fill(0.0);
-                s[(row, row)] = 1.0;
-                h.row_mut(row).fill(0.0);
-            }
         }
         let Some(s_inv) = s.try_inverse() else {
             return;
@@ -95,6 +147,19 @@ impl Ekf {
             krk += col * col.transpose() * *rc;
         }
         self.p = i_kh * self.p * i_kh.transpose() + krk;
+    }
+
+    /// A push, one axis (0: x, 1: y): the model's outside acceleration becomes what the
+    /// accelerometer measured, untied from the velocity, so the model flies the push as the
+    /// acceleration it is (instead of reading it as an airspeed of acc/k the other way). Its
+    /// variance is the mean's, its correlations gone; the tie returns once the drag agrees
+    /// with the velocity again.
+    fn push_measured(&mut self, axis: usize, mean_m_s2: f64, r_mean: f64) {
+        let b = [idx::BAX, idx::BAY][axis];
+        self.x[b] = mean_m_s2;
+        self.p.row_mut(b).fill(0.0);
+        self.p.column_mut(b).fill(0.0);
+        self.p[(b, b)] = r_mean;
     }
 }
 
@@ -130,6 +195,32 @@ mod tests {
             ekf.step(&sample, &input).1.unwrap();
         }
         ekf
+    }
+
+    #[test]
+    fn a_push_is_flown_as_a_push_not_read_as_an_airspeed() {
+        // Flying at 2 m/s on the drag, then pushed forward at 2 m/s² for a second (a gust,
+        // a hand): read as drag, that would be an airspeed of 30 m/s backwards, and the
+        // controller would fly along the push to damp it. Flown as the acceleration it is,
+        // the velocity grows forward, as the vehicle's does.
+        let mut ekf = flying(0.065);
+        let v0 = ekf.x[idx::VQX];
+        let pushed = ImuSample {
+            acc_m_s2: [-0.065 * 2.0 + 2.0, 0.0, GRAVITY_M_S2],
+            ..ImuSample::default()
+        };
+        let input = StepInput {
+            u_rad_s: [w_hover_rad_s(1.55); 4],
+            mass_kg: 1.55,
+            dt_us: 10_000,
+            gps: None,
+        };
+        for _ in 0..100 {
+            ekf.step(&pushed, &input).1.unwrap();
+        }
+        let v = ekf.x[idx::VQX];
+        assert!(ekf.pushed_now(), "the push is seen");
+        assert!(v > v0 + 1.0 && v < v0 + 3.0, "{v0} m/s -> {v} m/s");
     }
 
     #[test]

@@ -180,17 +180,17 @@ pub fn esc_startup_ramp() -> impl Iterator<Item = (u64, EscAction)> {
     }))
 }
 
-/// Lowers all four speeds by one factor so that their thrust is at most `cap` of the weight
-/// of `mass_kg` (the attitude's differences scale with them); nothing when it already is.
-pub fn cap_thrust(w_rad_s: &mut [f64; 4], cap: f64, mass_kg: f64) {
-    let limit_n = cap * mass_kg * crate::core::model::GRAVITY_M_S2;
+/// Scales all four speeds by one factor so that their thrust is `share` of the weight of
+/// `mass_kg` (the attitude's differences scale with them): the vertical flown on thrust alone.
+pub fn set_thrust(w_rad_s: &mut [f64; 4], share: f64, mass_kg: f64) {
+    let target_n = share.max(0.0) * mass_kg * crate::core::model::GRAVITY_M_S2;
     let thrust_n: f64 = w_rad_s
         .iter()
         .map(|&w| crate::core::model::thrust_n(w))
         .sum();
-    if thrust_n > limit_n && thrust_n > 0.0 {
+    if thrust_n > 0.0 {
         // Thrust grows about with the square of the speed.
-        let k = (limit_n.max(0.0) / thrust_n).sqrt();
+        let k = (target_n / thrust_n).sqrt();
         for w in w_rad_s.iter_mut() {
             *w *= k;
         }
@@ -325,20 +325,27 @@ mod tests {
     }
 
     #[test]
-    fn a_thrust_cap_scales_the_four_speeds_alike() {
+    fn a_thrust_set_outright_scales_the_four_speeds_alike() {
         let m = 1.55;
         let w_h = crate::core::model::w_hover_rad_s(m);
-        let mut w = [w_h + 10.0, w_h - 10.0, w_h, w_h];
-        cap_thrust(&mut w, 0.8, m);
-        let t: f64 = w.iter().map(|&v| crate::core::model::thrust_n(v)).sum();
         let weight = m * crate::core::model::GRAVITY_M_S2;
+        let thrust = |w: &[f64; 4]| {
+            w.iter()
+                .map(|&v| crate::core::model::thrust_n(v))
+                .sum::<f64>()
+        };
+        let mut w = [w_h + 10.0, w_h - 10.0, w_h, w_h];
+        set_thrust(&mut w, 0.8, m);
+        let t = thrust(&w);
         assert!(
             t <= 0.8 * weight * 1.02 && t >= 0.8 * weight * 0.9,
             "{t} of {weight}"
         );
         assert!(w[0] > w[2] && w[2] > w[1], "the differences stay");
+        // Raised too: the controller's own vertical is not flown meanwhile.
         let mut low = [w_h * 0.5; 4];
-        cap_thrust(&mut low, 0.8, m);
-        assert_eq!(low, [w_h * 0.5; 4], "under the cap: unchanged");
+        set_thrust(&mut low, 0.8, m);
+        let t = thrust(&low);
+        assert!(t >= 0.8 * weight * 0.9, "{t} of {weight}");
     }
 }

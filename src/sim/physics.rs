@@ -39,7 +39,15 @@ pub struct Plant {
     pub thrust_scale: [f64; 4],
     /// An outside push (a gust), inertial frame, N.
     pub push_n: [f64; 3],
+    /// The ground's stop of a touchdown still being felt: its deceleration (inertial frame,
+    /// m/s²) and how long it lasts yet, µs.
+    stop_m_s2: [f64; 3],
+    stop_left_us: i64,
 }
+
+/// A touchdown's stop lasts this long (the legs' give), µs: the accelerometer feels the
+/// whole change of speed, as a real one feels the shock (a 1 m/s touchdown: 5 g for 20 ms).
+const STOP_US: i64 = 20_000;
 
 pub use crate::core::math::rotation;
 
@@ -66,6 +74,8 @@ impl Plant {
             on_ground: true,
             thrust_scale: [1.0; 4],
             push_n: [0.0; 3],
+            stop_m_s2: [0.0; 3],
+            stop_left_us: 0,
         }
     }
 
@@ -128,6 +138,12 @@ impl Plant {
             next[idx::X] = self.x[idx::X];
             next[idx::Y] = self.x[idx::Y];
             next[idx::THETA] = self.x[idx::THETA];
+            // A touchdown; the bounces of one (the thrust near the weight lifts the vehicle
+            // off for a step) are within its stop.
+            if !self.on_ground && self.stop_left_us <= 0 {
+                self.stop_m_s2 = v_in.map(|v| -v / (STOP_US as f64 * 1e-6));
+                self.stop_left_us = STOP_US;
+            }
             self.on_ground = true;
         } else {
             self.on_ground = false;
@@ -142,6 +158,15 @@ impl Plant {
                 thrust / p.mass_kg + drag_body[2],
             ]
         };
+        // The stop is felt for its whole length, also when the thrust lifts the vehicle
+        // off again meanwhile (a bounce).
+        if self.stop_left_us > 0 {
+            self.stop_left_us -= dt_us;
+            let stop_body = mul_t(&r, &self.stop_m_s2);
+            for (f, s) in self.specific_force_m_s2.iter_mut().zip(stop_body) {
+                *f += s;
+            }
+        }
         self.x = next;
         self.t_us += dt_us;
     }
@@ -197,6 +222,37 @@ mod tests {
         assert!(p.on_ground);
         assert_eq!(p.position_m(), [0.0; 3]);
         assert!((p.specific_force_m_s2[2] - GRAVITY_M_S2).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_touchdown_is_felt_by_the_accelerometer() {
+        // Dropped from 0.5 m at a thrust a little under the weight: the accelerometer's
+        // vertical, integrated, gives back the whole stop (a real one feels the shock),
+        // bounces included.
+        let mut p = Plant::new(params(), 0.0);
+        p.x[idx::Z] = 0.5;
+        p.on_ground = false;
+        p.w_cmd_rad_s = [w_hover_rad_s(1.55) * 0.97; 4];
+        p.w_rad_s = p.w_cmd_rad_s;
+        let mut v_before = 0.0;
+        let mut dv_felt = 0.0;
+        for _ in 0..5000 {
+            let vz = p.velocity_m_s()[2];
+            p.step(1000);
+            if p.on_ground || dv_felt > 0.0 {
+                dv_felt += (p.specific_force_m_s2[2] - GRAVITY_M_S2) * 1e-3;
+            } else {
+                v_before = vz;
+            }
+            if dv_felt > 0.0 && p.stop_left_us <= 0 && p.on_ground {
+                break;
+            }
+        }
+        assert!(v_before < -0.3, "{v_before}");
+        assert!(
+            (dv_felt + v_before).abs() < 0.05,
+            "felt {dv_felt} m/s of a {v_before} m/s touchdown"
+        );
     }
 
     #[test]

@@ -217,9 +217,10 @@ pub struct Guidance {
     pub yaw_rad: Option<f64>,
     /// The mission item flown (or paused), 0-based as loaded.
     pub mission_item: Option<usize>,
-    /// The most thrust the motors may give, as a share of the weight: a landing whose
-    /// estimate has no vertical reference left lowers it on the ground it cannot see.
-    pub thrust_cap: Option<f64>,
+    /// The thrust the motors give, as a share of the weight, instead of the controller's
+    /// vertical: a landing whose estimate has no vertical reference left, once that
+    /// estimate is down to the ground (see [`Blind`]).
+    pub blind_thrust: Option<f64>,
 }
 
 impl Guidance {
@@ -235,7 +236,7 @@ impl Guidance {
         path: None,
         yaw_rad: None,
         mission_item: None,
-        thrust_cap: None,
+        blind_thrust: None,
     };
 }
 
@@ -263,10 +264,103 @@ const GROUND_PUSH: f64 = 0.1;
 /// up while it catches up (an overshoot).
 const SPOOL_UP_STEPS: u32 = crate::core::motor::FLIGHT_RAMP_STEPS;
 
-/// How fast the thrust cap falls once a landing without a vertical reference reaches the
-/// ground by its estimate, share of the weight per second: from hover to the touchdown's 0.8
-/// in 4 s; a vehicle still 0.5 m up meets the ground at about 0.8 m/s.
+/// How fast the blind landing's thrust falls while the vehicle does not sink at
+/// `land_slow_m_s`, share of the weight per second:
+/// from hover to the touchdown's 0.8 in about 7 s on the ground.
 const BLIND_RAMP_PER_S: f64 = 0.03;
+
+/// The blind landing's brake on a sink faster than `land_slow_m_s`, share of the weight per
+/// m/s: a third of a second's time constant, so a vehicle still metres up sinks at the slow
+/// speed instead of falling faster and faster.
+const BLIND_BRAKE_PER_M_S: f64 = 0.3;
+
+/// A landing without a vertical reference (no barometer, no fixes), once its estimate is
+/// down to the ground: nothing then tells the estimate where the ground is, and the
+/// controller's vertical would chase an estimate that drifts (the filter even takes the
+/// ground's push for a thrust error). The thrust is set outright: it falls until the vehicle
+/// sinks at `land_slow_m_s`, and keeps falling on the ground, whose push the touchdown watch
+/// feels. The sink is the accelerometer's own integral since then (its noise and a
+/// calibrated bias are small over the seconds this lasts; a touchdown's shock stops it); a
+/// climb reads as one and lowers the thrust, and the brake rises little above the thrust it
+/// began with.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Blind {
+    /// How fast the vehicle sinks, by the accelerometer, m/s.
+    sink_m_s: f64,
+    /// The thrust when it began, share of the weight: the hover's, as the controller had
+    /// found it (the model's thrust curve is right only to a few per cent).
+    base: f64,
+    /// The thrust's slow part, share of the weight: it only falls.
+    ramp: f64,
+    /// The thrust this step, share of the weight.
+    thrust: f64,
+    /// A touchdown's shock was felt: the vehicle is on the ground, the brake is off.
+    shock: bool,
+}
+
+impl Blind {
+    /// From the thrust `thrust_ratio` the controller gave; the sink counted from 0: the
+    /// vehicle hovers or sinks slowly when the estimate, which flew it at most at
+    /// `land_slow_m_s` over the last metre, reaches the ground.
+    fn new(thrust_ratio: f64) -> Self {
+        let base = if thrust_ratio.is_finite() {
+            thrust_ratio.clamp(BLIND_BASE_MIN, 1.0 / BLIND_BASE_MIN)
+        } else {
+            1.0
+        };
+        Blind {
+            sink_m_s: 0.0,
+            base,
+            ramp: base,
+            thrust: base,
+            shock: false,
+        }
+    }
+
+    /// One step, with the vertical specific force `up_m_s2` (the accelerometer along the
+    /// vertical): the ramp falls while the vehicle sinks slower than `slow_m_s`; a faster
+    /// sink is braked at once, a little above the thrust it began with, until a touchdown's
+    /// shock is felt.
+    fn step(mut self, up_m_s2: f64, slow_m_s: f64, dt_s: f64) -> Self {
+        if up_m_s2.is_finite() {
+            self.sink_m_s -= (up_m_s2 - GRAVITY_M_S2) * dt_s;
+            self.shock |= up_m_s2 > BLIND_SHOCK_G * GRAVITY_M_S2;
+        }
+        let fall_per_s = if self.shock {
+            BLIND_GROUND_RAMP_PER_S
+        } else if self.sink_m_s < slow_m_s {
+            BLIND_RAMP_PER_S
+        } else {
+            0.0
+        };
+        self.ramp = (self.ramp - fall_per_s * dt_s).max(0.0);
+        let brake = if self.shock {
+            0.0
+        } else {
+            BLIND_BRAKE_PER_M_S * (self.sink_m_s - slow_m_s).max(0.0)
+        };
+        self.thrust = (self.ramp + brake).min(self.base + BLIND_BRAKE_MAX);
+        self
+    }
+}
+
+/// The blind landing's brake rises at most this share of the weight above the thrust it
+/// began with: enough for the model's few per cent, too little to climb far on a wrong sink.
+const BLIND_BRAKE_MAX: f64 = 0.1;
+
+/// How fast the blind landing's thrust falls once a touchdown's shock was felt, share of
+/// the weight per second: the touchdown watch's threshold within a second or two, before
+/// the attitude's integrators, which cannot turn a vehicle on the ground, wind up and hold
+/// two motors high.
+const BLIND_GROUND_RAMP_PER_S: f64 = 0.2;
+
+/// A specific force above this many g is a touchdown's shock (a 0.25 m/s touchdown on stiff
+/// legs reads more than 2 g; a level descent, about 1).
+const BLIND_SHOCK_G: f64 = 1.5;
+
+/// The blind landing's starting thrust is taken within this share of the weight and its
+/// inverse: a controller's thrust far off the weight is not a hover.
+const BLIND_BASE_MIN: f64 = 0.7;
 
 /// A landing is slow over this last height, m.
 const LAST_METRE_M: f64 = 1.0;
@@ -289,8 +383,8 @@ pub struct Commander {
     ekf_bad_since_us: [Option<i64>; 3],
     touchdown_since_us: Option<i64>,
     /// A landing without a vertical reference reached the ground by its estimate: the thrust
-    /// cap falls from then.
-    blind_since_us: Option<i64>,
+    /// is set outright from then.
+    blind: Option<Blind>,
     /// Per failsafe, by [`Failsafe`] order: recorded, and its action taken, while its
     /// condition lasts (so the operator can choose another mode meanwhile; a new occurrence
     /// fires again).
@@ -362,7 +456,7 @@ impl Commander {
             gps_lost_us: None,
             ekf_bad_since_us: [None; 3],
             touchdown_since_us: None,
-            blind_since_us: None,
+            blind: None,
             recorded: [false; 4],
             acted: [false; 4],
             armed_us: None,
@@ -680,7 +774,7 @@ impl Commander {
         }
         // A landing left and begun again starts its touchdown watch afresh.
         self.touchdown_since_us = None;
-        self.blind_since_us = None;
+        self.blind = None;
         self.descent = DescentTrace::default();
         self.set_mode(Mode::Land, t_us, why, out);
     }
@@ -812,16 +906,16 @@ impl Commander {
             path: self.path,
             yaw_rad: self.yaw_rad,
             mission_item: self.mission_item(),
-            thrust_cap: self.thrust_cap(),
+            blind_thrust: self.blind_thrust(),
         }
     }
 
-    /// The landing's thrust cap, once it has no vertical reference and has reached the
-    /// ground by its estimate.
-    fn thrust_cap(&self) -> Option<f64> {
-        let t0 = self.blind_since_us.filter(|_| self.mode == Mode::Land)?;
-        let t_us = self.observed.map_or(t0, |o| o.t_us);
-        Some((1.0 - BLIND_RAMP_PER_S * (t_us - t0) as f64 / 1e6).max(0.0))
+    /// The landing's thrust, once it has no vertical reference and has reached the ground
+    /// by its estimate.
+    fn blind_thrust(&self) -> Option<f64> {
+        self.blind
+            .filter(|_| self.mode == Mode::Land)
+            .map(|b| b.thrust)
     }
 
     /// The set point's profile for the mode, and the mode's end.
@@ -872,14 +966,19 @@ impl Commander {
             / (2.0 * BRAKE_SHARE * p.climb_acc_m_s2);
         // With the vertical unobserved nothing tells the estimate the vehicle has stopped on
         // the ground (the accelerometer reads the same in a steady descent): once the
-        // estimate is down to the ground the thrust is capped lower and lower, so the
-        // ground's push is felt (or, if the estimate was high, the last of the descent is
-        // flown on a slowly falling thrust).
-        match (o.vertical_observed, height <= 0.0, self.blind_since_us) {
-            (true, _, _) => self.blind_since_us = None,
-            (false, true, None) => self.blind_since_us = Some(o.t_us),
-            _ => {}
-        }
+        // estimate is down to the ground the thrust is set outright (see `Blind`).
+        self.blind = match (o.vertical_observed, height <= 0.0, self.blind) {
+            (true, _, _) => None,
+            (false, true, None) => Some(Blind::new(o.thrust_ratio)),
+            (false, _, b) => {
+                // The specific force's size, not its vertical by the estimated tilt: the
+                // tilt may be off by a tenth of a radian without a reference, and a landing
+                // flies nearly level (a 0.1 rad tilt reads 0.5 % of the weight high).
+                let [ax, ay, az] = o.acc_m_s2;
+                let up_m_s2 = (ax * ax + ay * ay + az * az).sqrt();
+                b.map(|b| b.step(up_m_s2, p.land_slow_m_s, dt_s))
+            }
+        };
         let v = if height > LAST_METRE_M + brake_m {
             p.land_m_s
         } else {

@@ -1081,3 +1081,39 @@ fn a_flip_or_a_takeoff_that_never_leaves_the_ground_is_a_crash() {
     };
     assert_eq!(crash, (15_010_000, EscRequest::Crash));
 }
+
+/// Steps a blind landing for `s` seconds at 100 Hz with the vertical specific force
+/// `up_m_s2`.
+fn blind_for(b: Blind, up_m_s2: f64, s: f64) -> Blind {
+    (0..(s * 100.0) as usize).fold(b, |b, _| b.step(up_m_s2, 0.25, 0.01))
+}
+
+#[test]
+fn a_blind_landing_brakes_a_fast_sink_and_never_climbs_on_it() {
+    // Falling faster and faster (the thrust a little under the hover's): the brake holds the
+    // sink, a little above the thrust it began with, no more.
+    let b = blind_for(Blind::new(1.0), GRAVITY_M_S2 - 0.5, 2.0);
+    assert!((b.sink_m_s - 1.0).abs() < 1e-9, "{b:?}");
+    assert!(b.thrust > 1.0 && b.thrust <= 1.0 + BLIND_BRAKE_MAX + 1e-12, "{b:?}");
+    // Climbing: the thrust falls.
+    let b = blind_for(Blind::new(1.0), GRAVITY_M_S2 + 0.5, 1.0);
+    assert!(b.thrust < 1.0 - 0.5 * BLIND_RAMP_PER_S, "{b:?}");
+    // Not a number from the accelerometer: the sink stands.
+    let b = Blind::new(1.0).step(f64::NAN, 0.25, 0.01);
+    assert!(b.sink_m_s == 0.0 && b.thrust.is_finite(), "{b:?}");
+}
+
+#[test]
+fn a_blind_landing_that_feels_the_ground_lets_the_thrust_fall() {
+    // Sinking at 0.4 m/s (the brake on), then a touchdown's shock: the brake is off and the
+    // thrust falls under the touchdown threshold within a second and a half, though the
+    // sink the accelerometer gave back may be short of the whole stop.
+    let mut b = blind_for(Blind::new(1.0), GRAVITY_M_S2 - 0.4, 1.0);
+    assert!(b.thrust > 1.0, "{b:?}");
+    b = b.step(3.0 * GRAVITY_M_S2, 0.25, 0.01);
+    b = blind_for(b, GRAVITY_M_S2, 1.5);
+    assert!(b.shock && b.thrust < 0.8, "{b:?}");
+    // A thrust far off the weight is no hover to begin from.
+    assert_eq!(Blind::new(5.0).base, 1.0 / BLIND_BASE_MIN);
+    assert_eq!(Blind::new(f64::NAN).base, 1.0);
+}

@@ -398,8 +398,8 @@ impl ControllerCore {
                 *w += dw;
             }
         }
-        if let Some(cap) = est.guidance.thrust_cap {
-            crate::core::motor::cap_thrust(&mut w_ctrl, cap, mass_kg);
+        if let Some(share) = est.guidance.blind_thrust {
+            crate::core::motor::set_thrust(&mut w_ctrl, share, mass_kg);
         }
         let w_sent = command_for_step(&w_ctrl, ramp_step, &limits);
         if let Some(o) = &mut self.observer {
