@@ -137,6 +137,7 @@ fn observe(c: &Commander, w: &World) -> Observation {
             gps: None,
         },
         yaw_cal_rad: 0.0,
+        pos_sigma_m: 0.0,
     }
 }
 

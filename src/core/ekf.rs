@@ -529,6 +529,14 @@ impl Ekf {
         }
     }
 
+    /// The horizontal position's standard deviation, the larger axis's, m.
+    pub fn horizontal_sigma_m(&self) -> f64 {
+        self.p[(idx::X, idx::X)]
+            .max(self.p[(idx::Y, idx::Y)])
+            .max(0.0)
+            .sqrt()
+    }
+
     /// Clamps a step interval to the accepted range (spec 3.9).
     pub fn clamp_dt_us(&self, dt_us: i64) -> (i64, bool) {
         let c = dt_us.clamp(self.params.dt_min_us, self.params.dt_max_us);

@@ -5,6 +5,11 @@
 
 use super::{Commander, EscRequest, Event, Mode, Observation};
 
+/// Without fixes the fence is judged this many standard deviations of the position's grown
+/// uncertainty further out: the dead-reckoned place is a guess, and the fence must hold for
+/// where the vehicle may be.
+const FENCE_SIGMAS: f64 = 2.0;
+
 /// What a failsafe does.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -238,13 +243,25 @@ impl Commander {
             .any(|s| (o.t_us - s) as f64 / 1e6 >= limit_s)
     }
 
-    /// Outside the fence: the estimate, dead-reckoned while no fix comes (not grown by its
-    /// uncertainty yet: with today's noise values the filter's covariance is no bound).
+    /// Outside the fence: the estimate, dead-reckoned while no fix comes; once the fixes are
+    /// lost (none for `gps_timeout_s`) grown by [`FENCE_SIGMAS`] times what its uncertainty
+    /// has grown since the last one (between fixes it grows and shrinks at their pace, and
+    /// the fence is judged on the estimate).
     fn outside_fence(&self, o: &Observation) -> bool {
         let Some(h) = self.home_m else {
             return false;
         };
-        let r = (o.pos_m[0] - h[0]).hypot(o.pos_m[1] - h[1]);
+        let lost = self
+            .last_fix_us
+            .is_some_and(|t| (o.t_us - t) as f64 / 1e6 > self.p.gps_timeout_s);
+        let grown_m = if lost {
+            FENCE_SIGMAS * (o.pos_sigma_m - self.sigma_at_fix_m).max(0.0)
+        } else {
+            0.0
+        };
+        // Not a number (a covariance gone bad) is left to the estimator's own failsafe.
+        let grown_m = if grown_m.is_finite() { grown_m } else { 0.0 };
+        let r = (o.pos_m[0] - h[0]).hypot(o.pos_m[1] - h[1]) + grown_m;
         // Not a number (a position never observed): outside.
         !(r <= self.p.fence_radius_m && o.pos_m[2] - h[2] <= self.p.fence_alt_max_m)
     }

@@ -193,6 +193,9 @@ pub struct Observation {
     pub ratios: TestRatios,
     /// The yaw measured at calibration (the hover's heading), rad.
     pub yaw_cal_rad: f64,
+    /// The estimate's horizontal position standard deviation (the larger axis's), m: how far
+    /// a position dead-reckoned without fixes may be off.
+    pub pos_sigma_m: f64,
 }
 
 /// What the controller does this step.
@@ -378,6 +381,8 @@ pub struct Commander {
     last_t_us: Option<i64>,
     link_seen_us: Option<i64>,
     last_fix_us: Option<i64>,
+    /// The position's standard deviation at the last fused fix, m.
+    sigma_at_fix_m: f64,
     gps_lost_us: Option<i64>,
     /// Since when each measurement group (attitude, altitude, GPS) has been outside its gate.
     ekf_bad_since_us: [Option<i64>; 3],
@@ -453,6 +458,7 @@ impl Commander {
             last_t_us: None,
             link_seen_us: None,
             last_fix_us: None,
+            sigma_at_fix_m: 0.0,
             gps_lost_us: None,
             ekf_bad_since_us: [None; 3],
             touchdown_since_us: None,
@@ -871,6 +877,7 @@ impl Commander {
         self.yaw_cal_rad = o.yaw_cal_rad;
         if o.gps_fused {
             self.last_fix_us = Some(o.t_us);
+            self.sigma_at_fix_m = o.pos_sigma_m;
         }
         if self.p.start == Start::Flying && self.mode == Mode::Armed && self.home_m.is_none() {
             let alt = self.p.hover_z_m;

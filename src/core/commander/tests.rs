@@ -73,6 +73,7 @@ fn at(t_us: i64, z_m: f64) -> Observation {
             gps: None,
         },
         yaw_cal_rad: 0.25,
+        pos_sigma_m: 0.5,
     }
 }
 
@@ -469,6 +470,50 @@ fn a_lost_gps_holds_attitude_then_lands_after_its_grace_time() {
     });
     // Last fix at 12 s, lost 3 s later (at 15 s, whichever step notices), land 10 s later.
     assert_eq!(land_at, Some(25_000_000));
+}
+
+#[test]
+fn without_fixes_the_fence_holds_for_where_the_vehicle_may_be() {
+    // Holding 3 m from home inside a 5 m fence; the fixes stop at 12 s and the position's
+    // uncertainty grows by 0.5 m a second from then: the fence is judged 2 σ of that growth
+    // further out, and breached once 3 m + 2·σ passes 5 m (σ grown 1 m: at 14 s, but the
+    // fixes are only judged lost 3 s after the last, at 15 s).
+    let run = |sigma_grows: bool| {
+        let (mut c, mut ev) = holding();
+        let mut t = 10_000_000;
+        while t < 20_000_000 {
+            let mut o = at(t, 1.0);
+            o.pos_m[0] = 3.0;
+            o.gps_fused = t <= 12_000_000 && t % 1_000_000 == 0;
+            if sigma_grows && t > 12_000_000 {
+                o.pos_sigma_m += 0.5 * (t - 12_000_000) as f64 / 1e6;
+            }
+            c.link_beat(LinkSource::Gcs, t);
+            c.tick(t, &mut ev);
+            c.on_estimate(&o, &mut ev);
+            t += STEP_US;
+        }
+        ev
+    };
+    let ev = run(true);
+    let at_us = ev.iter().find_map(|e| match e {
+        Event::Failsafe {
+            kind: Failsafe::Geofence,
+            t_us,
+            ..
+        } => Some(*t_us),
+        _ => None,
+    });
+    assert!(
+        at_us.is_some_and(|t| (15_000_000..15_100_000).contains(&t)),
+        "{ev:?}"
+    );
+    // The same place with an uncertainty that does not grow: no breach.
+    let ev = run(false);
+    assert!(
+        !failsafes(&ev).contains(&(Failsafe::Geofence, Action::Land)),
+        "{ev:?}"
+    );
 }
 
 #[test]
@@ -1094,7 +1139,10 @@ fn a_blind_landing_brakes_a_fast_sink_and_never_climbs_on_it() {
     // sink, a little above the thrust it began with, no more.
     let b = blind_for(Blind::new(1.0), GRAVITY_M_S2 - 0.5, 2.0);
     assert!((b.sink_m_s - 1.0).abs() < 1e-9, "{b:?}");
-    assert!(b.thrust > 1.0 && b.thrust <= 1.0 + BLIND_BRAKE_MAX + 1e-12, "{b:?}");
+    assert!(
+        b.thrust > 1.0 && b.thrust <= 1.0 + BLIND_BRAKE_MAX + 1e-12,
+        "{b:?}"
+    );
     // Climbing: the thrust falls.
     let b = blind_for(Blind::new(1.0), GRAVITY_M_S2 + 0.5, 1.0);
     assert!(b.thrust < 1.0 - 0.5 * BLIND_RAMP_PER_S, "{b:?}");

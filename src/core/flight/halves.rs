@@ -51,6 +51,8 @@ pub struct Estimate {
     pub velocity_observed: bool,
     /// The filter observes the vertical (a barometer, or fixes' vertical velocity).
     pub vertical_observed: bool,
+    /// The horizontal position's standard deviation (the larger axis's), m.
+    pub pos_sigma_m: f64,
     pub dt_clamped: bool,
     pub ekf_error: Option<EkfError>,
     /// The commander's guidance for this step's control, and the gains designed along its
@@ -162,6 +164,7 @@ impl EstimatorCore {
             gps_used: gps.is_some(),
             velocity_observed: ekf.drag_active(),
             vertical_observed: ekf.vertical_observed(),
+            pos_sigma_m: ekf.horizontal_sigma_m(),
             dt_clamped: report.dt_clamped,
             ekf_error: result.err(),
             guidance: Guidance::OFF,

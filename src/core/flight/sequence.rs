@@ -734,6 +734,7 @@ impl EstimatorSide {
             vertical_observed: est.vertical_observed,
             ratios: est.ratios,
             yaw_cal_rad: est.theta_cal_rad,
+            pos_sigma_m: est.pos_sigma_m,
         };
         self.observed = Some(o);
         let (guidance, request) = self.commander.on_estimate(&o, &mut self.events);
