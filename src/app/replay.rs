@@ -17,6 +17,7 @@
 
 use crate::app::replay_input::{ControlTimes, RunLogs};
 use crate::app::replay_output::{self, ChunkSink, Records, Texts, ToFormatter};
+use crate::config::bounded::{self, FileKind};
 use crate::config::{GpsMode, Profile};
 use crate::core::ekf::Ekf;
 use crate::core::flight::ArmCheck;
@@ -375,17 +376,16 @@ fn recorded_inputs(run_dir: &Path, profile: &Profile) -> anyhow::Result<Recorded
             ));
         }
         let file = run_dir.join(name);
-        let text = std::fs::read_to_string(&file)
-            .map_err(|e| format!("cannot read the mission {}: {e}", file.display()))?;
+        let text = crate::config::read_mission(&file)?;
         profile.plan_mission(&file, &text).map(std::sync::Arc::new)
     };
-    match std::fs::read_to_string(&path) {
+    match bounded::read_text(&path, FileKind::RunLog) {
         Ok(text) => {
             let inputs = logs::mode_log::read_inputs(&text, &mut mission)
                 .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
             Ok((inputs, logs::mode_log::read_halt(&text)))
         }
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok((Vec::new(), None)),
+        Err(e) if e.missing => Ok((Vec::new(), None)),
         Err(e) => Err(anyhow::anyhow!("cannot read {}: {e}", path.display())),
     }
 }

@@ -2,6 +2,7 @@
 //! kalman_in.log, w.log and int.log) and gps.log. Read on whichever thread asks, with no
 //! logging there: a cut-off last line is returned, for the caller to report.
 
+use crate::config::bounded::{self, FileKind};
 use crate::core::flight::RecordedClock;
 use crate::logs::{self, GpsLogRecord, ImuRawRecord, LineError, Parsed};
 use anyhow::Context;
@@ -122,9 +123,9 @@ fn read_log<T>(
 /// A log's path and text; `None` when it does not exist.
 fn read_text(dir: &Path, name: &str) -> anyhow::Result<Option<(PathBuf, String)>> {
     let path = dir.join(name);
-    match std::fs::read_to_string(&path) {
+    match bounded::read_text(&path, FileKind::RunLog) {
         Ok(text) => Ok(Some((path, text))),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+        Err(e) if e.missing => Ok(None),
         Err(e) => Err(e).with_context(|| format!("cannot read {}", path.display())),
     }
 }

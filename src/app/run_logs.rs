@@ -2,6 +2,7 @@
 //! export`): ours, or the original's (which have no setpoint, innov, mode or config). A
 //! stream that is missing is empty; one that cannot be read or parsed is an error naming it.
 
+use crate::config::bounded::{self, FileKind};
 use crate::logs::{self, GpsLogRecord, ImuRawRecord, InnovRecord, KalmanInRecord, Parsed};
 use anyhow::{Context, bail};
 use std::path::{Path, PathBuf};
@@ -28,9 +29,9 @@ fn read<T>(
     parse: impl Fn(&[&str]) -> Result<T, String>,
 ) -> anyhow::Result<Vec<T>> {
     let path = dir.join(name);
-    let text = match std::fs::read_to_string(&path) {
+    let text = match bounded::read_text(&path, FileKind::RunLog) {
         Ok(t) => t,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(e) if e.missing => return Ok(Vec::new()),
         Err(e) => return Err(e).with_context(|| format!("cannot read {}", path.display())),
     };
     let Parsed { rows, .. } =
@@ -40,9 +41,9 @@ fn read<T>(
 
 fn text(dir: &Path, name: &str) -> anyhow::Result<String> {
     let path = dir.join(name);
-    match std::fs::read_to_string(&path) {
+    match bounded::read_text(&path, FileKind::RunLog) {
         Ok(t) => Ok(t),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(String::new()),
+        Err(e) if e.missing => Ok(String::new()),
         Err(e) => Err(e).with_context(|| format!("cannot read {}", path.display())),
     }
 }

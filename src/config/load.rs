@@ -2,7 +2,9 @@
 //! (reporting every type error and unknown key), validate, resolve relative paths and load the
 //! data files. Also the report of what is wrong: `Problem` and `ConfigError`.
 
+use super::bounded::{self, FileKind};
 use super::overrides::{remove_dotted, set_dotted};
+use super::parameters::PARAMETERS;
 use super::profile::Profile;
 use super::schema::Config;
 use super::validate::validate;
@@ -97,12 +99,29 @@ pub fn kept_params_path(c: &Config, log_dir: Option<&Path>) -> PathBuf {
 
 /// The kept parameters as dotted keys and values; none when there is no such file.
 fn read_kept(file: &Path) -> Result<Option<Vec<(String, toml::Value)>>, ConfigError> {
-    if !file.exists() {
+    // A link to nothing is not "no parameters kept": it is refused, as a FIFO is.
+    if !bounded::exists(file) {
         return Ok(None);
     }
-    let table = read_table(file)?;
+    let table = read_table(file, FileKind::Parameters)?;
     let mut out = Vec::new();
     flatten("", &table, &mut out);
+    // Only parameters: anything else (`commander.start = "flying"`, a path) would change the
+    // vehicle behind the operator's back, kept for every later start.
+    let problems: Vec<Problem> = out
+        .iter()
+        .filter(|(key, _)| !PARAMETERS.iter().any(|(_, k)| k == key))
+        .map(|(key, _)| Problem {
+            file: file.to_path_buf(),
+            key: Some(key.clone()),
+            message: "not a parameter: this file keeps only the keys `uquad params` lists \
+                      (edit the profile, or pass --set, for any other)"
+                .to_string(),
+        })
+        .collect();
+    if !problems.is_empty() {
+        return Err(ConfigError { problems });
+    }
     Ok(Some(out))
 }
 
@@ -150,8 +169,8 @@ fn first_problem(e: &ConfigError, origin: &str) -> String {
 /// under a temporary name, flushed to the disk and renamed into place, so a power cut leaves
 /// the old file or the new one.
 pub fn write_kept(file: &Path, key: &str, value: toml::Value) -> Result<(), String> {
-    let mut table = if file.exists() {
-        read_table(file).map_err(|e| e.to_string())?
+    let mut table = if bounded::exists(file) {
+        read_table(file, FileKind::Parameters).map_err(|e| e.to_string())?
     } else {
         toml::Table::new()
     };
@@ -188,7 +207,7 @@ fn load_layers(
     kept: Option<(&Path, &[(String, toml::Value)])>,
     sets: &[(String, toml::Value)],
 ) -> Result<Profile, ConfigError> {
-    let mut table = read_table(path)?;
+    let mut table = read_table(path, FileKind::Profile)?;
     let mut report = Report {
         path,
         kept,
@@ -262,8 +281,9 @@ impl Report<'_> {
     }
 }
 
-/// Reads and parses the configuration file; either failing ends the load with that one problem.
-fn read_table(path: &Path) -> Result<toml::Table, ConfigError> {
+/// Reads (bounded, see `config::bounded`) and parses a configuration file of `kind`; either
+/// failing ends the load with that one problem.
+fn read_table(path: &Path, kind: FileKind) -> Result<toml::Table, ConfigError> {
     let fail = |message: String| ConfigError {
         problems: vec![Problem {
             file: path.to_path_buf(),
@@ -271,8 +291,12 @@ fn read_table(path: &Path) -> Result<toml::Table, ConfigError> {
             message,
         }],
     };
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| fail(format!("cannot read the configuration: {e}")))?;
+    let what = match kind {
+        FileKind::Parameters => "the kept parameters",
+        _ => "the configuration",
+    };
+    let text =
+        bounded::read_text(path, kind).map_err(|e| fail(format!("cannot read {what}: {e}")))?;
     toml::from_str(&text).map_err(|e| fail(format!("not valid TOML: {}", e.to_string().trim())))
 }
 
@@ -405,7 +429,12 @@ fn load_data(c: &Config, report: &mut Report<'_>) -> Option<DataFiles> {
 /// Reads exactly `count` numbers from `file`, named by `key`. A file that cannot be read is
 /// reported against the configuration; a malformed one against itself, with the position.
 fn load_numbers(report: &mut Report<'_>, key: &str, file: &Path, count: usize) -> Option<Vec<f64>> {
-    let text = match std::fs::read_to_string(file) {
+    let kind = if key == "imu.calib_file" {
+        FileKind::Calibration
+    } else {
+        FileKind::Numbers
+    };
+    let text = match bounded::read_text(file, kind) {
         Ok(t) => t,
         Err(e) => {
             report.push(Some(key), format!("cannot read {}: {e}", file.display()));

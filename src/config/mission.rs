@@ -70,8 +70,7 @@ impl super::Profile {
     /// This profile with the mission in `path`, checked against it (see
     /// [`Profile::plan_mission`](super::Profile::plan_mission)).
     pub fn with_mission(mut self, path: &Path) -> Result<super::Profile, String> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| format!("cannot read the mission {}: {e}", path.display()))?;
+        let text = read_mission(path)?;
         let plan = self.plan_mission(path, &text)?;
         let nominal_s = nominal_s(&plan.mission, &self.config.commander_params());
         self.mission = Some(Arc::new(LoadedMission {
@@ -189,9 +188,13 @@ struct RawMission {
 /// Reads and checks the mission in `path` against the commander's bounds (heights, the
 /// fence). Errors name the file, the item (1-based) and the key.
 pub fn load_mission(path: &Path, p: &Params) -> Result<Mission, String> {
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| format!("cannot read the mission {}: {e}", path.display()))?;
-    parse_mission(path, &text, p)
+    parse_mission(path, &read_mission(path)?, p)
+}
+
+/// A mission file's text, bounded (see `config::bounded`).
+pub fn read_mission(path: &Path) -> Result<String, String> {
+    super::bounded::read_text(path, super::bounded::FileKind::Mission)
+        .map_err(|e| format!("cannot read the mission {}: {e}", path.display()))
 }
 
 /// [`load_mission`] on the file's text (`path` names it in errors).

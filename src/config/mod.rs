@@ -9,13 +9,16 @@
 //! - `overrides`: `--set KEY=VALUE`;
 //! - `load`: reading, deserialising, resolving paths, loading the data files;
 //! - `validate`: the rules a configuration must meet;
-//! - `profile`: the loaded profile and the core objects it describes.
+//! - `profile`: the loaded profile and the core objects it describes;
+//! - `bounded`: every file read whole, with bounds.
 
+pub mod bounded;
 mod commander;
 mod gcs;
 mod load;
 mod mission;
 mod overrides;
+mod parameters;
 mod profile;
 mod schema;
 mod validate;
@@ -26,8 +29,9 @@ pub use load::{
     ConfigError, DEFAULT_CONFIG, Problem, check_kept, check_set, kept_params_path, load, load_kept,
     resolve_path, write_kept,
 };
-pub use mission::{LoadedMission, MissionConfig, load_mission};
+pub use mission::{LoadedMission, MissionConfig, load_mission, read_mission};
 pub use overrides::parse_set;
+pub use parameters::PARAMETERS;
 pub use profile::Profile;
 pub use schema::{
     Config, Console, Control, Ekf, Esc, Gps, GpsMode, Imu, Integrals, Log, Motor, Sim, Vehicle,

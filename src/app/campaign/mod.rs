@@ -8,6 +8,7 @@ pub mod invariants;
 
 use crate::app::sim::SimOptions;
 use crate::config::Profile;
+use crate::config::bounded::{self, FileKind};
 use cases::{PHASES, Run};
 use invariants::Finding;
 use serde::Serialize;
@@ -197,7 +198,7 @@ fn one(profiles: (&Profile, &Profile), run: &Run, dir: &Path) -> anyhow::Result<
     };
     let summary = crate::app::sim_fast::run_fast(profile, &opts)?;
     let run_dir = summary.fly.run_dir.clone();
-    let mode_log = std::fs::read_to_string(run_dir.join("mode.log"))?;
+    let mode_log = bounded::read_text(&run_dir.join("mode.log"), FileKind::RunLog)?;
     let findings = invariants::judge(run, &summary, &mode_log, &profile.config);
     std::fs::remove_dir_all(&run_dir)?;
     let fall_m_s = summary
