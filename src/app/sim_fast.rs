@@ -470,7 +470,8 @@ impl<'a> FastSim<'a> {
             .map_or([f64::NAN; 3], |e| [e.x[0], e.x[1], e.x[2]]);
         self.track.sample(&guidance, self.plant.position_m(), est_m);
         let started_up = self.estimator.counts().steps > 0;
-        self.safety.sample(self.t_us, &self.plant, mode, started_up);
+        self.safety
+            .sample(self.t_us, &mut self.plant, mode, started_up);
     }
 
     /// The end of the run: zero and disable, as fly's shutdown does; the closing lines; the

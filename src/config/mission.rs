@@ -243,10 +243,12 @@ fn speed(value: f64) -> Result<f64, String> {
 }
 
 fn check_item(r: &RawItem, p: &Params) -> Result<Item, String> {
-    let z_max = p.z_max_m.min(p.fence_alt_max_m);
+    // The limits every set point keeps (`Params::height_range_m`, `Params::inside_fence`).
+    let heights = p.height_range_m();
+    let (z_min, z_max) = (*heights.start(), *heights.end());
     let inside = |key: &str, x: f64, y: f64, reach: f64| {
         let r = x.hypot(y) + reach;
-        if r.is_finite() && r <= p.fence_radius_m {
+        if p.inside_fence(r) {
             Ok(())
         } else {
             Err(format!(
@@ -257,11 +259,11 @@ fn check_item(r: &RawItem, p: &Params) -> Result<Item, String> {
     };
     Ok(match r {
         RawItem::Takeoff { height_m } => Item::Takeoff {
-            height_m: within("height_m", *height_m, p.z_min_m, z_max, "m")?,
+            height_m: within("height_m", *height_m, z_min, z_max, "m")?,
         },
         RawItem::Goto { at_m, speed_m_s } => {
             inside("at_m", at_m[0], at_m[1], 0.0)?;
-            within("at_m[2] (height)", at_m[2], p.z_min_m, z_max, "m")?;
+            within("at_m[2] (height)", at_m[2], z_min, z_max, "m")?;
             Item::Goto {
                 at_m: *at_m,
                 speed_m_s: speed(*speed_m_s)?,

@@ -587,7 +587,8 @@ impl Ekf {
         }
         if self.drag_modelled() {
             // bax, bay are then the drag, tied to the velocity: not a bias free to wander
-            // (also on a step the thrust dips, or the tie breaks and the gate opens wide).
+            // (also on a step the thrust dips: a wide P would let the next window's drag jump
+            // the velocity).
             for i in [idx::BAX, idx::BAY] {
                 self.p[(i, i)] += Q_BAXY_DRAG - self.params.q_diag[i];
             }

@@ -20,11 +20,14 @@ pub(crate) const DRAG_AFTER_STEPS: u32 = 150;
 
 /// The drag is read on the accelerometer's mean over this many steps (0.1 s at 100 Hz): a
 /// single frame's noise is an airspeed of 0.5/k ≈ 8 m/s, the mean's a third of it, so a push
-/// (below) stands out of the gate at once.
+/// (below) above about 0.8 m/s² stands out at once.
 pub(crate) const DRAG_WINDOW_STEPS: u32 = 10;
 
-/// A push longer than this many windows (5 s) is read as drag again: the wind's, which the
-/// accelerometer cannot tell from a push; the vehicle then holds its airspeed, as PX4 does.
+/// A push is read on the IMU's angles' behalf for at most this many windows (5 s): longer,
+/// the gyros alone would drift, and the angles are read again (a steady push then reads as a
+/// tilt on them, slowly: the profile's angle noise). The push itself is still flown as the
+/// outside acceleration it is, until the drag agrees with the velocity again: read as drag,
+/// a push of 2 m/s² would be an airspeed of 30 m/s in one window.
 const PUSH_MAX_WINDOWS: u32 = 50;
 
 /// The accelerometer's x and y, one frame, (m/s²)²: a frame's noise on the airframe,
@@ -67,24 +70,25 @@ impl Ekf {
         if self.drag_samples < DRAG_WINDOW_STEPS {
             return;
         }
-        let r_mean = R_AXY_DRAG / f64::from(self.drag_samples);
+        let r_mean_m2_s4 = R_AXY_DRAG / f64::from(self.drag_samples);
         let mean_m_s2 = self.drag_sum_m_s2.map(|s| s / f64::from(self.drag_samples));
         (self.drag_sum_m_s2, self.drag_samples) = ([0.0; 2], 0);
-        let was_pushed = self.pushed_now();
-        let pushed = self.pushed(mean_m_s2, r_mean);
+        let was_pushed = self.push_windows > 0;
+        let pushed = self.pushed(mean_m_s2, r_mean_m2_s4);
         // The model's drag is the push's still when a push ends: measured afresh, the tie
         // does not read the stale push as an airspeed.
         if pushed || was_pushed {
             for (axis, mean) in mean_m_s2.into_iter().enumerate() {
-                self.push_measured(axis, mean, r_mean);
+                self.push_measured(axis, mean, r_mean_m2_s4);
             }
         }
         if !pushed {
-            self.fuse_drag_mean(mean_m_s2, r_mean);
+            self.fuse_drag_mean(mean_m_s2, r_mean_m2_s4);
         }
     }
 
-    /// A push is being read: the accelerometer does not hold the gravity's direction then.
+    /// A push is being read, for at most [`PUSH_MAX_WINDOWS`]: the accelerometer does not
+    /// hold the gravity's direction then, and the IMU's angles are left to the gyros.
     pub(crate) fn pushed_now(&self) -> bool {
         self.drag_active() && (1..=PUSH_MAX_WINDOWS).contains(&self.push_windows)
     }
@@ -94,12 +98,12 @@ impl Ekf {
     /// them), judged on the horizontal vector: a push along any heading is seen whole, not
     /// its larger part alone with the rest read as an airspeed. The velocity's own variance
     /// is left out of the test on purpose: it widens the moment the push is flown, and
-    /// would let the push back in as an airspeed of acc/k the other way. A push that lasts
-    /// [`PUSH_MAX_WINDOWS`] is the wind's (a drag the accelerometer cannot tell from a
-    /// push): read as drag from then on.
-    fn pushed(&mut self, mean_m_s2: [f64; 2], r_mean: f64) -> bool {
+    /// would let the push back in as an airspeed of acc/k the other way. Pushes under the
+    /// limit (about 1.3 N on a 1.55 kg airframe) are read as drag: as wind, which they
+    /// cannot be told from.
+    fn pushed(&mut self, mean_m_s2: [f64; 2], r_mean_m2_s4: f64) -> bool {
         let k = self.params.drag_per_s;
-        let limit_m_s2 = self.params.gate_sigma * (r_mean + R_DRAG).sqrt();
+        let limit_m_s2 = self.params.gate_sigma * (r_mean_m2_s4 + R_DRAG).sqrt();
         let off_m_s2 =
             (mean_m_s2[0] + k * self.x[idx::VQX]).hypot(mean_m_s2[1] + k * self.x[idx::VQY]);
         // Not a number (a diverged velocity): not a push, the drag re-reads it.
@@ -108,14 +112,13 @@ impl Ekf {
         } else {
             0
         };
-        (1..=PUSH_MAX_WINDOWS).contains(&self.push_windows)
+        self.push_windows > 0
     }
 
     /// Fuses the window's mean as the drag of the velocity (ax = −k·vqx, ay = −k·vqy), and
-    /// ties the model's drag to it (bax + k·vqx = 0, bay + k·vqy = 0), unless the window
-    /// reads a push; the gain kept to the horizontal velocity and the drag (Joseph form,
-    /// right for the masked gain).
-    fn fuse_drag_mean(&mut self, mean_m_s2: [f64; 2], r_mean: f64) {
+    /// ties the model's drag to it (bax + k·vqx = 0, bay + k·vqy = 0); the gain kept to the
+    /// horizontal velocity and the drag (Joseph form, right for the masked gain).
+    fn fuse_drag_mean(&mut self, mean_m_s2: [f64; 2], r_mean_m2_s4: f64) {
         let k = self.params.drag_per_s;
         let mut h = SMatrix::<f64, 4, N_STATES>::zeros();
         h[(0, idx::VQX)] = -k;
@@ -123,7 +126,7 @@ impl Ekf {
         (h[(2, idx::BAX)], h[(2, idx::VQX)]) = (1.0, k);
         (h[(3, idx::BAY)], h[(3, idx::VQY)]) = (1.0, k);
         let z = SVector::<f64, 4>::new(mean_m_s2[0], mean_m_s2[1], 0.0, 0.0);
-        let r = [r_mean, r_mean, R_DRAG, R_DRAG];
+        let r = [r_mean_m2_s4, r_mean_m2_s4, R_DRAG, R_DRAG];
         let y = z - h * self.x;
         let pht = self.p * h.transpose();
         let mut s = h * pht;
@@ -154,12 +157,12 @@ impl Ekf {
     /// acceleration it is (instead of reading it as an airspeed of acc/k the other way). Its
     /// variance is the mean's, its correlations gone; the tie returns once the drag agrees
     /// with the velocity again.
-    fn push_measured(&mut self, axis: usize, mean_m_s2: f64, r_mean: f64) {
+    fn push_measured(&mut self, axis: usize, mean_m_s2: f64, r_mean_m2_s4: f64) {
         let b = [idx::BAX, idx::BAY][axis];
         self.x[b] = mean_m_s2;
         self.p.row_mut(b).fill(0.0);
         self.p.column_mut(b).fill(0.0);
-        self.p[(b, b)] = r_mean;
+        self.p[(b, b)] = r_mean_m2_s4;
     }
 }
 

@@ -180,20 +180,18 @@ pub fn esc_startup_ramp() -> impl Iterator<Item = (u64, EscAction)> {
     }))
 }
 
-/// Scales all four speeds by one factor so that their thrust is `share` of the weight of
-/// `mass_kg` (the attitude's differences scale with them): the vertical flown on thrust alone.
+/// Sets the four speeds' common part so that their thrust is `share` of the weight of
+/// `mass_kg`, the controller's differences between them (the attitude's) kept as they are:
+/// the vertical flown on thrust alone, whatever the controller's own collective asked, and
+/// the attitude still the controller's (a scale would multiply its differences with it).
 pub fn set_thrust(w_rad_s: &mut [f64; 4], share: f64, mass_kg: f64) {
-    let target_n = share.max(0.0) * mass_kg * crate::core::model::GRAVITY_M_S2;
-    let thrust_n: f64 = w_rad_s
-        .iter()
-        .map(|&w| crate::core::model::thrust_n(w))
-        .sum();
-    if thrust_n > 0.0 {
-        // Thrust grows about with the square of the speed.
-        let k = (target_n / thrust_n).sqrt();
-        for w in w_rad_s.iter_mut() {
-            *w *= k;
-        }
+    let mean_rad_s = w_rad_s.iter().sum::<f64>() / 4.0;
+    let common_rad_s = crate::core::model::w_hover_rad_s(share.max(0.0) * mass_kg);
+    if !(mean_rad_s.is_finite() && common_rad_s.is_finite()) {
+        return;
+    }
+    for w in w_rad_s.iter_mut() {
+        *w += common_rad_s - mean_rad_s;
     }
 }
 
@@ -325,7 +323,7 @@ mod tests {
     }
 
     #[test]
-    fn a_thrust_set_outright_scales_the_four_speeds_alike() {
+    fn a_thrust_set_outright_keeps_the_attitudes_differences() {
         let m = 1.55;
         let w_h = crate::core::model::w_hover_rad_s(m);
         let weight = m * crate::core::model::GRAVITY_M_S2;
@@ -334,18 +332,21 @@ mod tests {
                 .map(|&v| crate::core::model::thrust_n(v))
                 .sum::<f64>()
         };
-        let mut w = [w_h + 10.0, w_h - 10.0, w_h, w_h];
-        set_thrust(&mut w, 0.8, m);
-        let t = thrust(&w);
+        // Whatever collective the controller asked (far under or over the weight), the
+        // thrust is the share asked, and the differences between the motors stay.
+        for collective in [0.3, 1.0, 1.4] {
+            let c = w_h * collective;
+            let mut w = [c + 10.0, c - 10.0, c, c];
+            set_thrust(&mut w, 0.8, m);
+            let t = thrust(&w);
+            assert!((t / weight - 0.8).abs() < 0.01, "{t} of {weight}");
+            assert!((w[0] - w[1] - 20.0).abs() < 1e-9 && (w[2] - w[3]).abs() < 1e-9);
+        }
+        let mut nan = [f64::NAN; 4];
+        set_thrust(&mut nan, 0.8, m);
         assert!(
-            t <= 0.8 * weight * 1.02 && t >= 0.8 * weight * 0.9,
-            "{t} of {weight}"
+            nan.iter().all(|v| v.is_nan()),
+            "left to the saturation's own rule"
         );
-        assert!(w[0] > w[2] && w[2] > w[1], "the differences stay");
-        // Raised too: the controller's own vertical is not flown meanwhile.
-        let mut low = [w_h * 0.5; 4];
-        set_thrust(&mut low, 0.8, m);
-        let t = thrust(&low);
-        assert!(t >= 0.8 * weight * 0.9, "{t} of {weight}");
     }
 }

@@ -53,9 +53,18 @@ pub struct Converted {
 /// number).
 pub type Refusal = (MavMissionResult, String);
 
-/// An older MISSION_ITEM (floating-point coordinates) as a MISSION_ITEM_INT.
+/// An older MISSION_ITEM (floating-point coordinates) as a MISSION_ITEM_INT; coordinates that
+/// are not numbers refused (as integers they would read as 0: the origin, and be flown).
 #[allow(deprecated)]
-pub fn item_int(i: &MISSION_ITEM_DATA) -> MISSION_ITEM_INT_DATA {
+pub fn item_int(i: &MISSION_ITEM_DATA) -> Result<MISSION_ITEM_INT_DATA, Refusal> {
+    for (v, name, result) in [
+        (i.x, "x", MavMissionResult::MAV_MISSION_INVALID_PARAM5_X),
+        (i.y, "y", MavMissionResult::MAV_MISSION_INVALID_PARAM6_Y),
+    ] {
+        if !v.is_finite() && i.frame != MavFrame::MAV_FRAME_MISSION {
+            return Err((result, format!("mission item {}: {name} is {v}", i.seq)));
+        }
+    }
     let global = matches!(
         i.frame,
         MavFrame::MAV_FRAME_GLOBAL_RELATIVE_ALT
@@ -65,7 +74,7 @@ pub fn item_int(i: &MISSION_ITEM_DATA) -> MISSION_ITEM_INT_DATA {
     );
     let scale = if global { 1e7 } else { 1e4 };
     let int = |v: f32| (f64::from(v) * scale).round().clamp(-2.1e9, 2.1e9) as i32;
-    MISSION_ITEM_INT_DATA {
+    Ok(MISSION_ITEM_INT_DATA {
         param1: i.param1,
         param2: i.param2,
         param3: i.param3,
@@ -81,7 +90,7 @@ pub fn item_int(i: &MISSION_ITEM_DATA) -> MISSION_ITEM_INT_DATA {
         current: i.current,
         autocontinue: i.autocontinue,
         mission_type: MavMissionType::MAV_MISSION_TYPE_MISSION,
-    }
+    })
 }
 
 /// What one item says about position: x, y from the takeoff point (none: not given) and the
@@ -95,7 +104,13 @@ struct Place {
 fn place(i: &MISSION_ITEM_INT_DATA, at: &Anchor) -> Result<Place, Refusal> {
     let seq = i.seq;
     let z = f64::from(i.z);
-    let z_m = z.is_finite().then_some(z);
+    if !z.is_finite() && i.frame != MavFrame::MAV_FRAME_MISSION {
+        return Err((
+            MavMissionResult::MAV_MISSION_INVALID_PARAM7,
+            format!("mission item {seq}: z is {z}"),
+        ));
+    }
+    let z_m = Some(z);
     let given = i.x != 0 || i.y != 0;
     match i.frame {
         MavFrame::MAV_FRAME_MISSION => Ok(Place {
@@ -566,7 +581,7 @@ mod tests {
         let rel = MavFrame::MAV_FRAME_GLOBAL_RELATIVE_ALT_INT;
         let nan = item(0, MAV_CMD_NAV_TAKEOFF, rel, [0.0; 4], 0, 0, f32::NAN);
         let (_, why) = convert(&[nan], &anchor(), 1.0, 1.0).unwrap_err();
-        assert!(why.contains("no height"), "{why}");
+        assert!(why.contains("mission item 0: z is NaN"), "{why}");
         let take = item(0, MAV_CMD_NAV_TAKEOFF, rel, [0.0; 4], 0, 0, 2.0);
         let spin = global(
             1,
@@ -590,8 +605,43 @@ mod tests {
             command: MavCmd::MAV_CMD_NAV_WAYPOINT,
             ..MISSION_ITEM_DATA::DEFAULT
         };
-        let i = item_int(&old);
+        let i = item_int(&old).unwrap();
         assert_eq!((i.seq, i.z), (3, 2.0));
         assert!((f64::from(i.x) / 1e7 + 34.9).abs() < 1e-5, "{}", i.x);
+    }
+
+    #[test]
+    fn coordinates_that_are_not_numbers_are_refused_in_every_frame() {
+        // As integers they read as 0: the local origin, acknowledged and flown.
+        let nan = MISSION_ITEM_DATA {
+            x: f32::NAN,
+            y: f32::NAN,
+            z: f32::NAN,
+            seq: 1,
+            frame: MavFrame::MAV_FRAME_LOCAL_NED,
+            command: MavCmd::MAV_CMD_NAV_WAYPOINT,
+            ..MISSION_ITEM_DATA::DEFAULT
+        };
+        let (r, why) = item_int(&nan).unwrap_err();
+        assert_eq!(r, MavMissionResult::MAV_MISSION_INVALID_PARAM5_X, "{why}");
+        assert!(why.contains("mission item 1: x is NaN"), "{why}");
+        let inf_y = MISSION_ITEM_DATA {
+            x: 1.0,
+            y: f32::INFINITY,
+            frame: MavFrame::MAV_FRAME_GLOBAL_RELATIVE_ALT,
+            ..nan
+        };
+        let (r, _) = item_int(&inf_y).unwrap_err();
+        assert_eq!(r, MavMissionResult::MAV_MISSION_INVALID_PARAM6_Y);
+        // A height not a number, in an integer item of any position frame.
+        for frame in [
+            MavFrame::MAV_FRAME_LOCAL_NED,
+            MavFrame::MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+        ] {
+            let mut take = item(0, MavCmd::MAV_CMD_NAV_TAKEOFF, frame, [0.0; 4], 0, 0, 2.0);
+            take.z = f32::NAN;
+            let (r, why) = convert(&[take], &anchor(), 1.0, 1.0).unwrap_err();
+            assert_eq!(r, MavMissionResult::MAV_MISSION_INVALID_PARAM7, "{why}");
+        }
     }
 }

@@ -43,6 +43,10 @@ pub struct Plant {
     /// m/s²) and how long it lasts yet, µs.
     stop_m_s2: [f64; 3],
     stop_left_us: i64,
+    /// The hardest touchdown's downward speed since [`Plant::take_touchdown_m_s`] last
+    /// looked, m/s (measured at the physics' step: the hops of one touchdown between two
+    /// frames do not hide its first hit).
+    touchdown_m_s: f64,
 }
 
 /// A touchdown's stop lasts this long (the legs' give), µs: the accelerometer feels the
@@ -76,6 +80,7 @@ impl Plant {
             push_n: [0.0; 3],
             stop_m_s2: [0.0; 3],
             stop_left_us: 0,
+            touchdown_m_s: 0.0,
         }
     }
 
@@ -140,6 +145,9 @@ impl Plant {
             next[idx::THETA] = self.x[idx::THETA];
             // A touchdown; the bounces of one (the thrust near the weight lifts the vehicle
             // off for a step) are within its stop.
+            if !self.on_ground {
+                self.touchdown_m_s = self.touchdown_m_s.max(-v_in[2]);
+            }
             if !self.on_ground && self.stop_left_us <= 0 {
                 self.stop_m_s2 = v_in.map(|v| -v / (STOP_US as f64 * 1e-6));
                 self.stop_left_us = STOP_US;
@@ -169,6 +177,11 @@ impl Plant {
         }
         self.x = next;
         self.t_us += dt_us;
+    }
+
+    /// The hardest touchdown's speed since the last call, m/s (0 when none).
+    pub fn take_touchdown_m_s(&mut self) -> f64 {
+        std::mem::take(&mut self.touchdown_m_s)
     }
 
     /// Velocity in the inertial frame (x north, y west, z up), m/s.

@@ -38,7 +38,6 @@ pub struct SafetyTrace {
     start_xy_m: Option<[f64; 2]>,
     flown: bool,
     was_on_ground: bool,
-    last_vz_m_s: f64,
     ground_run_from_us: Option<i64>,
     figures: SafetyFigures,
 }
@@ -48,7 +47,7 @@ const TURNING_RAD_S: f64 = 1.0;
 
 impl SafetyTrace {
     /// One IMU period: the true vehicle, the commander's mode, and whether the start-up is over.
-    pub fn sample(&mut self, t_us: i64, plant: &Plant, mode: Mode, started_up: bool) {
+    pub fn sample(&mut self, t_us: i64, plant: &mut Plant, mode: Mode, started_up: bool) {
         let p = plant.position_m();
         let start = *self.start_xy_m.get_or_insert([p[0], p[1]]);
         let from_start_m = (p[0] - start[0]).hypot(p[1] - start[1]);
@@ -66,19 +65,22 @@ impl SafetyTrace {
         }
     }
 
-    fn contact(&mut self, t_us: i64, plant: &Plant, mode: &'static str) {
+    /// A frame that finds the vehicle on the ground after one that did not is a contact, at
+    /// the hardest hit since the last frame (the plant's own step: a touchdown that hops
+    /// before the frame is judged by its first hit, not by the hop's).
+    fn contact(&mut self, t_us: i64, plant: &mut Plant, mode: &'static str) {
         if !plant.on_ground {
             self.flown = true;
         }
+        let hit_m_s = plant.take_touchdown_m_s();
         if plant.on_ground && !self.was_on_ground && self.flown {
             self.figures.contacts.push(Contact {
                 t_s: t_us as f64 / 1e6,
-                v_m_s: (-self.last_vz_m_s).max(0.0),
+                v_m_s: hit_m_s,
                 mode,
             });
         }
         self.was_on_ground = plant.on_ground;
-        self.last_vz_m_s = plant.velocity_m_s()[2];
     }
 
     /// A halt struck now.

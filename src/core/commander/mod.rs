@@ -130,6 +130,21 @@ pub struct Params {
     pub mission: crate::core::mission::Limits,
 }
 
+impl Params {
+    /// The heights a set point may have above the takeoff point, m: within
+    /// `control.manual.z_min_m`..`z_max_m` and under `fence.alt_max_m`. With
+    /// [`Params::inside_fence`], the one check of every way the set point moves (`takeoff`,
+    /// `hold`, the altitude keys, a mission's items, a ground station's).
+    pub fn height_range_m(&self) -> std::ops::RangeInclusive<f64> {
+        self.z_min_m..=self.z_max_m.min(self.fence_alt_max_m)
+    }
+
+    /// A set point `r_m` from the takeoff point is inside the fence (not a number is not).
+    pub fn inside_fence(&self, r_m: f64) -> bool {
+        r_m.is_finite() && r_m <= self.fence_radius_m
+    }
+}
+
 /// What the commander reports; the flight turns these into records.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Event {
@@ -196,6 +211,9 @@ pub struct Observation {
     /// The estimate's horizontal position standard deviation (the larger axis's), m: how far
     /// a position dead-reckoned without fixes may be off.
     pub pos_sigma_m: f64,
+    /// The accelerometer's size at rest, by the calibration, m/s² (the gravity as this
+    /// accelerometer reads it).
+    pub acc_rest_m_s2: f64,
 }
 
 /// What the controller does this step.
@@ -273,19 +291,20 @@ const SPOOL_UP_STEPS: u32 = crate::core::motor::FLIGHT_RAMP_STEPS;
 const BLIND_RAMP_PER_S: f64 = 0.03;
 
 /// The blind landing's brake on a sink faster than `land_slow_m_s`, share of the weight per
-/// m/s: a third of a second's time constant, so a vehicle still metres up sinks at the slow
-/// speed instead of falling faster and faster.
+/// m/s: a third of a second's time constant, so a vehicle still metres up sinks at about the
+/// slow speed instead of falling faster and faster.
 const BLIND_BRAKE_PER_M_S: f64 = 0.3;
 
 /// A landing without a vertical reference (no barometer, no fixes), once its estimate is
 /// down to the ground: nothing then tells the estimate where the ground is, and the
 /// controller's vertical would chase an estimate that drifts (the filter even takes the
-/// ground's push for a thrust error). The thrust is set outright: it falls until the vehicle
-/// sinks at `land_slow_m_s`, and keeps falling on the ground, whose push the touchdown watch
-/// feels. The sink is the accelerometer's own integral since then (its noise and a
-/// calibrated bias are small over the seconds this lasts; a touchdown's shock stops it); a
-/// climb reads as one and lowers the thrust, and the brake rises little above the thrust it
-/// began with.
+/// ground's push for a thrust error). The thrust is set outright (the attitude stays the
+/// controller's): it falls until the vehicle sinks at about `land_slow_m_s` (a little faster:
+/// the brake is proportional), and keeps falling on the ground, whose push the touchdown
+/// watch feels. The sink is the accelerometer's own integral since then, against what it
+/// read at rest (its noise is small over the seconds this lasts; a touchdown's shock stops
+/// it); the brake rises little above the thrust it began with, and a climb lowers the
+/// thrust by the ramp's 0.03 of the weight a second.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Blind {
     /// How fast the vehicle sinks, by the accelerometer, m/s.
@@ -302,9 +321,9 @@ struct Blind {
 }
 
 impl Blind {
-    /// From the thrust `thrust_ratio` the controller gave; the sink counted from 0: the
-    /// vehicle hovers or sinks slowly when the estimate, which flew it at most at
-    /// `land_slow_m_s` over the last metre, reaches the ground.
+    /// From the thrust `thrust_ratio` the controller gave (its hover, as its integrators
+    /// found it, when it was holding a slow descent); the sink counted from 0, though the
+    /// vehicle may then be sinking or climbing a little (the estimate it flew on drifts).
     fn new(thrust_ratio: f64) -> Self {
         let base = if thrust_ratio.is_finite() {
             thrust_ratio.clamp(BLIND_BASE_MIN, 1.0 / BLIND_BASE_MIN)
@@ -320,14 +339,25 @@ impl Blind {
         }
     }
 
-    /// One step, with the vertical specific force `up_m_s2` (the accelerometer along the
-    /// vertical): the ramp falls while the vehicle sinks slower than `slow_m_s`; a faster
-    /// sink is braked at once, a little above the thrust it began with, until a touchdown's
-    /// shock is felt.
-    fn step(mut self, up_m_s2: f64, slow_m_s: f64, dt_s: f64) -> Self {
+    /// One step, with the accelerometer `acc_m_s2` (body axes) and what it read at rest,
+    /// `rest_m_s2` (the calibration's: the gravity as this accelerometer reads it, so its
+    /// scale error does not integrate into a sink): the ramp falls while the vehicle sinks
+    /// slower than `slow_m_s`; a faster sink is braked at once, a little above the thrust it
+    /// began with, until a touchdown's shock is felt.
+    fn step(mut self, acc_m_s2: [f64; 3], rest_m_s2: f64, slow_m_s: f64, dt_s: f64) -> Self {
+        // Along the thrust axis: in the air the accelerometer reads there the thrust, and
+        // across it only the air's drag or a push, which must not count as a climb; a
+        // landing flies nearly level (0.05 rad: 0.1 % of the weight), and the estimated tilt,
+        // without a reference, may be off by more than that.
+        let up_m_s2 = acc_m_s2[2];
+        let rest_m_s2 = if rest_m_s2.is_finite() && rest_m_s2 > 0.0 {
+            rest_m_s2
+        } else {
+            GRAVITY_M_S2
+        };
         if up_m_s2.is_finite() {
-            self.sink_m_s -= (up_m_s2 - GRAVITY_M_S2) * dt_s;
-            self.shock |= up_m_s2 > BLIND_SHOCK_G * GRAVITY_M_S2;
+            self.sink_m_s -= (up_m_s2 - rest_m_s2) * dt_s;
+            self.shock |= up_m_s2 > BLIND_SHOCK_G * rest_m_s2;
         }
         let fall_per_s = if self.shock {
             BLIND_GROUND_RAMP_PER_S
@@ -357,8 +387,9 @@ const BLIND_BRAKE_MAX: f64 = 0.1;
 /// two motors high.
 const BLIND_GROUND_RAMP_PER_S: f64 = 0.2;
 
-/// A specific force above this many g is a touchdown's shock (a 0.25 m/s touchdown on stiff
-/// legs reads more than 2 g; a level descent, about 1).
+/// A specific force along the thrust axis above this many times the rest's is a touchdown's
+/// shock (a 0.25 m/s touchdown on stiff legs reads more than 2 g; a level descent about 1,
+/// a push from the side nothing on that axis).
 const BLIND_SHOCK_G: f64 = 1.5;
 
 /// The blind landing's starting thrust is taken within this share of the weight and its
@@ -618,15 +649,16 @@ impl Commander {
             Command::Hold(Some([x, y, z])) => (z, x.hypot(y)),
             _ => return None,
         };
-        let z_max = p.z_max_m.min(p.fence_alt_max_m);
-        if !(p.z_min_m..=z_max).contains(&z_m) {
+        let heights = p.height_range_m();
+        if !heights.contains(&z_m) {
             return Some(format!(
-                "height {z_m} m outside {}..{z_max} m (control.manual.z_min_m, z_max_m, \
+                "height {z_m} m outside {}..{} m (control.manual.z_min_m, z_max_m, \
                  fence.alt_max_m)",
-                p.z_min_m
+                heights.start(),
+                heights.end()
             ));
         }
-        (r_m > p.fence_radius_m).then(|| {
+        (!p.inside_fence(r_m)).then(|| {
             format!(
                 "{r_m:.1} m from the takeoff point: outside fence.radius_m = {} m",
                 p.fence_radius_m
@@ -841,8 +873,8 @@ impl Commander {
     }
 
     /// A manual key: the altitude keys move the hold's target height (spec 5.2's step, within
-    /// `control.manual.z_min_m`..`z_max_m` above the takeoff point); the others are the
-    /// planner's.
+    /// the heights every set point keeps, [`Params::height_range_m`]: the fence's ceiling
+    /// too); the others are the planner's.
     pub fn manual(&mut self, cmd: ManualCommand) -> KeyOutcome {
         let ManualCommand::Altitude(d) = cmd else {
             return KeyOutcome::Planner;
@@ -853,7 +885,9 @@ impl Commander {
         let step = crate::core::control::MANUAL_Z_STEP_M * if d == Dir::Up { 1.0 } else { -1.0 };
         let ground = self.home_m.map_or(0.0, |h| h[2]);
         let height_m = self.target_m[2] + step - ground;
-        if height_m < self.p.z_min_m - 1e-12 || height_m > self.p.z_max_m + 1e-12 {
+        let heights = self.p.height_range_m();
+        // A step's rounding (0.1 m added ten times) is not out of bounds.
+        if height_m < heights.start() - 1e-12 || height_m > heights.end() + 1e-12 {
             return KeyOutcome::OutOfBounds;
         }
         self.target_m[2] += step;
@@ -977,14 +1011,7 @@ impl Commander {
         self.blind = match (o.vertical_observed, height <= 0.0, self.blind) {
             (true, _, _) => None,
             (false, true, None) => Some(Blind::new(o.thrust_ratio)),
-            (false, _, b) => {
-                // The specific force's size, not its vertical by the estimated tilt: the
-                // tilt may be off by a tenth of a radian without a reference, and a landing
-                // flies nearly level (a 0.1 rad tilt reads 0.5 % of the weight high).
-                let [ax, ay, az] = o.acc_m_s2;
-                let up_m_s2 = (ax * ax + ay * ay + az * az).sqrt();
-                b.map(|b| b.step(up_m_s2, p.land_slow_m_s, dt_s))
-            }
+            (false, _, b) => b.map(|b| b.step(o.acc_m_s2, o.acc_rest_m_s2, p.land_slow_m_s, dt_s)),
         };
         let v = if height > LAST_METRE_M + brake_m {
             p.land_m_s

@@ -74,6 +74,7 @@ fn at(t_us: i64, z_m: f64) -> Observation {
         },
         yaw_cal_rad: 0.25,
         pos_sigma_m: 0.5,
+        acc_rest_m_s2: GRAVITY_M_S2,
     }
 }
 
@@ -616,6 +617,15 @@ fn the_altitude_keys_move_the_hold_target_within_bounds() {
     assert_eq!(c.manual(ManualCommand::Roll(Dir::Up)), KeyOutcome::Planner);
     c.command(Command::Land, 0, Ok(()), None, &mut Vec::new());
     assert_eq!(c.manual(up), KeyOutcome::Ignored(Mode::Land));
+    // Under the fence's ceiling too, where `hold` and missions stop (the keys went past it).
+    let (mut c, _) = holding();
+    c.p.fence_alt_max_m = 2.0;
+    let moved = (0..100)
+        .take_while(|_| c.manual(up) != KeyOutcome::OutOfBounds)
+        .count();
+    let steps = (1.0 / crate::core::control::MANUAL_Z_STEP_M).round() as usize;
+    assert_eq!(moved, steps, "1 m to 2 m in the keys' steps");
+    assert!((c.target_m()[2] - 2.0).abs() < 1e-9, "{}", c.target_m()[2]);
 }
 
 #[test]
@@ -1130,25 +1140,35 @@ fn a_flip_or_a_takeoff_that_never_leaves_the_ground_is_a_crash() {
 /// Steps a blind landing for `s` seconds at 100 Hz with the vertical specific force
 /// `up_m_s2`.
 fn blind_for(b: Blind, up_m_s2: f64, s: f64) -> Blind {
-    (0..(s * 100.0) as usize).fold(b, |b, _| b.step(up_m_s2, 0.25, 0.01))
+    (0..(s * 100.0) as usize).fold(b, |b, _| b.step([0.0, 0.0, up_m_s2], REST, 0.25, 0.01))
 }
+
+/// An accelerometer that reads 0.3 % short at rest (the simulator's does).
+const REST: f64 = GRAVITY_M_S2 * 0.997;
 
 #[test]
 fn a_blind_landing_brakes_a_fast_sink_and_never_climbs_on_it() {
     // Falling faster and faster (the thrust a little under the hover's): the brake holds the
     // sink, a little above the thrust it began with, no more.
-    let b = blind_for(Blind::new(1.0), GRAVITY_M_S2 - 0.5, 2.0);
+    let b = blind_for(Blind::new(1.0), REST - 0.5, 2.0);
     assert!((b.sink_m_s - 1.0).abs() < 1e-9, "{b:?}");
     assert!(
         b.thrust > 1.0 && b.thrust <= 1.0 + BLIND_BRAKE_MAX + 1e-12,
         "{b:?}"
     );
     // Climbing: the thrust falls.
-    let b = blind_for(Blind::new(1.0), GRAVITY_M_S2 + 0.5, 1.0);
+    let b = blind_for(Blind::new(1.0), REST + 0.5, 1.0);
     assert!(b.thrust < 1.0 - 0.5 * BLIND_RAMP_PER_S, "{b:?}");
+    // At rest, read against the accelerometer's own rest: no sink grows (against the
+    // textbook g it would, 0.03 m/s a second, and brake a hovering vehicle upward).
+    let b = blind_for(Blind::new(1.0), REST, 30.0);
+    assert!(b.sink_m_s.abs() < 1e-9 && b.thrust < 0.2, "{b:?}");
     // Not a number from the accelerometer: the sink stands.
-    let b = Blind::new(1.0).step(f64::NAN, 0.25, 0.01);
+    let b = Blind::new(1.0).step([f64::NAN; 3], REST, 0.25, 0.01);
     assert!(b.sink_m_s == 0.0 && b.thrust.is_finite(), "{b:?}");
+    // A push from the side is no touchdown's shock.
+    let b = Blind::new(1.0).step([3.0 * REST, 0.0, REST], REST, 0.25, 0.01);
+    assert!(!b.shock, "{b:?}");
 }
 
 #[test]
@@ -1156,10 +1176,10 @@ fn a_blind_landing_that_feels_the_ground_lets_the_thrust_fall() {
     // Sinking at 0.4 m/s (the brake on), then a touchdown's shock: the brake is off and the
     // thrust falls under the touchdown threshold within a second and a half, though the
     // sink the accelerometer gave back may be short of the whole stop.
-    let mut b = blind_for(Blind::new(1.0), GRAVITY_M_S2 - 0.4, 1.0);
+    let mut b = blind_for(Blind::new(1.0), REST - 0.4, 1.0);
     assert!(b.thrust > 1.0, "{b:?}");
-    b = b.step(3.0 * GRAVITY_M_S2, 0.25, 0.01);
-    b = blind_for(b, GRAVITY_M_S2, 1.5);
+    b = b.step([0.0, 0.0, 3.0 * REST], REST, 0.25, 0.01);
+    b = blind_for(b, REST, 1.5);
     assert!(b.shock && b.thrust < 0.8, "{b:?}");
     // A thrust far off the weight is no hover to begin from.
     assert_eq!(Blind::new(5.0).base, 1.0 / BLIND_BASE_MIN);

@@ -53,6 +53,8 @@ pub struct Estimate {
     pub vertical_observed: bool,
     /// The horizontal position's standard deviation (the larger axis's), m.
     pub pos_sigma_m: f64,
+    /// The accelerometer's size at rest, by the calibration, m/s².
+    pub acc_rest_m_s2: f64,
     pub dt_clamped: bool,
     pub ekf_error: Option<EkfError>,
     /// The commander's guidance for this step's control, and the gains designed along its
@@ -76,6 +78,8 @@ pub struct EstimatorCore {
     params: EkfParams,
     ekf: Option<Ekf>,
     theta_cal_rad: f64,
+    /// The accelerometer's size in the calibration's null sample, m/s².
+    acc_rest_m_s2: f64,
     steps: u32,
     prev_step_us: Option<i64>,
 }
@@ -92,6 +96,7 @@ impl EstimatorCore {
             params,
             ekf: None,
             theta_cal_rad: 0.0,
+            acc_rest_m_s2: crate::core::model::GRAVITY_M_S2,
             steps: 0,
             prev_step_us: None,
         }
@@ -125,6 +130,8 @@ impl EstimatorCore {
         if let FrontEndEvent::Calibrated(null) = &event {
             self.ekf = Some(Ekf::new(self.params.clone(), &null.sample));
             self.theta_cal_rad = null.sample.euler_rad[2];
+            let [ax, ay, az] = null.sample.acc_m_s2;
+            self.acc_rest_m_s2 = (ax * ax + ay * ay + az * az).sqrt();
         }
         event
     }
@@ -165,6 +172,7 @@ impl EstimatorCore {
             velocity_observed: ekf.drag_active(),
             vertical_observed: ekf.vertical_observed(),
             pos_sigma_m: ekf.horizontal_sigma_m(),
+            acc_rest_m_s2: self.acc_rest_m_s2,
             dt_clamped: report.dt_clamped,
             ekf_error: result.err(),
             guidance: Guidance::OFF,

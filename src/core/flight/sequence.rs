@@ -735,6 +735,7 @@ impl EstimatorSide {
             ratios: est.ratios,
             yaw_cal_rad: est.theta_cal_rad,
             pos_sigma_m: est.pos_sigma_m,
+            acc_rest_m_s2: est.acc_rest_m_s2,
         };
         self.observed = Some(o);
         let (guidance, request) = self.commander.on_estimate(&o, &mut self.events);

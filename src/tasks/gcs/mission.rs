@@ -155,6 +155,25 @@ impl Gcs {
         }
     }
 
+    /// An item that cannot be read (a coordinate not a number): the upload under way from
+    /// that partner ends, refused with the reason.
+    pub(super) fn on_bad_mission_item(
+        &mut self,
+        from: (u8, u8),
+        result: MavMissionResult,
+        why: &str,
+        link: &mut Link,
+    ) {
+        if self
+            .missions
+            .upload
+            .take_if(|u| u.partner == from)
+            .is_some()
+        {
+            self.mission_refuse(from, result, why, link);
+        }
+    }
+
     /// A whole upload: as a mission file, planned by a blocking worker.
     fn plan_upload(&mut self, u: Upload, link: &mut Link) {
         let snap = self.snapshot();

@@ -330,7 +330,10 @@ impl Gcs {
         match m {
             MavMessage::MISSION_COUNT(c) => self.on_mission_count(c, from, link),
             MavMessage::MISSION_ITEM_INT(i) => self.on_mission_item(i, from, link),
-            MavMessage::MISSION_ITEM(i) => self.on_mission_item(item_int(&i), from, link),
+            MavMessage::MISSION_ITEM(i) => match item_int(&i) {
+                Ok(i) => self.on_mission_item(i, from, link),
+                Err((result, why)) => self.on_bad_mission_item(from, result, &why, link),
+            },
             MavMessage::MISSION_REQUEST_LIST(r) => self.on_mission_list(from, r.mission_type, link),
             MavMessage::MISSION_REQUEST_INT(r) => self.on_mission_request(r.seq, from, link),
             MavMessage::MISSION_REQUEST(r) => self.on_mission_request(r.seq, from, link),
