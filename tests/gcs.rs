@@ -138,6 +138,9 @@ fn a_ground_station_sets_a_parameter_arms_takes_off_and_lands() {
     // PX4's hold by DO_SET_MODE and by SET_MODE (both refused), land.
     assert!(u(&g["commands"]) >= 10 && u(&g["param_sets"]) == 1, "{g}");
     assert!(u(&g["commands_refused"]) >= 3, "{g}");
+    // System 42 announced itself as a quadrotor: its ARM and parameter set were denied (the
+    // kept set below is the ground station's 0.4, not its 0.3).
+    assert_eq!(u(&g["senders_denied"]), 2, "{g}");
     // The set is kept for the next start and noted in the run, which keeps its values.
     let kept = std::fs::read_to_string(run.parent().unwrap().join("params.toml")).unwrap();
     assert!(kept.contains("climb_m_s = 0.4"), "{kept}");

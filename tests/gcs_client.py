@@ -39,6 +39,7 @@ class Station:
         )
         self.port = self.conn.port.getsockname()[1]
         self.beating = True
+        self.heard = False
         self.last_beat = 0.0
         self.texts = []
         self.chunks = {}
@@ -53,6 +54,13 @@ class Station:
         msg = self.conn.recv_match(blocking=True, timeout=timeout)
         if msg is None:
             return None
+        if self.beating and not self.heard:
+            # A heartbeat sent before the vehicle was heard went nowhere (udpin knows no peer
+            # yet): announce ourselves as a ground station at once, or our first commands
+            # come from a stranger.
+            self.heard = True
+            self.last_beat = time.time()
+            self.conn.mav.heartbeat_send(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0)
         kind = msg.get_type()
         self.last[kind] = msg
         if kind == "STATUSTEXT":
@@ -262,12 +270,36 @@ def requests(s):
     return default_ms, asked_ms
 
 
+def stranger_denied(s):
+    """Another system announcing itself as a quadrotor is no ground station: its ARM and
+    its parameter set are not obeyed (the ARM answered DENIED)."""
+    # The vehicle's address: the one our udpin connection has heard from.
+    host, port = next(iter(s.conn.clients))
+    x = mavutil.mavlink_connection(
+        f"udpout:{host}:{port}", source_system=42, source_component=1
+    )
+    x.mav.heartbeat_send(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_GENERIC, 0, 0, 0)
+    x.mav.param_set_send(1, 1, b"CMD_CLIMB_M_S", 0.3, mav.MAV_PARAM_TYPE_REAL32)
+    x.mav.command_long_send(1, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+    deadline = time.time() + LONG
+    while time.time() < deadline:
+        s.pump(0.01)
+        m = x.recv_match(type="COMMAND_ACK", blocking=True, timeout=0.1)
+        if m is not None and m.command == mav.MAV_CMD_COMPONENT_ARM_DISARM:
+            if m.result != mav.MAV_RESULT_DENIED:
+                fail(f"a stranger's ARM: result {m.result}")
+            x.close()
+            return
+    fail("no COMMAND_ACK to a stranger's ARM")
+
+
 def fly(s, run_dir, started, expected):
     hb = s.wait("a heartbeat", lambda m: m.get_type() == "HEARTBEAT", 5.0)
     heartbeat_s = time.time() - started
     if hb.type != mav.MAV_TYPE_QUADROTOR or hb.custom_mode != DISARMED:
         fail(f"first heartbeat {hb}")
     n = parameters(s, expected)
+    stranger_denied(s)
     refused_arm(s, run_dir)
     arm_and_take_off(s, 1.5)
     alt_err, samples = altitude_errors(s, 1.5, 5.0)

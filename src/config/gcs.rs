@@ -39,6 +39,9 @@ pub struct GcsConfig {
     /// Where parameters set by a ground station are kept for the next start (empty: the
     /// file `params.toml` in the log folder).
     pub params_file: PathBuf,
+    /// The system ids whose commands are obeyed, among the senders that announce themselves
+    /// as a ground station (HEARTBEAT of type GCS); empty: any ground station.
+    pub allowed_systems: Vec<u8>,
 }
 
 impl Default for GcsConfig {
@@ -53,6 +56,7 @@ impl Default for GcsConfig {
             telemetry_hz: 10.0,
             max_rx_per_s: 200,
             params_file: PathBuf::new(),
+            allowed_systems: Vec::new(),
         }
     }
 }

@@ -760,6 +760,15 @@ fn gcs_rules(c: &Config) -> Vec<Check> {
         in_range("gcs.system_id", u32::from(g.system_id), 1..=254, ""),
         in_range("gcs.telemetry_hz", g.telemetry_hz, 0.1..=50.0, "Hz"),
         in_range("gcs.max_rx_per_s", g.max_rx_per_s, 10..=10_000, "frames/s"),
+        Check::new(
+            "gcs.allowed_systems",
+            g.allowed_systems.len() <= 16
+                && g.allowed_systems
+                    .iter()
+                    .all(|s| *s != 0 && *s != g.system_id),
+            format!("{:?}", g.allowed_systems),
+            "at most 16 system ids, each 1 to 255 and not gcs.system_id (the vehicle's own)",
+        ),
     ]
 }
 

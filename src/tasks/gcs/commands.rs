@@ -59,6 +59,29 @@ impl Gcs {
         self.text(MavSeverity::MAV_SEVERITY_WARNING, why, link);
     }
 
+    /// A command, a parameter set or a mission written by a sender that may not command:
+    /// counted, answered DENIED to it alone (a parameter set has no answer), and logged once
+    /// in a hundred (a stranger's flood must not flood err.log).
+    pub(super) fn deny_sender(&mut self, m: &MavMessage, from: (u8, u8), link: &mut Link) {
+        self.report.senders_denied += 1;
+        if self.report.senders_denied % 100 == 1 {
+            self.ctx.store.logs.err(format!(
+                "MAVLink system {} may not command (not a ground station, or not in \
+                 gcs.allowed_systems): {} denied so far",
+                from.0, self.report.senders_denied
+            ));
+        }
+        let denied = MavResult::MAV_RESULT_DENIED;
+        #[allow(deprecated)]
+        match m {
+            MavMessage::COMMAND_LONG(c) => self.ack(c.command, denied, from, link),
+            MavMessage::COMMAND_INT(c) => self.ack(c.command, denied, from, link),
+            MavMessage::SET_MODE(_) => self.ack(MavCmd::MAV_CMD_DO_SET_MODE, denied, from, link),
+            MavMessage::PARAM_SET(_) => {}
+            _ => self.mission_deny(from, link),
+        }
+    }
+
     /// A commander's command: queued for the flight, acknowledged once it is taken or
     /// refused (the refusal's reason arrives as the commander's own text).
     fn forward_command(&mut self, c: Command, cmd: MavCmd, from: (u8, u8), link: &mut Link) {

@@ -49,6 +49,9 @@ pub struct GcsReport {
     pub tx_drops: u64,
     pub commands: u64,
     pub commands_refused: u64,
+    /// Commands, parameter sets and mission writes from a sender that may not command (not
+    /// a ground station, or not in `gcs.allowed_systems`): denied.
+    pub senders_denied: u64,
     /// Inputs the flight's full operator queue could not take.
     pub input_drops: u64,
     pub param_sets: u64,

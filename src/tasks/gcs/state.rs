@@ -134,7 +134,13 @@ pub struct Gcs {
     cpu_ns: u64,
     pub(super) report: GcsReport,
     pub(super) missions: super::mission_state::Missions,
+    /// The systems that announced themselves as ground stations (at most
+    /// [`GCS_SENDERS_MAX`]).
+    gcs_senders: Vec<u8>,
 }
+
+/// Ground stations remembered; a link rarely has more than two.
+const GCS_SENDERS_MAX: usize = 16;
 
 impl Gcs {
     pub fn new(
@@ -180,6 +186,7 @@ impl Gcs {
             cpu_ns: 0,
             report: GcsReport::default(),
             missions,
+            gcs_senders: Vec::with_capacity(2),
         }
     }
 
@@ -268,10 +275,53 @@ impl Gcs {
             && (component == 0 || component == COMPONENT_ID)
     }
 
+    /// A sender whose commands are obeyed: it announced itself as a ground station, and
+    /// `gcs.allowed_systems` (when set) lists it. Anyone may read (parameters, missions,
+    /// telemetry); only such a sender changes the vehicle.
+    fn may_command(&self, system: u8) -> bool {
+        let allowed = &self.ctx.cfg.allowed_systems;
+        self.gcs_senders.contains(&system) && (allowed.is_empty() || allowed.contains(&system))
+    }
+
+    /// Whether `m` would change the vehicle (a command, a parameter set, a mission written);
+    /// asking for a message is a read.
+    fn commands_vehicle(m: &MavMessage) -> bool {
+        let read = MavCmd::MAV_CMD_REQUEST_MESSAGE;
+        #[allow(deprecated)]
+        let write = matches!(
+            m,
+            MavMessage::COMMAND_LONG(COMMAND_LONG_DATA { command, .. })
+                | MavMessage::COMMAND_INT(COMMAND_INT_DATA { command, .. }) if *command != read
+        ) || matches!(
+            m,
+            MavMessage::SET_MODE(_)
+                | MavMessage::PARAM_SET(_)
+                | MavMessage::MISSION_COUNT(_)
+                | MavMessage::MISSION_ITEM(_)
+                | MavMessage::MISSION_ITEM_INT(_)
+                | MavMessage::MISSION_CLEAR_ALL(_)
+        );
+        write
+    }
+
     fn on_message(&mut self, r: Received, link: &mut Link) {
         let from = (r.header.system_id as u8, r.header.component_id);
+        if let MavMessage::HEARTBEAT(h) = &r.msg
+            && h.mavtype == MavType::MAV_TYPE_GCS
+            && !self.gcs_senders.contains(&from.0)
+            && self.gcs_senders.len() < GCS_SENDERS_MAX
+        {
+            self.gcs_senders.push(from.0);
+        }
+        if Self::commands_vehicle(&r.msg) && !self.may_command(from.0) {
+            return self.deny_sender(&r.msg, from, link);
+        }
         match r.msg {
-            MavMessage::HEARTBEAT(h) if h.mavtype == MavType::MAV_TYPE_GCS => self.on_gcs_beat(),
+            MavMessage::HEARTBEAT(h) if h.mavtype == MavType::MAV_TYPE_GCS => {
+                if self.may_command(from.0) {
+                    self.on_gcs_beat();
+                }
+            }
             MavMessage::COMMAND_LONG(c) if self.for_us(c.target_system, c.target_component) => {
                 let p = [
                     c.param1, c.param2, c.param3, c.param4, c.param5, c.param6, c.param7,
