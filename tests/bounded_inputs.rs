@@ -1,7 +1,8 @@
 //! Every file uquad reads is bounded: a device that never ends (/dev/zero), a FIFO that
 //! would hold the start forever, a 1 GB file, as the profile, the calibration, a mission and
 //! the kept parameters, refused at once with the reason (exit 2); `params.toml` holds
-//! parameters only, and a link of it to nothing is refused, not ignored.
+//! parameters only, and a link of it to nothing is refused, not ignored; a replay's mission
+//! that is a link to nothing fails the replay.
 
 mod common;
 use common::*;
@@ -116,6 +117,16 @@ fn kept_parameters_are_parameters_in_a_regular_file() {
     std::os::unix::fs::symlink(dir.path().join("gone"), &params).unwrap();
     let err = start("a dangling link");
     assert!(err.contains("which does not exist"), "{err}");
+    // A path through a file is not "no parameters kept" either.
+    let afile = dir.path().join("afile");
+    std::fs::write(&afile, "").unwrap();
+    let through = format!(
+        "gcs.params_file=\"{}\"",
+        afile.join("params.toml").display()
+    );
+    let (code, err) = run(&["sim", "--fast", "--set", &through]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("cannot read the kept parameters"), "{err}");
     // A FIFO, /dev/zero, a 1 GB file.
     for (file, why) in hostile(dir.path()) {
         std::fs::remove_file(&params).unwrap();
@@ -126,4 +137,26 @@ fn kept_parameters_are_parameters_in_a_regular_file() {
             "{err}"
         );
     }
+}
+
+#[test]
+fn a_replay_whose_mission_is_a_link_to_nothing_fails() {
+    // The replay read "no mission" and replayed another flight, exit 0.
+    let logs = tempfile::tempdir().unwrap();
+    let flown = sim_run(
+        logs.path(),
+        &["--fast", "--mission", "config/missions/square.toml"],
+    );
+    let mission = flown.join("mission.toml");
+    std::fs::remove_file(&mission).unwrap();
+    std::os::unix::fs::symlink(logs.path().join("gone"), &mission).unwrap();
+    let out = tempfile::tempdir().unwrap();
+    let (code, err) = run(&[
+        "replay",
+        flown.to_str().unwrap(),
+        "--out",
+        out.path().to_str().unwrap(),
+    ]);
+    assert_ne!(code, Some(0), "{err}");
+    assert!(err.contains("which does not exist"), "{err}");
 }

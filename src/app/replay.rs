@@ -127,7 +127,9 @@ pub fn out_is_the_run_folder(run_dir: &Path, out_dir: &Path) -> bool {
 /// and `profile` has none of its own.
 fn with_kept_mission(run_dir: &Path, profile: &Profile) -> anyhow::Result<Option<Profile>> {
     let kept = run_dir.join(crate::app::run_dir::MISSION_FILE);
-    if profile.mission.is_some() || !kept.is_file() {
+    // Missing: the run flew none. Anything else that is not a regular file (a link to
+    // nothing, a FIFO) is an error, not "no mission": the replay would differ in silence.
+    if profile.mission.is_some() || !bounded::exists(&kept) {
         return Ok(None);
     }
     let p = profile

@@ -39,8 +39,10 @@ impl FileKind {
     }
 
     /// The largest such file read, bytes: far above any real one (the default profile is
-    /// 30 kB, a calibration 1 kB, a 2 000-waypoint mission 200 kB, an hour's imu_raw.log
-    /// 30 MB), far below what would take the machine's memory.
+    /// 30 kB, a calibration 1 kB, a 2 000-waypoint mission 200 kB), far below what would take
+    /// the machine's memory. A run's largest stream, x_hat.log, grows about 85 MB an hour
+    /// flown: `plot` and `export`, which still read a stream whole, refuse runs of more than
+    /// about three hours.
     pub fn limit_bytes(self) -> u64 {
         match self {
             FileKind::Profile | FileKind::Parameters => 1 << 20,
@@ -113,11 +115,12 @@ pub fn exists(path: &Path) -> bool {
     std::fs::symlink_metadata(path).is_ok()
 }
 
-/// Opens without waiting (a FIFO opened for reading would wait for a writer).
+/// Opens without waiting (a FIFO opened for reading would wait for a writer) and without
+/// taking a terminal for the process's own.
 fn open(path: &Path) -> Result<std::fs::File, ReadError> {
     let opened = std::fs::OpenOptions::new()
         .read(true)
-        .custom_flags(libc::O_NONBLOCK)
+        .custom_flags(libc::O_NONBLOCK | libc::O_NOCTTY)
         .open(path);
     opened.map_err(|e| match e.kind() {
         std::io::ErrorKind::NotFound if exists(path) => {

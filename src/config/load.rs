@@ -99,11 +99,13 @@ pub fn kept_params_path(c: &Config, log_dir: Option<&Path>) -> PathBuf {
 
 /// The kept parameters as dotted keys and values; none when there is no such file.
 fn read_kept(file: &Path) -> Result<Option<Vec<(String, toml::Value)>>, ConfigError> {
-    // A link to nothing is not "no parameters kept": it is refused, as a FIFO is.
-    if !bounded::exists(file) {
-        return Ok(None);
-    }
-    let table = read_table(file, FileKind::Parameters)?;
+    // Only a file that is not there is "no parameters kept": a link to nothing, a path
+    // through a file or a folder that cannot be read is refused, as a FIFO is.
+    let text = match bounded::read_text(file, FileKind::Parameters) {
+        Err(e) if e.missing => return Ok(None),
+        read => read.map_err(|e| read_problem(file, FileKind::Parameters, &e))?,
+    };
+    let table = parse_table(file, &text)?;
     let mut out = Vec::new();
     flatten("", &table, &mut out);
     // Only parameters: anything else (`commander.start = "flying"`, a path) would change the
@@ -169,10 +171,13 @@ fn first_problem(e: &ConfigError, origin: &str) -> String {
 /// under a temporary name, flushed to the disk and renamed into place, so a power cut leaves
 /// the old file or the new one.
 pub fn write_kept(file: &Path, key: &str, value: toml::Value) -> Result<(), String> {
-    let mut table = if bounded::exists(file) {
-        read_table(file, FileKind::Parameters).map_err(|e| e.to_string())?
-    } else {
-        toml::Table::new()
+    let mut table = match bounded::read_text(file, FileKind::Parameters) {
+        Err(e) if e.missing => toml::Table::new(),
+        read => {
+            let text =
+                read.map_err(|e| read_problem(file, FileKind::Parameters, &e).to_string())?;
+            parse_table(file, &text).map_err(|e| e.to_string())?
+        }
     };
     set_dotted(&mut table, key, value)?;
     let text = toml::to_string(&table).map_err(|e| e.to_string())?;
@@ -284,20 +289,32 @@ impl Report<'_> {
 /// Reads (bounded, see `config::bounded`) and parses a configuration file of `kind`; either
 /// failing ends the load with that one problem.
 fn read_table(path: &Path, kind: FileKind) -> Result<toml::Table, ConfigError> {
-    let fail = |message: String| ConfigError {
+    let text = bounded::read_text(path, kind).map_err(|e| read_problem(path, kind, &e))?;
+    parse_table(path, &text)
+}
+
+/// A file of `kind` that could not be read, as the load's one problem.
+fn read_problem(path: &Path, kind: FileKind, e: &bounded::ReadError) -> ConfigError {
+    let what = match kind {
+        FileKind::Parameters => "the kept parameters",
+        _ => "the configuration",
+    };
+    one_problem(path, format!("cannot read {what}: {e}"))
+}
+
+fn parse_table(path: &Path, text: &str) -> Result<toml::Table, ConfigError> {
+    toml::from_str(text)
+        .map_err(|e| one_problem(path, format!("not valid TOML: {}", e.to_string().trim())))
+}
+
+fn one_problem(path: &Path, message: String) -> ConfigError {
+    ConfigError {
         problems: vec![Problem {
             file: path.to_path_buf(),
             key: None,
             message,
         }],
-    };
-    let what = match kind {
-        FileKind::Parameters => "the kept parameters",
-        _ => "the configuration",
-    };
-    let text =
-        bounded::read_text(path, kind).map_err(|e| fail(format!("cannot read {what}: {e}")))?;
-    toml::from_str(&text).map_err(|e| fail(format!("not valid TOML: {}", e.to_string().trim())))
+    }
 }
 
 /// Applies the kept parameters, then the `--set` overrides, in order; one that cannot apply

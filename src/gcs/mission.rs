@@ -104,13 +104,16 @@ struct Place {
 fn place(i: &MISSION_ITEM_INT_DATA, at: &Anchor) -> Result<Place, Refusal> {
     let seq = i.seq;
     let z = f64::from(i.z);
-    if !z.is_finite() && i.frame != MavFrame::MAV_FRAME_MISSION {
+    // Not a number is MAVLink's "not given" for a height (the item keeps the one before; an
+    // item that needs one, a takeoff, is refused for having none); an infinite one is no
+    // height at all.
+    if z.is_infinite() {
         return Err((
             MavMissionResult::MAV_MISSION_INVALID_PARAM7,
             format!("mission item {seq}: z is {z}"),
         ));
     }
-    let z_m = Some(z);
+    let z_m = z.is_finite().then_some(z);
     let given = i.x != 0 || i.y != 0;
     match i.frame {
         MavFrame::MAV_FRAME_MISSION => Ok(Place {
@@ -581,7 +584,7 @@ mod tests {
         let rel = MavFrame::MAV_FRAME_GLOBAL_RELATIVE_ALT_INT;
         let nan = item(0, MAV_CMD_NAV_TAKEOFF, rel, [0.0; 4], 0, 0, f32::NAN);
         let (_, why) = convert(&[nan], &anchor(), 1.0, 1.0).unwrap_err();
-        assert!(why.contains("mission item 0: z is NaN"), "{why}");
+        assert!(why.contains("no height"), "{why}");
         let take = item(0, MAV_CMD_NAV_TAKEOFF, rel, [0.0; 4], 0, 0, 2.0);
         let spin = global(
             1,
@@ -633,13 +636,14 @@ mod tests {
         };
         let (r, _) = item_int(&inf_y).unwrap_err();
         assert_eq!(r, MavMissionResult::MAV_MISSION_INVALID_PARAM6_Y);
-        // A height not a number, in an integer item of any position frame.
+        // An infinite height, in an integer item of any position frame (not a number is
+        // MAVLink's "not given").
         for frame in [
             MavFrame::MAV_FRAME_LOCAL_NED,
             MavFrame::MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
         ] {
             let mut take = item(0, MavCmd::MAV_CMD_NAV_TAKEOFF, frame, [0.0; 4], 0, 0, 2.0);
-            take.z = f32::NAN;
+            take.z = f32::INFINITY;
             let (r, why) = convert(&[take], &anchor(), 1.0, 1.0).unwrap_err();
             assert_eq!(r, MavMissionResult::MAV_MISSION_INVALID_PARAM7, "{why}");
         }

@@ -60,8 +60,9 @@ impl Gcs {
     }
 
     /// A command, a parameter set or a mission written by a sender that may not command:
-    /// counted, answered DENIED to it alone (a parameter set has no answer), and logged once
-    /// in a hundred (a stranger's flood must not flood err.log).
+    /// counted, answered DENIED addressed to it (a parameter set has no answer; the answer
+    /// goes out on the link as every message does), with no text, and logged once in a
+    /// hundred (a stranger's flood must not flood err.log).
     pub(super) fn deny_sender(&mut self, m: &MavMessage, from: (u8, u8), link: &mut Link) {
         self.report.senders_denied += 1;
         if self.report.senders_denied % 100 == 1 {

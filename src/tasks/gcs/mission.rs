@@ -55,8 +55,8 @@ impl Gcs {
         self.ctx.store.logs.err(why);
     }
 
-    /// A mission written by a sender that may not command: denied, to it alone (no text: a
-    /// stranger must not fill the ground station's screen).
+    /// A mission written by a sender that may not command: denied, addressed to it (no
+    /// text: a stranger must not fill the ground station's screen).
     pub(super) fn mission_deny(&mut self, to: (u8, u8), link: &mut Link) {
         self.send(&ack(to, MavMissionResult::MAV_MISSION_DENIED), link);
     }

@@ -134,9 +134,10 @@ pub struct Gcs {
     cpu_ns: u64,
     pub(super) report: GcsReport,
     pub(super) missions: super::mission_state::Missions,
-    /// The systems that announced themselves as ground stations (at most
-    /// [`GCS_SENDERS_MAX`]).
-    gcs_senders: Vec<u8>,
+    /// The systems that announced themselves as ground stations and may command, with when
+    /// each was last heard (at most [`GCS_SENDERS_MAX`]: a new one takes the place of the
+    /// longest silent, so fake heartbeats cannot fill the list against the real one).
+    gcs_senders: Vec<(u8, Instant)>,
 }
 
 /// Ground stations remembered; a link rarely has more than two.
@@ -186,7 +187,7 @@ impl Gcs {
             cpu_ns: 0,
             report: GcsReport::default(),
             missions,
-            gcs_senders: Vec::with_capacity(2),
+            gcs_senders: Vec::with_capacity(GCS_SENDERS_MAX),
         }
     }
 
@@ -279,41 +280,69 @@ impl Gcs {
     /// `gcs.allowed_systems` (when set) lists it. Anyone may read (parameters, missions,
     /// telemetry); only such a sender changes the vehicle.
     fn may_command(&self, system: u8) -> bool {
-        let allowed = &self.ctx.cfg.allowed_systems;
-        self.gcs_senders.contains(&system) && (allowed.is_empty() || allowed.contains(&system))
+        self.gcs_senders.iter().any(|(s, _)| *s == system)
     }
 
-    /// Whether `m` would change the vehicle (a command, a parameter set, a mission written);
-    /// asking for a message is a read.
-    fn commands_vehicle(m: &MavMessage) -> bool {
-        let read = MavCmd::MAV_CMD_REQUEST_MESSAGE;
-        #[allow(deprecated)]
-        let write = matches!(
-            m,
-            MavMessage::COMMAND_LONG(COMMAND_LONG_DATA { command, .. })
-                | MavMessage::COMMAND_INT(COMMAND_INT_DATA { command, .. }) if *command != read
-        ) || matches!(
-            m,
-            MavMessage::SET_MODE(_)
-                | MavMessage::PARAM_SET(_)
-                | MavMessage::MISSION_COUNT(_)
-                | MavMessage::MISSION_ITEM(_)
-                | MavMessage::MISSION_ITEM_INT(_)
-                | MavMessage::MISSION_CLEAR_ALL(_)
-        );
-        write
+    /// A GCS heartbeat from `system`: remembered when it may command (`gcs.allowed_systems`
+    /// lists it, or lists none; never the broadcast id 0 nor the vehicle's own).
+    fn heard_gcs(&mut self, system: u8, now: Instant) {
+        let allowed = &self.ctx.cfg.allowed_systems;
+        let eligible = system != 0
+            && system != self.ctx.cfg.system_id
+            && (allowed.is_empty() || allowed.contains(&system));
+        if !eligible {
+            return;
+        }
+        if let Some(entry) = self.gcs_senders.iter_mut().find(|(s, _)| *s == system) {
+            entry.1 = now;
+        } else if self.gcs_senders.len() < GCS_SENDERS_MAX {
+            self.gcs_senders.push((system, now));
+        } else if let Some(oldest) = self.gcs_senders.iter_mut().min_by_key(|(_, t)| *t) {
+            *oldest = (system, now);
+        }
+    }
+
+    /// Where `m` is addressed when it would change the vehicle (a command, a parameter set,
+    /// a mission written); none for a read (asking for a message, capabilities or home).
+    #[allow(deprecated)]
+    fn write_target(m: &MavMessage) -> Option<(u8, u8)> {
+        let read = |c: &MavCmd| {
+            matches!(
+                c,
+                MavCmd::MAV_CMD_REQUEST_MESSAGE
+                    | MavCmd::MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES
+                    | MavCmd::MAV_CMD_GET_HOME_POSITION
+            )
+        };
+        match m {
+            MavMessage::COMMAND_LONG(c) if !read(&c.command) => {
+                Some((c.target_system, c.target_component))
+            }
+            MavMessage::COMMAND_INT(c) if !read(&c.command) => {
+                Some((c.target_system, c.target_component))
+            }
+            MavMessage::SET_MODE(c) => Some((c.target_system, 0)),
+            MavMessage::PARAM_SET(p) => Some((p.target_system, p.target_component)),
+            MavMessage::MISSION_COUNT(_)
+            | MavMessage::MISSION_ITEM(_)
+            | MavMessage::MISSION_ITEM_INT(_)
+            | MavMessage::MISSION_CLEAR_ALL(_) => mission_target(m),
+            _ => None,
+        }
     }
 
     fn on_message(&mut self, r: Received, link: &mut Link) {
         let from = (r.header.system_id as u8, r.header.component_id);
         if let MavMessage::HEARTBEAT(h) = &r.msg
             && h.mavtype == MavType::MAV_TYPE_GCS
-            && !self.gcs_senders.contains(&from.0)
-            && self.gcs_senders.len() < GCS_SENDERS_MAX
         {
-            self.gcs_senders.push(from.0);
+            self.heard_gcs(from.0, Instant::now());
         }
-        if Self::commands_vehicle(&r.msg) && !self.may_command(from.0) {
+        // Messages for other systems are not ours to deny (a shared link, a router).
+        if let Some((system, component)) = Self::write_target(&r.msg)
+            && self.for_us(system, component)
+            && !self.may_command(from.0)
+        {
             return self.deny_sender(&r.msg, from, link);
         }
         match r.msg {
