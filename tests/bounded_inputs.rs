@@ -160,3 +160,20 @@ fn a_replay_whose_mission_is_a_link_to_nothing_fails() {
     assert_ne!(code, Some(0), "{err}");
     assert!(err.contains("which does not exist"), "{err}");
 }
+
+#[test]
+fn data_files_of_one_name_keep_apart_in_the_run_folder() {
+    // The LQR weights in a file named like the calibration, from another folder: the run
+    // folder's copy of one overwrote the other, and the replay read the weights as the
+    // calibration ("acceleration norm 16.00").
+    let dir = tempfile::tempdir().unwrap();
+    let q = dir.path().join("imu_calib.txt");
+    std::fs::copy(root().join("config/lqr-Q-uquad.txt"), &q).unwrap();
+    let logs = dir.path().join("logs");
+    std::fs::create_dir(&logs).unwrap();
+    let set = format!("control.lqr_q_file=\"{}\"", q.display());
+    let flown = sim_run(&logs, &["--fast", "--set", &set, "--duration", "15"]);
+    assert!(flown.join("imu_calib.txt").exists());
+    assert!(flown.join("control.lqr_q_file-imu_calib.txt").exists());
+    replay_run(&flown);
+}

@@ -1,6 +1,7 @@
 //! The run folder: a new, unique `<UTC time>` folder per run, made self-contained with the
 //! resolved configuration and copies of the data files it names.
 
+use crate::config::bounded::{self, FileKind};
 use crate::config::{Config, Profile};
 use anyhow::Context;
 use std::path::{Path, PathBuf};
@@ -54,11 +55,13 @@ pub fn create_run_dir(parent: &Path) -> anyhow::Result<PathBuf> {
     anyhow::bail!("no free run folder name under {}", parent.display())
 }
 
-/// Makes the run folder self-contained: copies the data files the profile names and writes
-/// the resolved configuration pointing at the copies, so `uquad replay <run>` works anywhere.
 /// The mission a run flew, kept in its folder for its replay.
 pub const MISSION_FILE: &str = "mission.toml";
 
+/// Makes the run folder self-contained: copies the data files the profile names (read
+/// bounded, as the load read them) and writes the resolved configuration pointing at the
+/// copies, so `uquad replay <run>` works anywhere. Two files of one name (from two folders)
+/// keep apart: the later is named after its key too.
 pub fn write_run_config(profile: &Profile, run_dir: &Path) -> anyhow::Result<()> {
     if let Some(m) = &profile.mission {
         let path = run_dir.join(MISSION_FILE);
@@ -66,21 +69,48 @@ pub fn write_run_config(profile: &Profile, run_dir: &Path) -> anyhow::Result<()>
             .with_context(|| format!("cannot write {}", path.display()))?;
     }
     let mut c: Config = profile.config.clone();
-    let copy = |p: &mut PathBuf| -> anyhow::Result<()> {
-        let name = p
+    let mut taken: Vec<PathBuf> = Vec::with_capacity(5);
+    let mut copy = |key: &str, p: &mut PathBuf, kind: FileKind| -> anyhow::Result<()> {
+        let mut name = p
             .file_name()
             .map(PathBuf::from)
-            .with_context(|| format!("{} has no file name", p.display()))?;
-        std::fs::copy(&*p, run_dir.join(&name))
+            .with_context(|| format!("{key}: {} has no file name", p.display()))?;
+        if taken.contains(&name) {
+            name = PathBuf::from(format!("{key}-{}", name.display()));
+        }
+        let text = bounded::read_text(p, kind)
+            .with_context(|| format!("{key}: cannot read {}", p.display()))?;
+        std::fs::write(run_dir.join(&name), text)
             .with_context(|| format!("cannot copy {} into {}", p.display(), run_dir.display()))?;
+        taken.push(name.clone());
         *p = name;
         Ok(())
     };
-    copy(&mut c.imu.calib_file)?;
-    copy(&mut c.control.k_prop_file)?;
-    copy(&mut c.control.k_int_file)?;
-    copy(&mut c.control.lqr_q_file)?;
-    copy(&mut c.control.lqr_r_file)?;
+    copy(
+        "imu.calib_file",
+        &mut c.imu.calib_file,
+        FileKind::Calibration,
+    )?;
+    copy(
+        "control.k_prop_file",
+        &mut c.control.k_prop_file,
+        FileKind::Numbers,
+    )?;
+    copy(
+        "control.k_int_file",
+        &mut c.control.k_int_file,
+        FileKind::Numbers,
+    )?;
+    copy(
+        "control.lqr_q_file",
+        &mut c.control.lqr_q_file,
+        FileKind::Numbers,
+    )?;
+    copy(
+        "control.lqr_r_file",
+        &mut c.control.lqr_r_file,
+        FileKind::Numbers,
+    )?;
     c.log.dir = PathBuf::from("..");
     let text = toml::to_string(&c).context("cannot serialise the configuration")?;
     let header = "# The resolved configuration of this run (uquad writes it; paths are relative \
