@@ -1,6 +1,7 @@
 //! The commander's rules, driven by explicit times and observations (no clock passes). Not in
 //! the original's spec, except the link rule (spec 8.2).
 
+use super::blind::{BLIND_BASE_MIN, BLIND_BRAKE_MAX, BLIND_RAMP_PER_S};
 use super::*;
 use crate::core::ekf::TestRatios;
 
