@@ -58,8 +58,8 @@ impl Ekf {
         !self.baro_lost || self.steps_without_fix < DRAG_AFTER_STEPS
     }
 
-    /// Adds a frame's accelerometer to the window; a full window is fused, each axis either
-    /// as drag or, while it reads a push, as the push.
+    /// Adds a frame's accelerometer to the window; a full window is fused as drag or, while
+    /// it reads a push, measured as the push (both axes alike: a push has one heading).
     pub(crate) fn fuse_drag(&mut self, acc_m_s2: [f64; 3]) {
         if !(acc_m_s2[0].is_finite() && acc_m_s2[1].is_finite()) {
             return;
