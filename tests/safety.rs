@@ -25,6 +25,13 @@ fn sim(args: &[&str]) -> (serde_json::Value, String, tempfile::TempDir) {
     (serde_json::from_str(&text).unwrap(), stderr, logs)
 }
 
+/// Every contact with the ground at `limit_m_s` or slower.
+fn assert_contacts_within(r: &serde_json::Value, err: &str, limit_m_s: f64) {
+    for c in r["safety"]["contacts"].as_array().unwrap() {
+        assert!(c["v_m_s"].as_f64().unwrap() <= limit_m_s, "{r}\n{err}");
+    }
+}
+
 /// The report's modes with their reasons.
 fn modes(r: &serde_json::Value) -> Vec<(String, String)> {
     r["modes"]
@@ -189,9 +196,7 @@ fn without_gps_the_velocity_is_damped_not_drifted() {
     assert!(far_m < 20.0, "{far_m} m from the start: {r}\n{err}");
     assert_eq!(failsafe_kinds(&r), ["gps-loss"], "{r}\n{err}");
     assert_eq!(modes(&r).last().unwrap().1, "touchdown", "{r}\n{err}");
-    for c in r["safety"]["contacts"].as_array().unwrap() {
-        assert!(c["v_m_s"].as_f64().unwrap() <= 1.0, "{r}\n{err}");
-    }
+    assert_contacts_within(&r, &err, 1.0);
 }
 
 #[test]
@@ -229,9 +234,7 @@ fn without_gps_a_long_push_is_flown_through() {
     ]);
     assert!(r["halt"].is_null(), "{r}\n{err}");
     assert_eq!(modes(&r).last().unwrap().1, "touchdown", "{r}\n{err}");
-    for c in r["safety"]["contacts"].as_array().unwrap() {
-        assert!(c["v_m_s"].as_f64().unwrap() <= 1.0, "{r}\n{err}");
-    }
+    assert_contacts_within(&r, &err, 1.0);
 }
 
 #[test]
@@ -252,9 +255,7 @@ fn a_blind_landing_from_6_m_ends_on_the_ground() {
         "300",
     ]);
     assert_eq!(modes(&r).last().unwrap().1, "touchdown", "{r}\n{err}");
-    for c in r["safety"]["contacts"].as_array().unwrap() {
-        assert!(c["v_m_s"].as_f64().unwrap() <= 1.0, "{r}\n{err}");
-    }
+    assert_contacts_within(&r, &err, 1.0);
 }
 
 #[test]
@@ -277,9 +278,7 @@ fn a_blind_landing_metres_above_the_ground_sinks_slowly() {
     ]);
     assert!(r["halt"].is_null(), "{r}\n{err}");
     assert_eq!(modes(&r).last().unwrap().1, "touchdown", "{r}\n{err}");
-    for c in r["safety"]["contacts"].as_array().unwrap() {
-        assert!(c["v_m_s"].as_f64().unwrap() <= 0.75, "{r}\n{err}");
-    }
+    assert_contacts_within(&r, &err, 0.75);
 }
 
 #[test]
@@ -290,7 +289,5 @@ fn with_neither_barometer_nor_gps_it_still_lands() {
     let (r, err, _logs) = sim(&["--inject", "gps-loss@30", "--inject", "baro-fail@31"]);
     assert!(r["halt"].is_null(), "{r}\n{err}");
     assert_eq!(modes(&r).last().unwrap().1, "touchdown", "{r}\n{err}");
-    for c in r["safety"]["contacts"].as_array().unwrap() {
-        assert!(c["v_m_s"].as_f64().unwrap() <= 1.0, "{r}\n{err}");
-    }
+    assert_contacts_within(&r, &err, 1.0);
 }
