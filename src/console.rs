@@ -294,10 +294,7 @@ pub fn command(line: &str, filter: &mut Filter, operator: &mpsc::Sender<Operator
     for input in inputs {
         let what = match &input {
             OperatorInput::Key(k) => format!("{k:?}"),
-            OperatorInput::Command(c, _) => c.to_string(),
-            OperatorInput::Beat(_) => "a beat".to_string(),
-            OperatorInput::GpsFix => "a fix".to_string(),
-            OperatorInput::Mission(m) => format!("mission {}", m.name),
+            other => other.what(),
         };
         reply += &match operator.try_send(input) {
             Ok(()) => format!("console: sent {what}\n"),

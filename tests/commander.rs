@@ -160,6 +160,62 @@ fn arming_is_refused_with_the_failing_check_named() {
     );
 }
 
+/// The IMU silent before the arm: the `arm` waits for no frame past commander.input_expiry_s
+/// and is refused, never applied; the run ends in error (the flight could not start).
+#[test]
+fn an_arm_while_the_imu_is_silent_expires_and_the_run_fails() {
+    let (ok, r, logs) = fast(&[
+        "--duration",
+        "8",
+        "--script",
+        "arm@1",
+        "--inject",
+        "imu-stall@0.8",
+    ]);
+    assert!(!ok, "{r}");
+    assert!(
+        refusal(&r, "arm").starts_with("not applied within commander.input_expiry_s = 1 s"),
+        "{r}"
+    );
+    let error = r["error"].as_str().unwrap_or_default();
+    assert_eq!(
+        error, "the flight could not start: the IMU was silent from 0.79 s to the end (8.00 s)",
+        "{r}"
+    );
+    assert_eq!(report_modes(&r), ["disarmed"], "{r}");
+    let mode_log = std::fs::read_to_string(run_dir(logs.path()).join("mode.log")).unwrap();
+    assert!(
+        mode_log.contains("8000000 expired 7000000 in gcs arm\n"),
+        "{mode_log}"
+    );
+}
+
+/// A garbled IMU: the odd frame that decodes after seconds of garbage does not vouch for the
+/// IMU: an `arm` on it is refused as stale; the run ends in error.
+#[test]
+fn an_arm_on_a_stale_imu_verdict_is_refused() {
+    let (ok, r, _logs) = fast(&[
+        "--duration",
+        "30",
+        "--script",
+        "arm@3",
+        "--inject",
+        "imu-garbage@1",
+    ]);
+    assert!(!ok, "{r}");
+    let why = refusal(&r, "arm");
+    assert!(why.starts_with("imu: no frame for "), "{r}");
+    assert!(why.ends_with("its verdict is stale"), "{r}");
+    assert_eq!(report_modes(&r), ["disarmed"], "{r}");
+    assert!(
+        r["error"]
+            .as_str()
+            .unwrap_or_default()
+            .starts_with("the flight could not start"),
+        "{r}"
+    );
+}
+
 #[test]
 fn an_implausible_calibration_refuses_the_arming_after_all() {
     // A gyro offset of 0.5 rad/s (a broken gyro, or a vehicle turning while calibrated).

@@ -52,8 +52,14 @@ struct Flown {
     _dir: tempfile::TempDir,
 }
 
-/// Runs `scenario` against a realtime simulation given `args`.
+/// Runs `scenario` against a realtime simulation given `args`; the run succeeds.
 fn fly_with_client(scenario: &[&str], args: &[&str]) -> Flown {
+    fly_with_client_ending(scenario, args, true)
+}
+
+/// Runs `scenario` against a realtime simulation given `args`; the run's exit status is a
+/// success exactly when `succeeds`.
+fn fly_with_client_ending(scenario: &[&str], args: &[&str], succeeds: bool) -> Flown {
     let dir = tempfile::tempdir().unwrap();
     let (mut client, port) = start_client(scenario);
     let remote = format!("gcs.udp_remote=\"127.0.0.1:{port}\"");
@@ -66,14 +72,17 @@ fn fly_with_client(scenario: &[&str], args: &[&str]) -> Flown {
         "commander.start=disarmed",
         "--script",
         "none",
-        "--duration",
-        "150",
         "--set",
         &remote,
         "--set",
         &kept,
     ];
-    let mut cmd = realtime_sim(&[&base[..], args].concat(), dir.path());
+    let duration: &[&str] = if args.contains(&"--duration") {
+        &[]
+    } else {
+        &["--duration", "150"]
+    };
+    let mut cmd = realtime_sim(&[&base[..], duration, args].concat(), dir.path());
     cmd.args(["--set", "gcs.enabled=sim-realtime"]);
     let mut sim = Uquad::spawn(&mut cmd);
     let mut stdin = client.stdin.take().unwrap();
@@ -93,7 +102,12 @@ fn fly_with_client(scenario: &[&str], args: &[&str]) -> Flown {
     let text = std::fs::read_to_string(&report_path)
         .unwrap_or_else(|_| panic!("{status}: no report\n{}", sim.stderr()));
     let report: Value = serde_json::from_str(&text).unwrap();
-    assert!(status.success(), "{status}: {report}\n{}", sim.stderr());
+    assert_eq!(
+        status.success(),
+        succeeds,
+        "{status}: {report}\n{}",
+        sim.stderr()
+    );
     let line = stdout.lines().last().unwrap_or("{}");
     let measured: Value = serde_json::from_str(line).unwrap();
     eprintln!("client measured: {measured}\ngcs report: {}", report["gcs"]);
@@ -158,6 +172,33 @@ fn a_ground_station_sets_a_parameter_arms_takes_off_and_lands() {
     );
     // The set parameter did not change the flight: its replay is the same, byte for byte.
     assert_replays_same(run, &["mode.log", "w.log", "x_hat.log"]);
+}
+
+/// With the IMU silent, a ground station's ARM is answered at commander.input_expiry_s and
+/// never applied later; the run ends in error: the flight could not start.
+#[test]
+fn an_arm_the_flight_cannot_take_is_refused_in_time_and_the_run_fails() {
+    let args = ["--inject", "imu-stall@1", "--duration", "12"];
+    let flown = fly_with_client_ending(&["stalled"], &args, false);
+    let (measured, r, run) = (&flown.measured, &flown.report, &flown.run);
+    // Answered at the expiry (1 s), well before the link's own 5 s timeout.
+    assert!(
+        measured["arm_answered_s"].as_f64().unwrap() < 4.0,
+        "{measured}"
+    );
+    let error = r["error"].as_str().unwrap_or_default();
+    assert!(
+        error.starts_with("the flight could not start: the IMU was silent from"),
+        "{r}"
+    );
+    assert_eq!(report_modes(r), ["disarmed"], "{r}");
+    let mode_log = std::fs::read_to_string(run.join("mode.log")).unwrap();
+    assert!(mode_log.contains(" expired "), "{mode_log}");
+    assert!(mode_log.contains(" in gcs arm\n"), "{mode_log}");
+    assert!(
+        mode_log.contains(" refused arm | not applied within commander.input_expiry_s = 1 s"),
+        "{mode_log}"
+    );
 }
 
 /// `uquad params` prints the mapping a ground station sees, with the kept values applied.

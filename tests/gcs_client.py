@@ -293,6 +293,33 @@ def stranger_denied(s):
     fail("no COMMAND_ACK to a stranger's ARM")
 
 
+def stalled(s, started):
+    """The IMU falls silent 1 s into the run: an ARM sent at 3 s is answered DENIED once
+    commander.input_expiry_s (1 s) has passed, not FAILED after the link's 5 s, and is never
+    applied later."""
+    s.wait("a heartbeat", lambda m: m.get_type() == "HEARTBEAT", 5.0)
+    while time.time() < started + 3.0:
+        s.pump()
+    sent = time.time()
+    s.conn.mav.command_long_send(1, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+    ack = s.wait(
+        "COMMAND_ACK of arm",
+        lambda m: m.get_type() == "COMMAND_ACK"
+        and m.command == mav.MAV_CMD_COMPONENT_ARM_DISARM,
+    )
+    answered_s = time.time() - sent
+    if ack.result != mav.MAV_RESULT_DENIED:
+        fail(f"arm with the IMU silent: result {ack.result}, expected DENIED; texts: {s.texts}")
+    end = time.time() + 3.0
+    while time.time() < end:
+        m = s.pump()
+        if m is not None and m.get_type() == "HEARTBEAT" and (
+            m.custom_mode != DISARMED or m.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED
+        ):
+            fail(f"armed after the refusal: {m}")
+    return {"arm_answered_s": round(answered_s, 2)}
+
+
 def fly(s, run_dir, started, expected):
     hb = s.wait("a heartbeat", lambda m: m.get_type() == "HEARTBEAT", 5.0)
     heartbeat_s = time.time() - started
@@ -502,6 +529,8 @@ def main():
     run_dir = line[4:]
     if sys.argv[1] == "fly":
         out = fly(s, run_dir, started, int(sys.argv[2]))
+    elif sys.argv[1] == "stalled":
+        out = stalled(s, started)
     elif sys.argv[1] == "mission":
         out = mission(s)
     else:

@@ -20,6 +20,7 @@ pub fn live_sides(profile: &Profile) -> (EstimatorSide, ControllerSide) {
         profile.estimator_core(false).hold_after_settle(),
         live_gps_feed(profile),
         profile.commander(),
-    );
+    )
+    .with_imu_timeout(i64::from(profile.config.watchdog.imu_timeout_ms) * 1000);
     (estimator, ControllerSide::new(profile.controller_core()))
 }

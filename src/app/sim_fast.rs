@@ -130,7 +130,7 @@ struct FastSim<'a> {
     hover: HoverWindow,
     operator: SimOperator,
     /// The operator's inputs due at this frame.
-    inputs: Vec<OperatorInput>,
+    inputs: Vec<(i64, OperatorInput)>,
     /// The newest fix simulated gpsd gave (the pre-arm GPS check).
     newest_fix: Option<LiveFix>,
     /// The pre-arm inputs, and where the log folder's probe is published.
@@ -260,7 +260,7 @@ impl<'a> FastSim<'a> {
             self.pending_fix = fix;
             self.newest_fix = fix;
             // The commander hears of it at the next frame, as `fly`'s estimator task does.
-            self.inputs.push(OperatorInput::GpsFix);
+            self.inputs.push((t, OperatorInput::GpsFix));
         }
         if self.faults.active(Fault::GpsLoss, t) {
             self.pending_fix = None;
@@ -293,7 +293,9 @@ impl<'a> FastSim<'a> {
         if self.inputs.is_empty() {
             return;
         }
-        for input in std::mem::take(&mut self.inputs) {
+        for (due_us, input) in std::mem::take(&mut self.inputs) {
+            // Due while no frame came (a garbled IMU): past commander.input_expiry_s, refused.
+            let input = self.estimator.commander().aged(input, t - due_us);
             let facts = if matches!(input, OperatorInput::Command(OperatorCommand::Arm, _)) {
                 self.arm_facts()
             } else {
@@ -310,6 +312,21 @@ impl<'a> FastSim<'a> {
             }
         }
         self.dispatch_events();
+    }
+
+    /// At the run's end, the operator's inputs that waited past `commander.input_expiry_s`
+    /// for a frame (a garbled IMU) are recorded refused, as `fly` records them.
+    fn expire_unapplied(&mut self) {
+        let t = self.t_us;
+        self.operator.due(t, &mut self.inputs);
+        for (due_us, input) in std::mem::take(&mut self.inputs) {
+            let input = self.estimator.commander().aged(input, t - due_us);
+            if matches!(input, OperatorInput::Expired { .. }) {
+                let facts = ArmFacts::default();
+                self.estimator
+                    .operator(input, t, ArmCheck::Facts(&facts), &mut self.out);
+            }
+        }
     }
 
     /// The pre-arm facts as the simulator observes them (real time is waived: a simulation).
@@ -477,6 +494,7 @@ impl<'a> FastSim<'a> {
     /// The end of the run: zero and disable, as fly's shutdown does; the closing lines; the
     /// streams written into the run folder.
     fn finish(mut self) -> anyhow::Result<SimSummary> {
+        self.expire_unapplied();
         self.driver.stop("shutdown", self.t_us, &mut self.cycles);
         self.execute_cycles();
         // Its retries, on the simulated clock (the physics no longer matters).
@@ -505,6 +523,9 @@ impl<'a> FastSim<'a> {
             .map(|(trip, o)| o.halt(trip));
         fly.log_drops = self.out.drops;
         fly.commander = self.estimator.summary(self.trace.figures());
+        if fly.error.is_none() {
+            fly.error = self.estimator.start_failure(self.t_us);
+        }
         fly.discarded_bytes = self.decoder.stats().discarded_bytes;
         fly.rejected_frames = self.decoder.stats().rejected_frames;
         for r in fly.closing_records() {

@@ -243,11 +243,11 @@ impl SimThread {
     fn operate(
         &mut self,
         t_us: i64,
-        inputs: &mut Vec<OperatorInput>,
+        inputs: &mut Vec<(i64, OperatorInput)>,
         armed_once: &mut bool,
     ) -> bool {
         self.operator.due(t_us, inputs);
-        for input in inputs.drain(..) {
+        for (_, input) in inputs.drain(..) {
             if let Err(e) = self.operator_tx.try_send(input) {
                 let input = e.into_inner();
                 tracing::warn!("the flight took no operator input at {t_us} us: {input:?}");

@@ -34,6 +34,9 @@ pub struct CommanderConfig {
     pub crash_s: f64,
     /// A takeoff that has not left the ground within this → halt `crash`, s.
     pub takeoff_timeout_s: f64,
+    /// An operator's command not applied within this of its arrival (the IMU silent, the
+    /// flight stalled) is refused, never applied later, s.
+    pub input_expiry_s: f64,
 }
 
 impl Default for CommanderConfig {
@@ -53,6 +56,7 @@ impl Default for CommanderConfig {
             crash_tilt_rad: 1.0,
             crash_s: 1.0,
             takeoff_timeout_s: 15.0,
+            input_expiry_s: 1.0,
         }
     }
 }
@@ -141,6 +145,7 @@ impl super::Config {
             crash_tilt_rad: c.crash_tilt_rad,
             crash_s: c.crash_s,
             takeoff_timeout_s: c.takeoff_timeout_s,
+            input_expiry_s: c.input_expiry_s,
             z_min_m: self.control.manual.z_min_m,
             z_max_m: self.control.manual.z_max_m,
             mission: self.mission.limits(),

@@ -106,6 +106,7 @@ pub const PARAMETERS: &[(&str, &str)] = &[
     ("CMD_CRASH_TILT", "commander.crash_tilt_rad"),
     ("CMD_CRASH_S", "commander.crash_s"),
     ("CMD_TKO_TIMEOUT", "commander.takeoff_timeout_s"),
+    ("CMD_INPUT_EXP_S", "commander.input_expiry_s"),
     ("FS_LINK_TO_S", "failsafe.link_timeout_s"),
     ("FS_GPS_LAND_S", "failsafe.gps_loss_land_s"),
     ("FS_EKF_BAD_S", "failsafe.ekf_bad_s"),

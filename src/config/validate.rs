@@ -616,6 +616,7 @@ fn commander_rules(c: &Config) -> Vec<Check> {
         ("commander.touchdown_v_m_s", m.touchdown_v_m_s, 1.0, "m/s"),
         ("commander.touchdown_s", m.touchdown_s, 10.0, "s"),
         ("commander.gps_max_eph_m", m.gps_max_eph_m, 100.0, "m"),
+        ("commander.input_expiry_s", m.input_expiry_s, 10.0, "s"),
     ];
     let mut checks: Vec<Check> = limits
         .into_iter()

@@ -64,6 +64,13 @@ pub fn write_input(
                 None => writeln!(out),
             }
         }
+        // `T expired WAITED_US` then the input's own line without its time.
+        OperatorInput::Expired { input, waited_us } => {
+            let mut inner = String::new();
+            write_input(&mut inner, t_us, input, None);
+            let body = inner.split_once(' ').map_or("", |(_, b)| b);
+            write!(out, "{t_us} expired {waited_us} {body}")
+        }
     };
 }
 
@@ -123,10 +130,36 @@ fn parse_input(
         }
         "mission" => OperatorInput::Mission(recorded_mission(rest, mission)?),
         "in" => return parse_command(t_us, rest, source).map(Some),
+        "expired" => return parse_expired(t_us, rest, mission).map(Some),
         "mode" | "failsafe" | "refused" | "reached" => return Ok(None),
         _ => return Err(format!("unknown record {kind:?}")),
     };
     Ok(Some((t_us, input, Ok(()))))
+}
+
+/// `WAITED_US KIND ...`: an input that expired, recorded by its own line's kind and body.
+fn parse_expired(
+    t_us: i64,
+    rest: &str,
+    mission: &mut dyn FnMut(&str) -> Result<Arc<MissionPlan>, String>,
+) -> Result<RecordedInput, String> {
+    let (waited, body) = rest.split_once(' ').unwrap_or((rest, ""));
+    let waited_us: i64 = waited
+        .parse()
+        .ok()
+        .filter(|w| *w >= 0)
+        .ok_or_else(|| format!("expired: no waiting time in µs in {waited:?}"))?;
+    match parse_input(&format!("{t_us} {body}"), mission)? {
+        Some((_, input, _)) if input.expires() => Ok((
+            t_us,
+            OperatorInput::Expired {
+                input: Box::new(input),
+                waited_us,
+            },
+            Ok(()),
+        )),
+        _ => Err("expired: not a command, a key or a mission".into()),
+    }
 }
 
 /// `NAME gains FINGERPRINT`: the plan of file NAME, whose gains must be the ones flown.
@@ -227,6 +260,34 @@ mod tests {
         assert_eq!(read_halt(&s), Some((12, "imu-timeout".to_string())));
         let n = read_inputs(&s, &mut |_| Ok(plan.clone())).unwrap().len();
         assert_eq!(n, 6, "a kill is an output");
+    }
+
+    #[test]
+    fn an_expired_input_reads_back_expired() {
+        let arm = OperatorInput::Command(Command::Arm, LinkSource::Gcs);
+        let expired = OperatorInput::Expired {
+            input: Box::new(arm),
+            waited_us: 2_400_000,
+        };
+        let key = OperatorInput::Expired {
+            input: Box::new(OperatorInput::Key(ManualCommand::from_key(b'e').unwrap())),
+            waited_us: 5,
+        };
+        let mut s = String::new();
+        write_input(&mut s, 7, &expired, None);
+        write_input(&mut s, 8, &key, None);
+        assert_eq!(s, "7 expired 2400000 in gcs arm\n8 expired 5 key 101\n");
+        let mut none = |name: &str| Err(format!("no file {name}"));
+        let got = read_inputs(&s, &mut none).unwrap();
+        assert_eq!(got, vec![(7, expired, Ok(())), (8, key, Ok(()))]);
+        // Only an operator's asking expires; a negative wait or a nested one is no record.
+        for bad in [
+            "5 expired 3 beat gcs",
+            "5 expired -3 in gcs arm",
+            "5 expired 3 expired 3 fix",
+        ] {
+            assert!(read_inputs(bad, &mut none).is_err(), "{bad}");
+        }
     }
 
     #[test]

@@ -78,20 +78,20 @@ impl SimOperator {
         self.silent_from_us.is_some_and(|s| t_us >= s)
     }
 
-    /// The inputs due by `t_us`, in order, into `out`.
-    pub fn due(&mut self, t_us: i64, out: &mut Vec<OperatorInput>) {
+    /// The inputs due by `t_us`, in order, with when each was due, into `out`.
+    pub fn due(&mut self, t_us: i64, out: &mut Vec<(i64, OperatorInput)>) {
         if !self.present || self.silent(t_us) {
             return;
         }
         if t_us >= self.next_beat_us {
+            out.push((self.next_beat_us, OperatorInput::Beat(LinkSource::Gcs)));
             self.next_beat_us += BEAT_PERIOD_US;
-            out.push(OperatorInput::Beat(LinkSource::Gcs));
         }
         while let Some(&(at, cmd)) = self.script.front()
             && at <= t_us
         {
             self.script.pop_front();
-            out.push(OperatorInput::Command(cmd, LinkSource::Gcs));
+            out.push((at, OperatorInput::Command(cmd, LinkSource::Gcs)));
         }
     }
 }
@@ -126,10 +126,13 @@ mod tests {
         }
         let beats = got
             .iter()
-            .filter(|i| matches!(i, OperatorInput::Beat(_)))
+            .filter(|(_, i)| matches!(i, OperatorInput::Beat(_)))
             .count();
         assert_eq!(beats, 3, "{got:?}");
-        assert!(got.contains(&OperatorInput::Command(Command::Arm, LinkSource::Gcs)));
+        // Each with the time it was due, not when it was asked for.
+        let arm = OperatorInput::Command(Command::Arm, LinkSource::Gcs);
+        assert!(got.contains(&(2_000_000, arm)), "{got:?}");
+        assert!(got.contains(&(1_000_000, OperatorInput::Beat(LinkSource::Gcs))));
         assert!(op.done(4_000_000));
     }
 

@@ -8,9 +8,13 @@
 //! `innov` and `gps` records; sanity events for the watchdog.
 //! Rate: one Kalman step per frame once calibrated. Ends: when frames stop, on a start-up
 //! abort (an error), or on cancel.
+//!
+//! Operator inputs are taken from their queue as they arrive (stamped then) and applied at
+//! the next frame; one that waits past `commander.input_expiry_s` (no frames) is answered
+//! refused at once and recorded refused at the next frame or the run's end, never applied.
 
 use crate::core::commander::Summary as CommanderSummary;
-use crate::core::commander::{ArmFacts, Command, LinkSource, OperatorInput};
+use crate::core::commander::{ArmFacts, Command, LinkSource, OperatorInput, expiry_reason};
 use crate::core::esc::EscPhase;
 use crate::core::flight::{
     ArmCheck, EscState, Estimate, EstimatorSide, Feedback, FrameAction, FrameTimes, GatedCounts,
@@ -23,6 +27,7 @@ use crate::tasks::imu_reader::StampedFrame;
 use crate::tasks::notices::Notice;
 use crate::tasks::prearm::PreArm;
 use crate::tasks::watchdog::WatchdogStatus;
+use std::collections::VecDeque;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, watch};
@@ -53,6 +58,22 @@ pub struct EstimatorReport {
     pub commander: CommanderSummary,
     /// Steps that left a measurement group out of their update.
     pub ekf_gated: GatedCounts,
+    /// Why the flight could not start (asked to fly, the IMU silent or never settled).
+    pub start_failure: Option<String>,
+}
+
+/// Operator inputs held for the next frame, at most this many (the operator queue's size:
+/// beyond, they wait in the queue itself, whose senders see it full).
+const HELD_MAX: usize = 64;
+
+/// An operator input taken from the queue, not yet applied.
+#[derive(Debug)]
+pub struct Held {
+    input: OperatorInput,
+    /// When it was taken from the queue.
+    at: Instant,
+    /// Its refusal was already sent (it expired with no frame to apply it at).
+    answered: bool,
 }
 
 pub struct EstimatorTask {
@@ -75,19 +96,34 @@ pub struct EstimatorTask {
     pub watchdog: Arc<WatchdogStatus>,
     /// The newest live fix not yet offered to a Kalman step.
     pub pending_fix: Option<LiveFix>,
+    /// Operator inputs taken, not yet applied (empty at start).
+    pub held: VecDeque<Held>,
+    /// `commander.input_expiry_s`.
+    pub input_expiry: Duration,
 }
 
 impl EstimatorTask {
     pub async fn run(mut self) -> anyhow::Result<EstimatorReport> {
         let mut late_feedback = 0;
+        let mut last_frame_us = 0;
         loop {
+            let expiry = self.next_expiry();
             let f = tokio::select! {
                 _ = self.cancel.cancelled() => break,
                 f = self.frames.recv() => match f {
                     Some(f) => f,
                     None => break,
                 },
+                Some(input) = self.operator.recv(), if self.held.len() < HELD_MAX => {
+                    self.hold(input);
+                    continue;
+                }
+                _ = tokio::time::sleep_until(expiry.unwrap_or_else(tokio::time::Instant::now)), if expiry.is_some() => {
+                    self.answer_expired();
+                    continue;
+                }
             };
+            last_frame_us = f.stamp_us;
             let times = FrameTimes::at(f.stamp_us);
             self.operate(f.stamp_us);
             self.poll_fix(f.stamp_us);
@@ -137,10 +173,12 @@ impl EstimatorTask {
                 break;
             }
         }
+        self.expire_held(last_frame_us);
         if let Some(h) = self.watchdog.halt() {
             self.side
                 .note_halt(h.halt_us, h.trip.reason.name(), &mut self.out);
         }
+        let start_failure = self.side.start_failure(self.out.beats.us(Instant::now()));
         let c = self.side.counts();
         Ok(EstimatorReport {
             frames: c.frames,
@@ -150,7 +188,65 @@ impl EstimatorTask {
             gps_updates: c.gps_updates,
             commander: self.side.summary(self.side.commander().figures()),
             ekf_gated: c.gated,
+            start_failure,
         })
+    }
+
+    /// An operator input taken from the queue, applied at the next frame.
+    fn hold(&mut self, input: OperatorInput) {
+        self.held.push_back(Held {
+            input,
+            at: Instant::now(),
+            answered: false,
+        });
+    }
+
+    /// At the run's end, the held inputs no frame came for: the operator's askings past
+    /// `commander.input_expiry_s` recorded refused (after the last frame, where a replay
+    /// applies them too); younger ones named in a warning; beats and fixes, facts of a run
+    /// now over, dropped.
+    fn expire_held(&mut self, last_frame_us: i64) {
+        self.answer_expired();
+        let end_us = self.out.beats.us(Instant::now()).max(last_frame_us + 1);
+        for h in std::mem::take(&mut self.held) {
+            let waited_us = h.at.elapsed().as_micros().try_into().unwrap_or(i64::MAX);
+            let input = self.side.commander().aged(h.input, waited_us);
+            if !matches!(input, OperatorInput::Expired { .. }) {
+                if input.expires() {
+                    tracing::warn!("{} not applied: the run ended", input.what());
+                }
+                continue;
+            }
+            let facts = ArmFacts::default();
+            self.side
+                .operator(input, end_us, ArmCheck::Facts(&facts), &mut self.out);
+        }
+    }
+
+    /// When the oldest unanswered held input expires.
+    fn next_expiry(&self) -> Option<tokio::time::Instant> {
+        let h = self
+            .held
+            .iter()
+            .find(|h| !h.answered && h.input.expires())?;
+        Some((h.at + self.input_expiry).into())
+    }
+
+    /// Held inputs past `commander.input_expiry_s` with no frame to apply them at: their
+    /// refusal goes out now (the ground station's answer, a warning for a typed one); the
+    /// flight records it at the next frame.
+    fn answer_expired(&mut self) {
+        let why = expiry_reason(self.input_expiry.as_secs_f64());
+        for h in self.held.iter_mut() {
+            if h.answered || !h.input.expires() || h.at.elapsed() <= self.input_expiry {
+                continue;
+            }
+            h.answered = true;
+            match notice_of(&h.input, Some(why.clone())) {
+                Some(n) => self.out.notices.send(n),
+                None => tracing::warn!("{} refused: {why}", h.input.what()),
+            }
+        }
     }
 
     /// The operator's inputs that arrived since the previous frame, never waited for; `fly
@@ -163,8 +259,26 @@ impl EstimatorTask {
                 t_us,
             );
         }
-        while let Ok(input) = self.operator.try_recv() {
-            self.apply(input, t_us);
+        while self.held.len() < HELD_MAX
+            && let Ok(input) = self.operator.try_recv()
+        {
+            self.hold(input);
+        }
+        let now = Instant::now();
+        while let Some(h) = self.held.pop_front() {
+            let waited_us = now.saturating_duration_since(h.at).as_micros();
+            let input = self
+                .side
+                .commander()
+                .aged(h.input, waited_us.try_into().unwrap_or(i64::MAX));
+            if h.answered {
+                // Its refusal went out already: recorded, not answered twice.
+                let facts = ArmFacts::default();
+                self.side
+                    .operator(input, t_us, ArmCheck::Facts(&facts), &mut self.out);
+            } else {
+                self.apply(input, t_us);
+            }
         }
     }
 
@@ -177,29 +291,15 @@ impl EstimatorTask {
             ArmFacts::default()
         };
         // A ground station's command or mission is acknowledged with its outcome.
-        let notice = match &input {
-            OperatorInput::Command(command, source @ LinkSource::Gcs) => {
-                Some((Some((*command, *source)), None))
-            }
-            OperatorInput::Mission(plan) => Some((None, Some(plan.name.clone()))),
-            _ => None,
-        };
+        let asked = notice_of(&input, None).is_some().then(|| input.clone());
         let action = self
             .side
             .operator(input, t_us, ArmCheck::Facts(&facts), &mut self.out);
-        if let Some(about) = notice {
+        if let Some(asked) = asked {
             let refused = self.side.last_refusal().map(str::to_string);
-            self.out.notices.send(match about {
-                (Some((command, source)), _) => Notice::Outcome {
-                    command,
-                    source,
-                    refused,
-                },
-                (None, name) => Notice::Mission {
-                    name: name.unwrap_or_default(),
-                    refused,
-                },
-            });
+            if let Some(n) = notice_of(&asked, refused) {
+                self.out.notices.send(n);
+            }
         }
         match action {
             OperatorAction::StopEscs => self.esc.halt("disarmed"),
@@ -242,5 +342,23 @@ impl EstimatorTask {
             }
         }
         Some(*self.feedback.borrow())
+    }
+}
+
+/// The answer a ground station waits for about `input` (a command of its, a mission), with
+/// the refusal's reason if refused; `None` for inputs no one waits on.
+fn notice_of(input: &OperatorInput, refused: Option<String>) -> Option<Notice> {
+    match input {
+        OperatorInput::Command(command, source @ LinkSource::Gcs) => Some(Notice::Outcome {
+            command: *command,
+            source: *source,
+            refused,
+        }),
+        OperatorInput::Mission(plan) => Some(Notice::Mission {
+            name: plan.name.clone(),
+            refused,
+        }),
+        OperatorInput::Expired { input, .. } => notice_of(input, refused),
+        _ => None,
     }
 }

@@ -54,6 +54,7 @@ pub(super) fn spawn(
         addresses: profile.motor_map().addresses,
     };
     let h = h.clone();
+    let input_expiry_s = profile.config.commander.input_expiry_s;
     let (realtime, delay, panic_at_step, auto_arm) = (
         opts.realtime,
         opts.control_delay,
@@ -123,6 +124,8 @@ pub(super) fn spawn(
                     auto_arm,
                     watchdog: h.wd_status.clone(),
                     pending_fix: None,
+                    held: Default::default(),
+                    input_expiry: std::time::Duration::from_secs_f64(input_expiry_s),
                 }
                 .run()
                 .instrument(tracing::info_span!("estimator"))

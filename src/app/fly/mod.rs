@@ -379,7 +379,11 @@ async fn shut_down(h: RunHandles, threads: Threads, loggers: Loggers) -> FlySumm
     {
         tracing::warn!("the ground-station link did not end within 1 s");
     }
-    let errors: Vec<String> = [control, esc, watchdog].into_iter().flatten().collect();
+    let not_started = reports.estimator.start_failure.clone();
+    let errors: Vec<String> = [control, esc, watchdog, not_started]
+        .into_iter()
+        .flatten()
+        .collect();
     let error = (!errors.is_empty()).then(|| errors.join("; "));
     if let Some(e) = &error {
         tracing::error!("{e}");

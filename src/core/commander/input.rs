@@ -152,9 +152,37 @@ pub enum OperatorInput {
     /// The GPS receiver delivered a fix (gps.mode = "gpsd"): not the operator's, but an input
     /// of the commander's like a link's beat, recorded so that a replay judges the same.
     GpsFix,
+    /// An input that waited `waited_us` for the flight, longer than
+    /// `commander.input_expiry_s` (the IMU silent, the flight stalled): refused, never
+    /// applied, and recorded so that a replay refuses it too.
+    Expired {
+        input: Box<OperatorInput>,
+        waited_us: i64,
+    },
 }
 
 impl OperatorInput {
+    /// Whether the input is the operator's asking (a command, a key, a mission), which is
+    /// refused once stale; a link's beat and a fix are facts of their arrival and never are.
+    pub fn expires(&self) -> bool {
+        matches!(
+            self,
+            OperatorInput::Command(..) | OperatorInput::Key(_) | OperatorInput::Mission(_)
+        )
+    }
+
+    /// What a refusal of this input names: the command, the key or the mission.
+    pub fn what(&self) -> String {
+        match self {
+            OperatorInput::Command(c, _) => c.to_string(),
+            OperatorInput::Key(k) => format!("key {}", char::from(k.key())),
+            OperatorInput::Mission(plan) => format!("mission {}", plan.name),
+            OperatorInput::Beat(src) => format!("beat {}", src.name()),
+            OperatorInput::GpsFix => "fix".into(),
+            OperatorInput::Expired { input, .. } => input.what(),
+        }
+    }
+
     /// One line an operator typed (stdin, a console): a command word with its arguments,
     /// `quit` (or `esc`), or manual keys (spec 5.2: `e` raises the set point; `eee` three
     /// times). Empty lines give nothing.

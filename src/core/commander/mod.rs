@@ -84,6 +84,15 @@ pub enum Start {
     Flying,
 }
 
+/// Why an operator's input that waited past `commander.input_expiry_s` is refused: the
+/// flight's answer and the ground station's, in the same words.
+pub fn expiry_reason(input_expiry_s: f64) -> String {
+    format!(
+        "not applied within commander.input_expiry_s = {input_expiry_s} s of its arrival: \
+         the flight was not taking inputs (no IMU frames)"
+    )
+}
+
 /// The commander's parameters (`commander.*`, `failsafe.*`, `fence.*`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Params {
@@ -125,6 +134,8 @@ pub struct Params {
     pub crash_tilt_rad: f64,
     pub crash_s: f64,
     pub takeoff_timeout_s: f64,
+    /// An operator's input that waited longer than this for the flight is refused, s.
+    pub input_expiry_s: f64,
     /// The manual altitude keys' bounds, m.
     pub z_min_m: f64,
     pub z_max_m: f64,
@@ -487,6 +498,31 @@ impl Commander {
             t_us,
             command: cmd.to_string(),
             why,
+        });
+    }
+
+    /// `input` as it reaches the flight after waiting `waited_us` since its arrival: past
+    /// `commander.input_expiry_s` an operator's asking is [`OperatorInput::Expired`], refused
+    /// instead of applied late (a takeoff typed while the IMU was silent is not flown seconds
+    /// later).
+    pub fn aged(&self, input: OperatorInput, waited_us: i64) -> OperatorInput {
+        let expiry_us = (self.p.input_expiry_s * 1e6).round() as i64;
+        if input.expires() && waited_us > expiry_us {
+            OperatorInput::Expired {
+                input: Box::new(input),
+                waited_us,
+            }
+        } else {
+            input
+        }
+    }
+
+    /// The refusal of an input that expired (see [`Commander::aged`]).
+    pub fn refuse_expired(&self, input: &OperatorInput, t_us: i64, out: &mut Vec<Event>) {
+        out.push(Event::Refusal {
+            t_us,
+            command: input.what(),
+            why: expiry_reason(self.p.input_expiry_s),
         });
     }
 

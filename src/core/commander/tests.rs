@@ -33,6 +33,7 @@ fn params() -> Params {
         crash_tilt_rad: 1.0,
         crash_s: 1.0,
         takeoff_timeout_s: 15.0,
+        input_expiry_s: 1.0,
         z_min_m: 0.2,
         z_max_m: 3.0,
         mission: crate::core::mission::Limits {
@@ -1185,4 +1186,36 @@ fn a_blind_landing_that_feels_the_ground_lets_the_thrust_fall() {
     // A thrust far off the weight is no hover to begin from.
     assert_eq!(Blind::new(5.0).base, 1.0 / BLIND_BASE_MIN);
     assert_eq!(Blind::new(f64::NAN).base, 1.0);
+}
+
+#[test]
+fn an_asking_that_waited_past_the_expiry_is_refused_a_beat_never_expires() {
+    let c = Commander::new(params());
+    let arm = OperatorInput::Command(Command::Arm, LinkSource::Gcs);
+    assert_eq!(
+        c.aged(arm.clone(), 1_000_000),
+        arm,
+        "1 s is within the expiry"
+    );
+    let aged = c.aged(arm.clone(), 1_000_001);
+    assert_eq!(
+        aged,
+        OperatorInput::Expired {
+            input: Box::new(arm),
+            waited_us: 1_000_001
+        }
+    );
+    let beat = OperatorInput::Beat(LinkSource::Gcs);
+    assert_eq!(c.aged(beat.clone(), 60_000_000), beat);
+    let mut events = Vec::new();
+    c.refuse_expired(&aged, 5, &mut events);
+    assert_eq!(
+        events,
+        [Event::Refusal {
+            t_us: 5,
+            command: "arm".into(),
+            why: expiry_reason(1.0)
+        }]
+    );
+    assert_eq!(c.mode(), Mode::Disarmed, "refused, not applied");
 }

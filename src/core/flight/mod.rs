@@ -4,6 +4,7 @@
 
 pub mod gps_feed;
 pub mod halves;
+pub mod imu_watch;
 pub mod sequence;
 
 pub use gps_feed::GpsFeed;

@@ -22,6 +22,7 @@
 
 use super::gps_feed::GpsFeed;
 use super::halves::{ControllerCore, Estimate, EstimatorCore};
+use super::imu_watch::ImuWatch;
 use crate::core::commander::{
     self, ArmFacts, Commander, EscRequest, KeyOutcome, Mode, Observation, OperatorInput,
 };
@@ -279,6 +280,19 @@ pub struct EstimatorSide {
     last_refusal: Option<String>,
     /// The commander stopped the ESCs at this frame's tick: the step's command says so.
     stop_pending: bool,
+    /// The IMU's arrivals: whether an `arm` may trust its verdict.
+    imu: ImuWatch,
+    /// An `arm` came (taken, refused or expired).
+    arm_asked: bool,
+}
+
+/// An `arm`, applied or expired.
+fn is_arm(input: &OperatorInput) -> bool {
+    match input {
+        OperatorInput::Command(commander::Command::Arm, _) => true,
+        OperatorInput::Expired { input, .. } => is_arm(input),
+        _ => false,
+    }
 }
 
 /// Refusals a run keeps whole for its report; beyond, they are counted and the newest kept
@@ -305,7 +319,39 @@ impl EstimatorSide {
             refusals: (0, None),
             last_refusal: None,
             stop_pending: false,
+            imu: ImuWatch::LENIENT,
+            arm_asked: false,
         }
+    }
+
+    /// An `arm` trusts the IMU only with no frame gap over `imu_timeout_us` (the watchdog's)
+    /// now or in the last [`STEADY_US`](super::imu_watch::STEADY_US) (a live run; a replay takes the
+    /// recorded verdicts).
+    pub fn with_imu_timeout(mut self, imu_timeout_us: i64) -> Self {
+        self.imu = ImuWatch::new(imu_timeout_us);
+        self
+    }
+
+    /// Why the flight could not start, judged at the run's end `end_us`: it was asked to fly
+    /// (an `arm`, or `commander.start`), never started its ESCs, and the IMU never settled or
+    /// is silent (for more than `commander.input_expiry_s`). `None` once the ESCs were asked
+    /// to start, or after an abort (its own error).
+    pub fn start_failure(&self, end_us: i64) -> Option<String> {
+        let params = self.commander.params();
+        let asked = self.arm_asked || params.start != commander::Start::Disarmed;
+        if self.esc_start_asked || !asked || self.phase == Phase::Ended {
+            return None;
+        }
+        let limit_us = (params.input_expiry_s * 1e6).round() as i64;
+        let why = match self.imu.silent_at(end_us, limit_us) {
+            Some(silent) => silent,
+            None if self.phase == Phase::Settle => format!(
+                "the IMU's frames never arrived at a stable period ({} frames)",
+                self.counts.frames
+            ),
+            None => return None,
+        };
+        Some(format!("the flight could not start: {why}"))
     }
 
     /// Why the last operator input was refused; `None` when it was taken.
@@ -373,7 +419,8 @@ impl EstimatorSide {
         out: &mut impl Outputs,
     ) -> OperatorAction {
         self.start(out);
-        let verdict = self.arm_verdict(&input, arm);
+        let verdict = self.arm_verdict(&input, arm, t_us);
+        self.arm_asked |= is_arm(&input);
         out.record(FlightRecord::Operator {
             t_us,
             input: input.clone(),
@@ -412,6 +459,11 @@ impl EstimatorSide {
                 self.load_mission(plan, t_us, out);
                 None
             }
+            OperatorInput::Expired { input, .. } => {
+                self.commander
+                    .refuse_expired(&input, t_us, &mut self.events);
+                None
+            }
         };
         self.last_refusal = self.events.iter().find_map(|e| match e {
             commander::Event::Refusal { why, .. } => Some(why.clone()),
@@ -447,7 +499,12 @@ impl EstimatorSide {
 
     /// An `arm`'s pre-arm verdict: the facts' (the IMU's settling is this side's own), or the
     /// one a replay recorded; none for other inputs.
-    fn arm_verdict(&self, input: &OperatorInput, arm: ArmCheck<'_>) -> Option<Result<(), String>> {
+    fn arm_verdict(
+        &self,
+        input: &OperatorInput,
+        arm: ArmCheck<'_>,
+        t_us: i64,
+    ) -> Option<Result<(), String>> {
         if !matches!(input, OperatorInput::Command(commander::Command::Arm, _)) {
             return None;
         }
@@ -456,7 +513,10 @@ impl EstimatorSide {
             ArmCheck::Facts(f) => {
                 let mut f = f.clone();
                 f.imu_stable = self.phase == Phase::EscStart;
-                f.verdict()
+                match self.imu.stale(t_us) {
+                    Some(why) if f.imu_stable => Err(why),
+                    _ => f.verdict(),
+                }
             }
         })
     }
@@ -529,6 +589,7 @@ impl EstimatorSide {
         }
         self.start(out);
         self.counts.frames += 1;
+        self.imu.on_frame(times.t_frame_us);
         // The commander's clock first: a stop it asks for goes with this frame's action.
         let stop = self.tick(times.t_frame_us, out);
         match self.front_end(frame, times, esc, out) {
