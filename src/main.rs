@@ -554,6 +554,24 @@ fn on_runtime<T>(grace: Duration, work: impl std::future::Future<Output = T>) ->
     Ok(out)
 }
 
+/// A run that could not be made (a log folder that cannot be written, a device that cannot
+/// be opened): its error is still the report's `error` when one was asked for (a report on
+/// another disk outlives a full log disk), then the run's error.
+fn reported_failure<T>(run: anyhow::Result<T>, report: Option<&Path>) -> anyhow::Result<T> {
+    let e = match run {
+        Ok(v) => return Ok(v),
+        Err(e) => e,
+    };
+    if let Some(path) = report {
+        let mut failed = FlySummary::empty(std::path::PathBuf::new());
+        failed.error = Some(format!("{e:#}"));
+        if let Err(w) = write_json(&failed.report(), path) {
+            eprintln!("error: {w:#}");
+        }
+    }
+    Err(e)
+}
+
 /// A run that a halt or an error ended fails, once its summary and report are out.
 fn exit_code(summary: &FlySummary) -> ExitCode {
     if summary.error.is_some() || summary.halt.is_some() {
@@ -618,7 +636,9 @@ impl FlyArgs {
             };
             let cancel = tokio_util::sync::CancellationToken::new();
             uquad::app::fly::run(&profile, edges, opts, cancel).await
-        })??;
+        })
+        .and_then(|r| r);
+        let summary = reported_failure(summary, self.report.as_deref())?;
         eprintln!("{}", summary.text());
         if let Some(path) = self.report {
             summary.write_report(&path)?;
@@ -652,9 +672,11 @@ impl SimArgs {
             SimMode::Realtime => on_runtime(
                 Duration::from_millis(200),
                 uquad::app::sim_realtime::run(&profile, &opts),
-            )??,
-            SimMode::Fast => uquad::app::sim_fast::run_fast(&profile, &opts)?,
+            )
+            .and_then(|r| r),
+            SimMode::Fast => uquad::app::sim_fast::run_fast(&profile, &opts),
         };
+        let summary = reported_failure(summary, self.report.as_deref())?;
         eprintln!("{}", summary.text());
         if let Some(path) = self.report {
             write_json(&summary.report(), &path)?;

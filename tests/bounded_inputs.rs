@@ -2,7 +2,9 @@
 //! would hold the start forever, a 1 GB file, as the profile, the calibration, a mission and
 //! the kept parameters, refused at once with the reason (exit 2); `params.toml` holds
 //! parameters only, and a link of it to nothing is refused, not ignored; a replay's mission
-//! that is a link to nothing fails the replay.
+//! that is a link to nothing fails the replay; a replay refuses a tampered mode.log naming
+//! the line (quoting a bounded prefix) and another run's; a full log disk still leaves the
+//! report, err.log and mode.log.
 
 mod common;
 use common::*;
@@ -176,4 +178,156 @@ fn data_files_of_one_name_keep_apart_in_the_run_folder() {
     assert!(flown.join("imu_calib.txt").exists());
     assert!(flown.join("control.lqr_q_file-imu_calib.txt").exists());
     replay_run(&flown);
+}
+
+/// Replays `run` (its mode.log rewritten by `edit`) into a fresh folder: its exit code and
+/// stderr.
+fn replay_edited(run: &Path, edit: impl FnOnce(&str) -> String) -> (Option<i32>, String) {
+    let path = run.join("mode.log");
+    let original = std::fs::read_to_string(&path).unwrap();
+    std::fs::write(&path, edit(&original)).unwrap();
+    let out = tempfile::tempdir().unwrap();
+    let result = run_replay(run, out.path());
+    std::fs::write(&path, original).unwrap();
+    result
+}
+
+fn run_replay(run: &Path, out: &Path) -> (Option<i32>, String) {
+    self::run(&[
+        "replay",
+        run.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ])
+}
+
+#[test]
+fn a_replay_refuses_a_tampered_mode_log_naming_the_line() {
+    // Times reversed, negative or at i64::MAX, another run's mode.log, an inserted line: all
+    // replayed with exit 0; a 50 MB bad line was echoed whole.
+    let (logs, other_logs) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let args = ["--fast", "--duration", "15"];
+    let run = sim_run(logs.path(), &args);
+    let other = sim_run(other_logs.path(), &args);
+    let text = std::fs::read_to_string(run.join("mode.log")).unwrap();
+    let id = text.lines().next().unwrap();
+    assert!(id.starts_with("0 run "), "{text}");
+    let config = std::fs::read_to_string(run.join("config.toml")).unwrap();
+    assert!(
+        config.contains(&format!("\n# run {}\n", &id[6..])),
+        "{config}"
+    );
+    // As recorded, it replays to the same bytes, its run line included.
+    let out = tempfile::tempdir().unwrap();
+    let (code, err) = run_replay(&run, out.path());
+    assert_eq!(code, Some(0), "{err}");
+    assert_eq!(
+        std::fs::read_to_string(out.path().join("mode.log")).unwrap(),
+        text
+    );
+    // The arm at 2 s is line 3 (after the run line and the start).
+    let arm = text
+        .lines()
+        .position(|l| l.contains(" in gcs arm"))
+        .unwrap()
+        + 1;
+    let retimed = |t: &str| {
+        let t = t.to_string();
+        move |s: &str| {
+            s.lines()
+                .map(|l| match l.split_once(" in gcs arm") {
+                    Some((_, rest)) => format!("{t} in gcs arm{rest}\n"),
+                    None => format!("{l}\n"),
+                })
+                .collect()
+        }
+    };
+    type Edit = Box<dyn FnOnce(&str) -> String>;
+    let cases: Vec<(Edit, String)> = vec![
+        (Box::new(retimed("-5")), format!("line {arm}: time -5 µs")),
+        (
+            Box::new(retimed("1")),
+            format!("line {arm}: time 1 µs is before the previous"),
+        ),
+        (
+            Box::new(retimed("9223372036854775807")),
+            format!("line {arm}: time 9223372036854775807 µs is after the run's last frame"),
+        ),
+        (
+            Box::new(|s: &str| format!("{s}7000000 sing gcs\n")),
+            "unknown record \"sing\"".to_string(),
+        ),
+        (
+            Box::new(|s: &str| format!("{s}7000000 in gcs {}\n", "x".repeat(50_000_000))),
+            "bytes)".to_string(),
+        ),
+    ];
+    for (edit, expected) in cases {
+        let (code, err) = replay_edited(&run, edit);
+        assert_ne!(code, Some(0), "{expected}: {err}");
+        assert!(err.contains(&expected), "{expected}: {err}");
+        assert!(err.len() < 2000, "a bounded message: {} bytes", err.len());
+    }
+    // Another run's mode.log.
+    let foreign = std::fs::read_to_string(other.join("mode.log")).unwrap();
+    let (code, err) = replay_edited(&run, |_| foreign);
+    assert_ne!(code, Some(0), "{err}");
+    assert!(err.contains("the mode.log of another run"), "{err}");
+}
+
+#[test]
+fn a_full_log_disk_still_gives_the_report_and_the_mode_and_error_logs() {
+    // A full disk, as a file-size limit of 64 KiB every log write meets (x_hat.log and the
+    // other large streams fail; err.log, mode.log and the report fit): the run ended with
+    // status 1, no report, and neither err.log nor mode.log.
+    use std::os::unix::process::CommandExt;
+    let logs = tempfile::tempdir().unwrap();
+    let report_dir = tempfile::tempdir().unwrap();
+    let report = report_dir.path().join("report.json");
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_uquad"));
+    cmd.args([
+        "sim",
+        "--fast",
+        "--config",
+        "config/uquad.toml",
+        "--duration",
+        "15",
+    ])
+    .arg("--log-dir")
+    .arg(logs.path())
+    .arg("--report")
+    .arg(&report)
+    .current_dir(root());
+    // SAFETY: between fork and exec only async-signal-safe calls: setrlimit and signal.
+    unsafe {
+        cmd.pre_exec(|| {
+            let limit = libc::rlimit {
+                rlim_cur: 64 * 1024,
+                rlim_max: 64 * 1024,
+            };
+            // A write past the limit fails (EFBIG) instead of killing the process.
+            libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+            if libc::setrlimit(libc::RLIMIT_FSIZE, &limit) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    let o = cmd.output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    let error = r["error"].as_str().unwrap_or_default();
+    assert!(error.contains("File too large"), "{r}");
+    assert!(
+        r["log_io_errors_by_stream"]["x_hat"].as_u64() >= Some(1),
+        "{r}"
+    );
+    assert_eq!(r["log_io_errors_by_stream"]["mode"], 0, "{r}");
+    let run = run_dir(logs.path());
+    let mode = std::fs::read_to_string(run.join("mode.log")).unwrap();
+    assert!(mode.contains(" mode disarmed "), "{mode}");
+    let err_log = std::fs::read_to_string(run.join("err.log")).unwrap();
+    assert!(err_log.contains("simulation, seed"), "{err_log}");
 }

@@ -295,8 +295,12 @@ fn closed_loop(
     let mut controller = ControllerSide::new(profile.controller_core());
     let raw = logs.raw;
     let mut feedback = controller.first_feedback();
-    let (inputs, halt) = recorded_inputs(run_dir, profile)?;
-    let mut inputs = inputs.into_iter().peekable();
+    let last_frame_us = raw.last().map_or(0, |r| r.t_frame_us);
+    let recorded = recorded_inputs(run_dir, profile, last_frame_us)?;
+    if let Some(id) = &recorded.run_id {
+        out.run_line(id);
+    }
+    let mut inputs = recorded.inputs.into_iter().peekable();
     for rec in &raw {
         let times = FrameTimes {
             t_main_us: rec.t_main_us,
@@ -327,8 +331,13 @@ fn closed_loop(
         }
         feedback = controller.control(&est, |_| {}, out).feedback;
     }
+    // Inputs recorded after the last frame (expired ones, at the run's end), as the run
+    // applied them.
+    for (t_us, input, verdict) in inputs {
+        estimator.operator(input, t_us, ArmCheck::Recorded(&verdict), out);
+    }
     // The run's halt, from its record: a replay has no watchdog.
-    if let Some((t_us, reason)) = halt {
+    if let Some((t_us, reason)) = recorded.halt {
         estimator.note_halt(t_us, &reason, out);
     }
     summarize(run_dir, profile, raw.len(), &estimator, &controller)
@@ -363,11 +372,23 @@ fn summarize(
     })
 }
 
-/// The operator's inputs of a run (its mode.log) and its halt, if the watchdog halted it;
-/// none for runs without a mode.log (the 2012 flights, which started flying).
-type Recorded = (Vec<logs::mode_log::RecordedInput>, Option<(i64, String)>);
+/// What a run's mode.log gives its replay; nothing for runs without one (the 2012 flights,
+/// which started flying).
+#[derive(Default)]
+struct Recorded {
+    /// The operator's inputs, checked (see [`logs::mode_log::read_inputs`]).
+    inputs: Vec<logs::mode_log::RecordedInput>,
+    /// Its halt, if the watchdog halted it.
+    halt: Option<(i64, String)>,
+    /// The run it names, the same as its config.toml's.
+    run_id: Option<String>,
+}
 
-fn recorded_inputs(run_dir: &Path, profile: &Profile) -> anyhow::Result<Recorded> {
+fn recorded_inputs(
+    run_dir: &Path,
+    profile: &Profile,
+    last_frame_us: i64,
+) -> anyhow::Result<Recorded> {
     let path = run_dir.join("mode.log");
     // A ground station's mission is planned again from the file the link wrote.
     let mut mission = |name: &str| {
@@ -381,13 +402,27 @@ fn recorded_inputs(run_dir: &Path, profile: &Profile) -> anyhow::Result<Recorded
         let text = crate::config::read_mission(&file)?;
         profile.plan_mission(&file, &text).map(std::sync::Arc::new)
     };
-    match bounded::read_text(&path, FileKind::RunLog) {
-        Ok(text) => {
-            let inputs = logs::mode_log::read_inputs(&text, &mut mission)
-                .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-            Ok((inputs, logs::mode_log::read_halt(&text)))
-        }
-        Err(e) if e.missing => Ok((Vec::new(), None)),
-        Err(e) => Err(anyhow::anyhow!("cannot read {}: {e}", path.display())),
+    let folder_id = crate::app::run_dir::run_id_of(run_dir)?;
+    let text = match bounded::read_text(&path, FileKind::RunLog) {
+        Ok(text) => text,
+        Err(e) if e.missing && folder_id.is_none() => return Ok(Recorded::default()),
+        Err(e) => bail!("cannot read {}: {e}", path.display()),
+    };
+    let run_id = logs::mode_log::read_run(&text).map(str::to_string);
+    if run_id != folder_id {
+        let name = |id: &Option<String>| id.as_deref().unwrap_or("no run").to_string();
+        bail!(
+            "{}: names {}, but the run folder's config.toml names {}: the mode.log of another run",
+            path.display(),
+            name(&run_id),
+            name(&folder_id)
+        );
     }
+    let inputs = logs::mode_log::read_inputs(&text, last_frame_us, &mut mission)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    Ok(Recorded {
+        inputs,
+        halt: logs::mode_log::read_halt(&text),
+        run_id,
+    })
 }

@@ -235,6 +235,11 @@ impl<S: ChunkSink> Records<S> {
         }
     }
 
+    /// mode.log's first line: the run it names (before any record).
+    pub fn run_line(&mut self, run_id: &str) {
+        logs::mode_log::write_run(&mut self.chunk.mode, run_id);
+    }
+
     /// Hands the chunk on once it is full (called between frames).
     pub fn hand_off_if_full(&mut self) {
         if self.chunk.is_full() {

@@ -1,5 +1,7 @@
 //! The run folder: a new, unique `<UTC time>` folder per run, made self-contained with the
-//! resolved configuration and copies of the data files it names.
+//! resolved configuration and copies of the data files it names, and the run's id: its
+//! folder's name and a random part, written in config.toml's header (and by the flight in
+//! mode.log and gps.log), so that logs of another run are refused by a replay.
 
 use crate::config::bounded::{self, FileKind};
 use crate::config::{Config, Profile};
@@ -55,14 +57,51 @@ pub fn create_run_dir(parent: &Path) -> anyhow::Result<PathBuf> {
     anyhow::bail!("no free run folder name under {}", parent.display())
 }
 
+/// The id of a new run in `run_dir`: the folder's name and 32 random bits (two runs of one
+/// name, on two vehicles or after a folder was renamed, differ).
+pub fn new_run_id(run_dir: &Path) -> String {
+    use std::hash::{BuildHasher, Hasher};
+    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+    h.write_u32(std::process::id());
+    h.write_u128(
+        std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos()),
+    );
+    let name = run_dir
+        .file_name()
+        .map_or_else(|| "run".to_string(), |n| n.to_string_lossy().into_owned());
+    format!("{name}-{:08x}", h.finish() as u32)
+}
+
+/// config.toml's line naming the run.
+const RUN_LINE: &str = "# run ";
+
+/// The id the run folder's config.toml names; `None` when it names none (a folder written
+/// before runs had ids, or the 2012 flights, which have no config.toml).
+pub fn run_id_of(run_dir: &Path) -> anyhow::Result<Option<String>> {
+    let path = run_dir.join("config.toml");
+    let text = match bounded::read_text(&path, FileKind::Profile) {
+        Ok(t) => t,
+        Err(e) if e.missing => return Ok(None),
+        Err(e) => anyhow::bail!("cannot read {}: {e}", path.display()),
+    };
+    Ok(text
+        .lines()
+        .take_while(|l| l.starts_with('#'))
+        .find_map(|l| l.strip_prefix(RUN_LINE))
+        .map(str::to_string))
+}
+
 /// The mission a run flew, kept in its folder for its replay.
 pub const MISSION_FILE: &str = "mission.toml";
 
 /// Makes the run folder self-contained: copies the data files the profile names (read
 /// bounded, as the load read them) and writes the resolved configuration pointing at the
-/// copies, so `uquad replay <run>` works anywhere. Two files of one name (from two folders)
+/// copies, so `uquad replay <run>` works anywhere, its header naming the run `run_id`. Two
+/// files of one name (from two folders)
 /// keep apart: the later is named after its key too.
-pub fn write_run_config(profile: &Profile, run_dir: &Path) -> anyhow::Result<()> {
+pub fn write_run_config(profile: &Profile, run_dir: &Path, run_id: &str) -> anyhow::Result<()> {
     if let Some(m) = &profile.mission {
         let path = run_dir.join(MISSION_FILE);
         std::fs::write(&path, &m.text)
@@ -113,8 +152,10 @@ pub fn write_run_config(profile: &Profile, run_dir: &Path) -> anyhow::Result<()>
     )?;
     c.log.dir = PathBuf::from("..");
     let text = toml::to_string(&c).context("cannot serialise the configuration")?;
-    let header = "# The resolved configuration of this run (uquad writes it; paths are relative \
-                  to this folder).\n";
+    let header = format!(
+        "# The resolved configuration of this run (uquad writes it; paths are relative to this \
+         folder).\n{RUN_LINE}{run_id}\n"
+    );
     std::fs::write(run_dir.join("config.toml"), format!("{header}{text}"))
         .with_context(|| format!("cannot write {}", run_dir.join("config.toml").display()))
 }
@@ -122,6 +163,26 @@ pub fn write_run_config(profile: &Profile, run_dir: &Path) -> anyhow::Result<()>
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_run_is_named_in_its_configuration() {
+        let d = tempfile::tempdir().unwrap();
+        let run = create_run_dir(d.path()).unwrap();
+        let id = new_run_id(&run);
+        assert!(
+            id.starts_with(&*run.file_name().unwrap().to_string_lossy()),
+            "{id}"
+        );
+        assert_ne!(id, new_run_id(&run), "a random part");
+        assert_eq!(run_id_of(&run).unwrap(), None, "no config.toml yet");
+        let profile = crate::config::load(
+            &Path::new(env!("CARGO_MANIFEST_DIR")).join("config/uquad.toml"),
+            &[],
+        )
+        .unwrap();
+        write_run_config(&profile, &run, &id).unwrap();
+        assert_eq!(run_id_of(&run).unwrap(), Some(id));
+    }
 
     #[test]
     fn utc_stamps() {

@@ -12,7 +12,7 @@
 
 use crate::app::flight::live_sides;
 use crate::app::report::{FlySummary, SimSummary};
-use crate::app::run_dir::{create_run_dir, write_run_config};
+use crate::app::run_dir::{create_run_dir, new_run_id, write_run_config};
 use crate::app::sim::SimOptions;
 use crate::config::{GpsMode, Profile};
 use crate::core::commander::{ArmFacts, Command as OperatorCommand, Mode, OperatorInput};
@@ -36,7 +36,6 @@ use crate::sim::safety::SafetyTrace;
 use crate::sim::track::TrackTrace;
 use crate::sim::{FRAME_US, frame_start_byte, imu::SimImu, physics::Plant};
 use crate::tasks::prearm::PreArm;
-use anyhow::Context;
 use bytes::BytesMut;
 use std::path::PathBuf;
 
@@ -151,8 +150,9 @@ pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumma
     let run_dir = create_run_dir(&opts.log_dir.clone().unwrap_or_else(|| cfg.log.dir.clone()))?;
     let mut profile_run = profile.clone();
     profile_run.config.sim.seed = seed;
-    write_run_config(&profile_run, &run_dir)?;
-    let mut sim = FastSim::new(profile, opts, seed, run_dir);
+    let run_id = new_run_id(&run_dir);
+    write_run_config(&profile_run, &run_dir, &run_id)?;
+    let mut sim = FastSim::new(profile, opts, seed, run_dir, run_id);
     while sim.t_us < duration_us {
         sim.t_us += sim.step_us;
         if !sim.step() {
@@ -160,6 +160,23 @@ pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumma
         }
     }
     sim.finish()
+}
+
+/// Writes every stream into the run folder, err.log and mode.log first (what a full disk
+/// leaves room for is what tells what happened); a failed write is counted in the report's
+/// `log_io_errors_by_stream` and, the first, ends the run in error, the report still written.
+fn write_streams(fly: &mut FlySummary, text: &PerStream<String>) {
+    let first = [Stream::Err, Stream::Mode];
+    let rest = Stream::ALL.into_iter().filter(|s| !first.contains(s));
+    for s in first.into_iter().chain(rest) {
+        let path = fly.run_dir.join(format!("{}.log", s.name()));
+        if let Err(e) = std::fs::write(&path, &text[s]) {
+            fly.log_io_errors[s] += 1;
+            let why = format!("cannot write {}: {e}", path.display());
+            tracing::error!("{why}");
+            fly.error.get_or_insert(why);
+        }
+    }
 }
 
 /// The pre-arm inputs of a simulation: real time waived.
@@ -177,7 +194,13 @@ fn prearm(cfg: &crate::config::Config) -> (PreArm, tokio::sync::watch::Sender<Op
 }
 
 impl<'a> FastSim<'a> {
-    fn new(profile: &Profile, opts: &'a SimOptions, seed: u64, run_dir: PathBuf) -> Self {
+    fn new(
+        profile: &Profile,
+        opts: &'a SimOptions,
+        seed: u64,
+        run_dir: PathBuf,
+        run_id: String,
+    ) -> Self {
         let cfg = &profile.config;
         let (plant, imu) = crate::sim::vehicle(profile, seed);
         let map = profile.motor_map();
@@ -189,9 +212,10 @@ impl<'a> FastSim<'a> {
             env!("CARGO_PKG_VERSION"),
             run_dir.display()
         )));
+        out.log(Record::RunId(run_id.clone()));
         let gps_live = cfg.gps.mode == GpsMode::Gpsd;
         if gps_live {
-            out.log(Record::GpsHeader);
+            out.log(Record::GpsHeader(run_id));
         }
         for line in faults.notes() {
             out.log(Record::note(line));
@@ -531,11 +555,7 @@ impl<'a> FastSim<'a> {
         for r in fly.closing_records() {
             self.out.log(r);
         }
-        for s in Stream::ALL {
-            let path = fly.run_dir.join(format!("{}.log", s.name()));
-            std::fs::write(&path, &self.out.text[s])
-                .with_context(|| format!("cannot write {}", path.display()))?;
-        }
+        write_streams(fly, &self.out.text);
         fly.log_records = self.out.records;
         let mission = self.estimator.commander().mission_figures();
         let safety = self.safety.finish(&mut self.plant, self.step_us);

@@ -6,6 +6,7 @@
 //! writes the outputs again, so a replayed run's mode.log is the same bytes.
 //!
 //! ```text
+//! 0 run 20261126-220553-3f9a1c2e
 //! 1000000 in gcs arm | ok
 //! 1000000 mode armed command arm
 //! 12000000 in console takeoff 1.5
@@ -17,6 +18,11 @@
 //! 2500000 mission mission-1.toml gains caeb2603ff2b78ed
 //! ```
 //!
+//! The first line names the run (its config.toml and gps.log headers name it too); a replay
+//! refuses a mode.log of another run, inputs out of time order or after the run's last frame
+//! (an expired one excepted: it is recorded at the run's end), and quotes at most
+//! [`QUOTE_MAX`] bytes of a bad line.
+//!
 //! A ground station's mission is recorded by the name of the file the link wrote into the
 //! run folder and a fingerprint of the gains planned for it; a replay plans it again from that
 //! file and refuses gains that differ (another profile) instead of flying something else.
@@ -26,6 +32,49 @@ use crate::core::control::ManualCommand;
 use crate::core::mission::MissionPlan;
 use std::fmt::Write;
 use std::sync::Arc;
+
+/// Bytes of a bad line an error quotes.
+pub const QUOTE_MAX: usize = 80;
+
+/// `text` for an error message: whole when short, else its first [`QUOTE_MAX`] bytes (at a
+/// character boundary) and its length.
+pub fn quote(text: &str) -> String {
+    if text.len() <= QUOTE_MAX {
+        return format!("{text:?}");
+    }
+    let mut end = QUOTE_MAX;
+    while !text.is_char_boundary(end) {
+        end -= 1;
+    }
+    format!("{:?}… ({} bytes)", &text[..end], text.len())
+}
+
+/// An error message cut to at most four quotes' worth (a bad line can be megabytes long).
+fn clip(mut e: String) -> String {
+    let max = 4 * QUOTE_MAX;
+    if e.len() > max {
+        let mut end = max;
+        while !e.is_char_boundary(end) {
+            end -= 1;
+        }
+        let len = e.len();
+        e.truncate(end);
+        e.push_str(&format!("… ({len} bytes)"));
+    }
+    e
+}
+
+/// Appends the run's line, the first of its mode.log.
+pub fn write_run(out: &mut String, run_id: &str) {
+    let _ = writeln!(out, "0 run {run_id}");
+}
+
+/// The run a mode.log names on its first line; `None` for one that names none (written
+/// before runs had ids).
+pub fn read_run(text: &str) -> Option<&str> {
+    let first = text.lines().next()?.trim_end_matches('\r');
+    first.strip_prefix("0 run ")
+}
 
 /// Appends an output line.
 pub fn write_event(out: &mut String, e: &Event) {
@@ -78,22 +127,55 @@ pub fn write_input(
 pub type RecordedInput = (i64, OperatorInput, Result<(), String>);
 
 /// The inputs of a mode.log, in order; output lines are skipped. A line that is not
-/// understood is an error naming its number. `mission` gives the plan of a recorded
-/// mission's file name.
+/// understood is an error naming its number: one out of time order (inputs never go back),
+/// at a negative time, a `run` line not first, or an input after `last_frame_us` (the run's
+/// last frame: a replay could not apply it) that is not an expired one. `mission` gives the
+/// plan of a recorded mission's file name.
 pub fn read_inputs(
     text: &str,
+    last_frame_us: i64,
     mission: &mut dyn FnMut(&str) -> Result<Arc<MissionPlan>, String>,
 ) -> Result<Vec<RecordedInput>, String> {
-    let mut inputs = Vec::new();
+    let mut inputs: Vec<RecordedInput> = Vec::new();
     for (n, line) in text.lines().enumerate() {
         let line = line.trim_end_matches('\r');
-        if line.trim().is_empty() {
+        if line.trim().is_empty() || (n == 0 && read_run(line).is_some()) {
             continue;
         }
-        let input = parse_input(line, mission).map_err(|e| format!("line {}: {e}", n + 1))?;
+        let input = parse_input(line, mission)
+            .and_then(|i| check_time(i, inputs.last(), last_frame_us))
+            .map_err(|e| format!("line {}: {}", n + 1, clip(e)))?;
         inputs.extend(input);
     }
     Ok(inputs)
+}
+
+/// An input's time: not negative, not before the previous input's, and within the run's
+/// frames unless it expired (recorded at the run's end, after its last frame).
+fn check_time(
+    input: Option<RecordedInput>,
+    previous: Option<&RecordedInput>,
+    last_frame_us: i64,
+) -> Result<Option<RecordedInput>, String> {
+    let Some((t_us, i, v)) = input else {
+        return Ok(None);
+    };
+    if t_us < 0 {
+        return Err(format!("time {t_us} µs is before the run's start"));
+    }
+    if let Some((before_us, ..)) = previous
+        && t_us < *before_us
+    {
+        return Err(format!(
+            "time {t_us} µs is before the previous input's ({before_us} µs): inputs are recorded in order"
+        ));
+    }
+    if t_us > last_frame_us && !matches!(i, OperatorInput::Expired { .. }) {
+        return Err(format!(
+            "time {t_us} µs is after the run's last frame ({last_frame_us} µs): no frame applied it"
+        ));
+    }
+    Ok(Some((t_us, i, v)))
 }
 
 /// The commander's `kill` of a mode.log (the watchdog's halt): its time and reason, which a
@@ -115,24 +197,25 @@ fn parse_input(
     let t_us: i64 = parts
         .next()
         .and_then(|t| t.parse().ok())
-        .ok_or_else(|| format!("no time in µs at the start of {line:?}"))?;
+        .ok_or_else(|| format!("no time in µs at the start of {}", quote(line)))?;
     let kind = parts.next().unwrap_or("");
     let rest = parts.next().unwrap_or("");
     let source = |name: &str| {
-        LinkSource::from_name(name).ok_or_else(|| format!("unknown link source {name:?}"))
+        LinkSource::from_name(name).ok_or_else(|| format!("unknown link source {}", quote(name)))
     };
     let input = match kind {
         "beat" => OperatorInput::Beat(source(rest)?),
         "fix" if rest.is_empty() => OperatorInput::GpsFix,
         "key" => {
             let k = rest.parse::<u8>().ok().and_then(ManualCommand::from_key);
-            OperatorInput::Key(k.ok_or_else(|| format!("unknown key {rest:?}"))?)
+            OperatorInput::Key(k.ok_or_else(|| format!("unknown key {}", quote(rest)))?)
         }
         "mission" => OperatorInput::Mission(recorded_mission(rest, mission)?),
         "in" => return parse_command(t_us, rest, source).map(Some),
         "expired" => return parse_expired(t_us, rest, mission).map(Some),
         "mode" | "failsafe" | "refused" | "reached" => return Ok(None),
-        _ => return Err(format!("unknown record {kind:?}")),
+        "run" => return Err("a run line only starts a mode.log".into()),
+        _ => return Err(format!("unknown record {}", quote(kind))),
     };
     Ok(Some((t_us, input, Ok(()))))
 }
@@ -148,7 +231,7 @@ fn parse_expired(
         .parse()
         .ok()
         .filter(|w| *w >= 0)
-        .ok_or_else(|| format!("expired: no waiting time in µs in {waited:?}"))?;
+        .ok_or_else(|| format!("expired: no waiting time in µs in {}", quote(waited)))?;
     match parse_input(&format!("{t_us} {body}"), mission)? {
         Some((_, input, _)) if input.expires() => Ok((
             t_us,
@@ -237,7 +320,7 @@ mod tests {
             asked.push(name.to_string());
             Ok(plan.clone())
         };
-        let got = read_inputs(&s, &mut resolve).unwrap();
+        let got = read_inputs(&s, i64::MAX, &mut resolve).unwrap();
         assert_eq!(
             got,
             vec![
@@ -258,7 +341,9 @@ mod tests {
         };
         write_event(&mut s, &kill);
         assert_eq!(read_halt(&s), Some((12, "imu-timeout".to_string())));
-        let n = read_inputs(&s, &mut |_| Ok(plan.clone())).unwrap().len();
+        let n = read_inputs(&s, i64::MAX, &mut |_| Ok(plan.clone()))
+            .unwrap()
+            .len();
         assert_eq!(n, 6, "a kill is an output");
     }
 
@@ -278,7 +363,7 @@ mod tests {
         write_input(&mut s, 8, &key, None);
         assert_eq!(s, "7 expired 2400000 in gcs arm\n8 expired 5 key 101\n");
         let mut none = |name: &str| Err(format!("no file {name}"));
-        let got = read_inputs(&s, &mut none).unwrap();
+        let got = read_inputs(&s, i64::MAX, &mut none).unwrap();
         assert_eq!(got, vec![(7, expired, Ok(())), (8, key, Ok(()))]);
         // Only an operator's asking expires; a negative wait or a nested one is no record.
         for bad in [
@@ -286,21 +371,56 @@ mod tests {
             "5 expired -3 in gcs arm",
             "5 expired 3 expired 3 fix",
         ] {
-            assert!(read_inputs(bad, &mut none).is_err(), "{bad}");
+            assert!(read_inputs(bad, i64::MAX, &mut none).is_err(), "{bad}");
         }
+    }
+
+    #[test]
+    fn inputs_out_of_order_before_the_start_or_after_the_last_frame_are_refused() {
+        let mut none = |name: &str| Err(format!("no file {name}"));
+        let mut read = |text: &str| read_inputs(text, 1000, &mut none);
+        assert_eq!(read("0 run r-1\n5 beat gcs\n5 fix\n").unwrap().len(), 2);
+        let e = read("7 beat gcs\n5 fix\n").unwrap_err();
+        assert!(
+            e.starts_with("line 2: time 5 µs is before the previous input's"),
+            "{e}"
+        );
+        let e = read("-5 beat gcs\n").unwrap_err();
+        assert!(
+            e.starts_with("line 1: time -5 µs is before the run's start"),
+            "{e}"
+        );
+        let e = read("9223372036854775807 in gcs arm\n").unwrap_err();
+        assert!(e.contains("after the run's last frame (1000 µs)"), "{e}");
+        // An expired input is recorded at the run's end, after its last frame.
+        assert_eq!(read("5000 expired 2000000 in gcs arm\n").unwrap().len(), 1);
+        let e = read("5 fix\n0 run r-1\n").unwrap_err();
+        assert!(e.contains("a run line only starts a mode.log"), "{e}");
+        assert_eq!(read_run("0 run r-1\n5 fix\n"), Some("r-1"));
+        assert_eq!(read_run("5 fix\n"), None);
+        // A long bad line is quoted by a prefix and its length, not whole.
+        let long = format!("5 in gcs {}\n", "x".repeat(50_000_000));
+        let e = read(&long).unwrap_err();
+        assert!(e.len() < 400, "{}", e.len());
+        assert!(e.ends_with("bytes)"), "{e}");
     }
 
     #[test]
     fn a_line_not_understood_is_named() {
         let mut none = |name: &str| Err(format!("no file {name}"));
-        let e = read_inputs("5 beat gcs\nxx beat\n", &mut none).unwrap_err();
+        let e = read_inputs("5 beat gcs\nxx beat\n", i64::MAX, &mut none).unwrap_err();
         assert!(e.starts_with("line 2:"), "{e}");
-        assert!(read_inputs("5 in gcs fly\n", &mut none).is_err());
-        let e = read_inputs("5 mission m.toml\n", &mut none).unwrap_err();
+        assert!(read_inputs("5 in gcs fly\n", i64::MAX, &mut none).is_err());
+        let e = read_inputs("5 mission m.toml\n", i64::MAX, &mut none).unwrap_err();
         assert_eq!(e, "line 1: no file m.toml");
         // Gains planned now that differ from the ones flown are refused.
         let mut some = |_: &str| Ok(Arc::new(MissionPlan::default()));
-        let e = read_inputs("5 mission m.toml gains 0000000000000001\n", &mut some).unwrap_err();
+        let e = read_inputs(
+            "5 mission m.toml gains 0000000000000001\n",
+            i64::MAX,
+            &mut some,
+        )
+        .unwrap_err();
         assert!(e.contains("not the ones flown"), "{e}");
     }
 }

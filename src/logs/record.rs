@@ -101,8 +101,11 @@ impl<T: Serialize + Copy> Serialize for PerStream<T> {
 #[derive(Debug, Clone, PartialEq)]
 pub enum Record {
     Flight(FlightRecord),
-    /// The header of a gps.log holding gpsd fixes.
-    GpsHeader,
+    /// The header of a gps.log holding gpsd fixes, naming its run.
+    GpsHeader(String),
+    /// mode.log's first line: the run's id (also in its config.toml and gps.log headers), so
+    /// that a replay refuses another run's mode.log.
+    RunId(String),
 }
 
 impl Record {
@@ -114,7 +117,8 @@ impl Record {
     /// The record's stream.
     pub fn stream(&self) -> Stream {
         match self {
-            Record::GpsHeader => Stream::Gps,
+            Record::GpsHeader(_) => Stream::Gps,
+            Record::RunId(_) => Stream::Mode,
             Record::Flight(r) => match r {
                 FlightRecord::Frame { .. } => Stream::ImuRaw,
                 FlightRecord::KalmanIn { .. } => Stream::KalmanIn,
@@ -133,11 +137,14 @@ impl Record {
     /// Appends the record in its stream's format.
     pub fn write(&self, out: &mut String) {
         let r = match self {
-            Record::GpsHeader => {
+            Record::GpsHeader(run) => {
                 out.push_str(format::UQUAD_GPS_HEADER);
+                out.push_str("; run ");
+                out.push_str(run);
                 out.push('\n');
                 return;
             }
+            Record::RunId(run) => return crate::logs::mode_log::write_run(out, run),
             Record::Flight(r) => r,
         };
         match r {

@@ -7,7 +7,6 @@ use crate::app::flight::live_sides;
 use crate::config::{GpsMode, Profile};
 use crate::core::commander::OperatorInput;
 use crate::core::gps::LiveFix;
-use crate::logs::Record;
 use crate::tasks::controller::{ControllerReport, ControllerTask, Live};
 use crate::tasks::esc_writer::HaltOnPanic;
 use crate::tasks::estimator::{EstimatorReport, EstimatorTask};
@@ -163,7 +162,6 @@ pub(super) fn live_fixes(
     if profile.config.gps.mode != GpsMode::Gpsd {
         return None;
     }
-    h.logs.log(Record::GpsHeader);
     Some(given.unwrap_or_else(|| {
         let (tx, rx) = watch::channel(None);
         tokio::spawn(gps_client::run(

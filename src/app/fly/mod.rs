@@ -19,7 +19,7 @@ mod gcs_link;
 mod operators;
 
 use crate::app::report::FlySummary;
-use crate::app::run_dir::{create_run_dir, write_run_config};
+use crate::app::run_dir::{create_run_dir, new_run_id, write_run_config};
 use crate::config::Profile;
 use crate::core::commander::OperatorInput;
 use crate::core::flight::FlightRecord;
@@ -235,11 +235,17 @@ async fn open_run_folder(
     let cfg = &profile.config;
     let parent = opts.log_dir.clone().unwrap_or_else(|| cfg.log.dir.clone());
     let run_dir = create_run_dir(&parent)?;
-    write_run_config(profile, &run_dir)?;
+    let run_id = new_run_id(&run_dir);
+    write_run_config(profile, &run_dir, &run_id)?;
     let (logs, loggers) =
         logger::spawn_all(&run_dir, cfg.log.queue_records as usize, opts.log_stall)
             .await
             .with_context(|| format!("cannot create the logs in {}", run_dir.display()))?;
+    // The run's name first in the streams that have a header, before any other record.
+    logs.log(Record::RunId(run_id.clone()));
+    if cfg.gps.mode == crate::config::GpsMode::Gpsd {
+        logs.log(Record::GpsHeader(run_id));
+    }
     logs.err(format!(
         "uquad {} run {}",
         env!("CARGO_PKG_VERSION"),
