@@ -434,3 +434,25 @@ fn the_flight_faults_strike_on_the_wall_clock_too() {
     let north = x_hat.iter().map(|x| x[0]).fold(f64::MIN, f64::max);
     assert!(north > 0.5, "pushed {north:.2} m north");
 }
+
+/// A ground station repeating `hold` ten times a second: the report lists the first 100
+/// re-entries of the mode and counts them all, and the landing after them is listed (the
+/// report kept the first 1000 events, and a later landing was missing).
+#[test]
+fn repeated_commands_are_summarised_and_the_landing_after_them_listed() {
+    let holds: Vec<String> = (0..150)
+        .map(|i| format!("hold@{:.1}", 15.0 + 0.1 * f64::from(i)))
+        .collect();
+    let script = format!("arm@2,takeoff@10,{},land@45", holds.join(","));
+    let (ok, r, _logs) = fast(&["--script", &script]);
+    assert!(ok, "{r}");
+    assert_eq!(r["mode_reentries_total"], 150, "{r}");
+    assert_eq!(r["mode_reentry_last"]["t_s"], 29.9, "{r}");
+    let modes = report_modes(&r);
+    assert_eq!(
+        modes.iter().filter(|m| *m == "hold").count(),
+        101,
+        "{modes:?}"
+    );
+    assert_eq!(modes[modes.len() - 2..], ["land", "disarmed"], "{modes:?}");
+}

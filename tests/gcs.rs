@@ -201,6 +201,26 @@ fn an_arm_the_flight_cannot_take_is_refused_in_time_and_the_run_fails() {
     );
 }
 
+/// MAVLink 2 signing: with `gcs.signing_key_file`, a ground station signing with the key
+/// commands the vehicle; unsigned frames and frames signed with another key are dropped and
+/// counted (any sender was obeyed, and signatures were not checked).
+#[test]
+fn with_a_signing_key_only_signed_frames_are_heard() {
+    let dir = tempfile::tempdir().unwrap();
+    let key_file = dir.path().join("signing.key");
+    std::fs::write(&key_file, "uquad test passphrase\n").unwrap();
+    let set = format!("gcs.signing_key_file=\"{}\"", key_file.display());
+    let flown = fly_with_client(&["signed"], &["--duration", "20", "--set", &set]);
+    let r = &flown.report;
+    let g = &r["gcs"];
+    assert!(u(&g["unsigned"]) >= 2, "{g}");
+    assert!(u(&g["bad_signature"]) >= 2, "{g}");
+    assert_eq!(u(&g["bad_crc"]), 0, "{g}");
+    let modes = report_modes(r);
+    assert_eq!(modes[..2], ["disarmed", "armed"], "{r}");
+    assert_eq!(modes.last().map(String::as_str), Some("disarmed"), "{r}");
+}
+
 /// `uquad params` prints the mapping a ground station sees, with the kept values applied.
 #[test]
 fn uquad_params_lists_every_mapped_key() {

@@ -320,6 +320,38 @@ def stalled(s, started):
     return {"arm_answered_s": round(answered_s, 2)}
 
 
+SIGNING_PASSPHRASE = b"uquad test passphrase"
+
+
+def signed(s):
+    """gcs.signing_key_file set: a station signing with the key arms and disarms; another
+    that does not sign, and one signing with another key, are not heard (no COMMAND_ACK)."""
+    import hashlib
+
+    key = hashlib.sha256(SIGNING_PASSPHRASE).digest()
+    s.conn.setup_signing(key, sign_outgoing=True)
+    s.wait("a signed heartbeat", lambda m: m.get_type() == "HEARTBEAT", 5.0)
+    host, port = next(iter(s.conn.clients))
+    unheard = {}
+    for name, other_key in (("unsigned", None), ("other key", hashlib.sha256(b"x").digest())):
+        x = mavutil.mavlink_connection(f"udpout:{host}:{port}", source_system=200, source_component=190)
+        if other_key is not None:
+            x.setup_signing(other_key, sign_outgoing=True)
+        x.mav.heartbeat_send(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        x.mav.command_long_send(1, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+        end = time.time() + 2.0
+        while time.time() < end:
+            s.pump(0.01)
+            m = x.recv_match(type="COMMAND_ACK", blocking=True, timeout=0.1)
+            if m is not None:
+                fail(f"a station with {name} was answered: {m}")
+        unheard[name] = True
+        x.close()
+    arm(s)
+    s.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, [0, 0, 0, 0, 0, 0, 0])
+    return {"unheard": unheard}
+
+
 def fly(s, run_dir, started, expected):
     hb = s.wait("a heartbeat", lambda m: m.get_type() == "HEARTBEAT", 5.0)
     heartbeat_s = time.time() - started
@@ -529,6 +561,8 @@ def main():
     run_dir = line[4:]
     if sys.argv[1] == "fly":
         out = fly(s, run_dir, started, int(sys.argv[2]))
+    elif sys.argv[1] == "signed":
+        out = signed(s)
     elif sys.argv[1] == "stalled":
         out = stalled(s, started)
     elif sys.argv[1] == "mission":

@@ -4,6 +4,7 @@
 
 use crate::core::commander::Event;
 pub use crate::core::commander::Summary as CommanderSummary;
+use crate::core::flight::sequence::REFUSALS_MAX;
 use serde::Serialize;
 
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -56,6 +57,10 @@ pub struct CommanderReport {
     pub refusals: Vec<RefusalEntry>,
     pub refusals_total: u64,
     pub refusal_last: Option<RefusalEntry>,
+    /// Re-entries of the mode the vehicle was in (a `hold` while holding): `modes` lists the
+    /// first ones, `mode_reentries_total` counts them all, `mode_reentry_last` is the newest.
+    pub mode_reentries_total: u64,
+    pub mode_reentry_last: Option<ModeEntry>,
 }
 
 fn secs(t_us: i64) -> f64 {
@@ -78,6 +83,15 @@ impl CommanderSummary {
             failsafes: Vec::new(),
             refusals: Vec::new(),
             refusals_total: self.refusals_total,
+            mode_reentries_total: self.reentries_total,
+            mode_reentry_last: match &self.reentry_last {
+                Some(Event::Mode { t_us, mode, why }) => Some(ModeEntry {
+                    mode: mode.name(),
+                    t_s: secs(*t_us),
+                    why: why.clone(),
+                }),
+                _ => None,
+            },
             refusal_last: match &self.refusal_last {
                 Some(Event::Refusal { t_us, command, why }) => Some(RefusalEntry {
                     command: command.clone(),
@@ -142,6 +156,13 @@ impl CommanderSummary {
             s += &format!(
                 "\n  {unlisted} more refusals (mode.log has them), the last {} at {:.1} s: {}",
                 f.command, f.t_s, f.why
+            );
+        }
+        let unlisted = r.mode_reentries_total.saturating_sub(REFUSALS_MAX);
+        if let (true, Some(m)) = (unlisted > 0, &r.mode_reentry_last) {
+            s += &format!(
+                "\n  {unlisted} more re-entries of a mode (mode.log has them), the last {} at {:.1} s: {}",
+                m.mode, m.t_s, m.why
             );
         }
         s

@@ -42,6 +42,30 @@ pub struct GcsConfig {
     /// The system ids whose commands are obeyed, among the senders that announce themselves
     /// as a ground station (HEARTBEAT of type GCS); empty: any ground station.
     pub allowed_systems: Vec<u8>,
+    /// MAVLink 2 signing (empty: off): a file holding the passphrase (or 64 hexadecimal
+    /// digits) of the key; then only frames signed with it are taken, and every frame sent
+    /// is signed.
+    pub signing_key_file: PathBuf,
+}
+
+/// The signing key in a key file's text: 64 hexadecimal digits as the key itself, else the
+/// SHA-256 of the passphrase (the text without its line end), as MAVProxy's `signing setup
+/// PASSPHRASE` derives it. An empty file is refused.
+pub fn signing_key(text: &str) -> Result<[u8; 32], String> {
+    use sha2::Digest;
+    let pass = text.trim_end_matches(['\n', '\r']);
+    if pass.is_empty() {
+        return Err("empty: it must hold a passphrase or 64 hexadecimal digits".into());
+    }
+    if pass.len() == 64 && pass.bytes().all(|b| b.is_ascii_hexdigit()) {
+        let mut key = [0u8; 32];
+        for (k, pair) in key.iter_mut().zip(pass.as_bytes().chunks(2)) {
+            let hex = std::str::from_utf8(pair).map_err(|e| e.to_string())?;
+            *k = u8::from_str_radix(hex, 16).map_err(|e| e.to_string())?;
+        }
+        return Ok(key);
+    }
+    Ok(sha2::Sha256::digest(pass.as_bytes()).into())
 }
 
 impl Default for GcsConfig {
@@ -57,6 +81,7 @@ impl Default for GcsConfig {
             max_rx_per_s: 200,
             params_file: PathBuf::new(),
             allowed_systems: Vec::new(),
+            signing_key_file: PathBuf::new(),
         }
     }
 }

@@ -241,6 +241,7 @@ fn load_layers(
             k_int: data.k_int,
             lqr_q: data.lqr_q,
             lqr_r: data.lqr_r,
+            signing_key: data.signing_key,
             mission: None,
         }),
         _ => Err(report.into_error()),
@@ -397,7 +398,11 @@ fn resolve_paths(c: &mut Config, path: &Path) {
     if !c.console.socket.as_os_str().is_empty() {
         c.console.socket = resolve(&c.console.socket);
     }
-    for p in [&mut c.gcs.serial, &mut c.gcs.params_file] {
+    for p in [
+        &mut c.gcs.serial,
+        &mut c.gcs.params_file,
+        &mut c.gcs.signing_key_file,
+    ] {
         if !p.as_os_str().is_empty() {
             *p = resolve(p);
         }
@@ -410,6 +415,7 @@ fn resolve_paths(c: &mut Config, path: &Path) {
 
 /// The data files a configuration names, loaded.
 struct DataFiles {
+    signing_key: Option<[u8; 32]>,
     calib: Calibration,
     k_prop: Vec<f64>,
     k_int: Vec<f64>,
@@ -434,13 +440,36 @@ fn load_data(c: &Config, report: &mut Report<'_>) -> Option<DataFiles> {
     let k_int = load_numbers(report, "control.k_int_file", &control.k_int_file, 4 * n_int);
     let lqr_q = load_numbers(report, "control.lqr_q_file", &control.lqr_q_file, 256);
     let lqr_r = load_numbers(report, "control.lqr_r_file", &control.lqr_r_file, 16);
+    let signing_key = load_signing_key(report, &c.gcs.signing_key_file);
     Some(DataFiles {
+        signing_key: signing_key?,
         calib: calib?,
         k_prop: k_prop?,
         k_int: k_int?,
         lqr_q: lqr_q?,
         lqr_r: lqr_r?,
     })
+}
+
+/// `gcs.signing_key_file`'s key (`None`: signing off), read bounded; a file that cannot be
+/// read or holds no key is reported against the configuration.
+fn load_signing_key(report: &mut Report<'_>, file: &Path) -> Option<Option<[u8; 32]>> {
+    const KEY: &str = "gcs.signing_key_file";
+    if file.as_os_str().is_empty() {
+        return Some(None);
+    }
+    let key = bounded::read_text(file, FileKind::Calibration)
+        .map_err(|e| format!("cannot read {}: {e}", file.display()))
+        .and_then(|text| {
+            super::gcs::signing_key(&text).map_err(|e| format!("{}: {e}", file.display()))
+        });
+    match key {
+        Ok(k) => Some(Some(k)),
+        Err(why) => {
+            report.push(Some(KEY), why);
+            None
+        }
+    }
 }
 
 /// Reads exactly `count` numbers from `file`, named by `key`. A file that cannot be read is

@@ -20,6 +20,8 @@ pub struct Profile {
     /// LQR weights: 16 × 16 and 4 × 4, row-major.
     pub lqr_q: Vec<f64>,
     pub lqr_r: Vec<f64>,
+    /// `gcs.signing_key_file`'s key (`None`: MAVLink 2 signing off).
+    pub signing_key: Option<[u8; 32]>,
     /// The mission `start` flies (`--mission FILE`), with its gains.
     pub mission: Option<std::sync::Arc<super::LoadedMission>>,
 }

@@ -41,6 +41,26 @@ pub struct Anchor {
     pub home_m: [f64; 3],
 }
 
+impl Anchor {
+    /// The anchor of an upload: the newest `fix`; the takeoff point `home_m` once there is
+    /// one, else where the vehicle is: by its estimate `estimate_m`, or, before the estimate
+    /// runs, at the fix's x, y on the ground, z 0 — the estimate's height starts at the ground
+    /// it is calibrated on, so LOCAL_POSITION_NED will read 0 there whatever the receiver's
+    /// altitude says (taking the fix's z offset LOCAL_NED heights by its error, metres).
+    pub fn of(
+        fix: Option<&crate::core::gps::LiveFix>,
+        estimate_m: Option<[f64; 3]>,
+        home_m: Option<[f64; 3]>,
+    ) -> Anchor {
+        let on_ground = fix.map(|f| [f.sample.xy_m[0], f.sample.xy_m[1], 0.0]);
+        Anchor {
+            fix_deg: fix.map(|f| [f.fix.lat_deg, f.fix.lon_deg]),
+            fix_xy_m: fix.map_or([0.0; 2], |f| f.sample.xy_m),
+            home_m: home_m.or(estimate_m).or(on_ground).unwrap_or_default(),
+        }
+    }
+}
+
 /// An upload as a mission file: its text, and for each of the file's items the upload's
 /// sequence number it came from.
 #[derive(Debug, Clone, PartialEq)]
@@ -394,6 +414,51 @@ mod tests {
 
     fn parse(text: &str) -> toml::Value {
         toml::from_str(text).unwrap_or_else(|e| panic!("{e}\n{text}"))
+    }
+
+    #[test]
+    fn before_the_estimate_local_heights_are_from_the_ground_whatever_the_fix_reads() {
+        use crate::core::gps::{Fix, GpsSample, LiveFix};
+        // The same 1 m takeoff sent while the receiver's altitude wanders by metres (it
+        // became 1.0 to 5.65 m): the same height every time.
+        let takeoff = item(
+            0,
+            MavCmd::MAV_CMD_NAV_TAKEOFF,
+            MavFrame::MAV_FRAME_LOCAL_NED,
+            [0.0; 4],
+            0,
+            0,
+            -1.0,
+        );
+        let mut texts = Vec::new();
+        for z_m in [0.0, 2.3, -1.7, 4.65] {
+            let fix = LiveFix {
+                seq: 1,
+                fix: Fix {
+                    mode: 3,
+                    lat_deg: SITE[0],
+                    lon_deg: SITE[1],
+                    alt_m: Some(30.0 + z_m),
+                    eph_m: Some(1.5),
+                },
+                sample: GpsSample::at([0.4, -0.2, z_m]),
+                stamp_us: 0,
+            };
+            let a = Anchor::of(Some(&fix), None, None);
+            assert_eq!(a.home_m, [0.4, -0.2, 0.0]);
+            texts.push(
+                convert(std::slice::from_ref(&takeoff), &a, 1.0, 1.0)
+                    .unwrap()
+                    .text,
+            );
+        }
+        assert!(texts.iter().all(|t| *t == texts[0]), "{texts:?}");
+        assert!(texts[0].contains("height_m = 1.0"), "{}", texts[0]);
+        // With an estimate, or once a takeoff point exists, those anchor it.
+        let est = Anchor::of(None, Some([1.0, 2.0, 0.3]), None);
+        assert_eq!(est.home_m, [1.0, 2.0, 0.3]);
+        let home = Anchor::of(None, Some([1.0, 2.0, 5.0]), Some([0.0, 0.0, 0.1]));
+        assert_eq!(home.home_m, [0.0, 0.0, 0.1]);
     }
 
     #[test]

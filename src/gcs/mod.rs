@@ -6,5 +6,6 @@
 pub mod commands;
 pub mod mission;
 pub mod params;
+pub mod signing;
 pub mod telemetry;
 pub mod wire;

@@ -6,6 +6,7 @@
 //! payload codecs are the crate's. MAVLink 1 frames are accepted (pymavlink and older ground
 //! stations start with them); every frame sent is MAVLink 2.
 
+use super::signing::{self, Signing};
 use mavlink::dialects::common::MavMessage;
 use mavlink::{MavHeader, MavlinkVersion, Message};
 
@@ -37,6 +38,10 @@ pub struct RxCounts {
     pub unknown: u64,
     /// Frames whose checksum matched but whose payload did not decode (an enum out of range).
     pub malformed: u64,
+    /// With signing on (`gcs.signing_key_file`): frames without a signature (MAVLink 1's
+    /// included), and frames whose signature is wrong or old (another key, a replay).
+    pub unsigned: u64,
+    pub bad_signature: u64,
 }
 
 /// A checked message and who sent it.
@@ -62,6 +67,8 @@ pub struct Decoder {
     /// This datagram's cut frame is counted (its later bytes are noise).
     cut_counted: bool,
     pub counts: RxCounts,
+    /// Signing on: only validly signed frames are messages.
+    signing: Option<Signing>,
 }
 
 /// One step of the decoder over its buffer. Returned once per frame and never stored, so
@@ -84,6 +91,12 @@ impl Decoder {
 
     pub fn for_stream() -> Self {
         Decoder::default()
+    }
+
+    /// Only frames signed with `signing`'s key are taken.
+    pub fn with_signing(mut self, signing: Signing) -> Self {
+        self.signing = Some(signing);
+        self
     }
 
     pub fn push(&mut self, bytes: &[u8]) {
@@ -202,6 +215,17 @@ impl Decoder {
             self.counts.bad_crc += 1;
             return Step::Skip(1, None);
         }
+        if let Some(signing) = self.signing.as_mut() {
+            let signed = v2 && b[2] & IFLAG_SIGNED != 0;
+            if !signed {
+                self.counts.unsigned += 1;
+                return Step::Skip(len, None);
+            }
+            if !signing.verify(&b[..len]) {
+                self.counts.bad_signature += 1;
+                return Step::Skip(len, None);
+            }
+        }
         let (version, header) = header_of(v2, b);
         match MavMessage::parse(version, msg_id, &b[head..end]) {
             Ok(msg) => {
@@ -240,12 +264,14 @@ fn header_of(v2: bool, b: &[u8]) -> (MavlinkVersion, MavHeader) {
     }
 }
 
-/// Writes MAVLink 2 frames from one system and component, numbering them.
+/// Writes MAVLink 2 frames from one system and component, numbering them (and signing them
+/// when signing is on).
 #[derive(Debug, Clone)]
 pub struct Encoder {
     pub system_id: u8,
     pub component_id: u8,
     sequence: u8,
+    signing: Option<Signing>,
 }
 
 impl Encoder {
@@ -254,7 +280,14 @@ impl Encoder {
             system_id,
             component_id,
             sequence: 0,
+            signing: None,
         }
+    }
+
+    /// Every frame signed with `signing`'s key.
+    pub fn with_signing(mut self, signing: Signing) -> Self {
+        self.signing = Some(signing);
+        self
     }
 
     /// `msg` as one frame appended to `out`.
@@ -265,8 +298,18 @@ impl Encoder {
             sequence: self.sequence,
         };
         self.sequence = self.sequence.wrapping_add(1);
+        let start = out.len();
         // Writing into a Vec cannot fail.
         let _ = mavlink::write_v2_msg(out, header, msg);
+        if let Some(signing) = self.signing.as_mut() {
+            let mut frame = out.split_off(start);
+            signing.sign(
+                &mut frame,
+                MavMessage::extra_crc(msg.message_id()),
+                signing::now(),
+            );
+            out.extend_from_slice(&frame);
+        }
     }
 }
 

@@ -8,6 +8,7 @@ use crate::app::commander_report::CommanderReport;
 use crate::app::report::SimSummary;
 use crate::config::Config;
 use crate::core::commander::Params;
+use crate::core::flight::sequence::REFUSALS_MAX;
 use crate::core::watchdog::TripReason;
 use crate::sim::faults::Fault;
 
@@ -272,6 +273,7 @@ fn report_is_mode_log(
     broken: &mut impl FnMut(u8, String),
 ) {
     let (mut modes, mut failsafes, mut refusals) = (Vec::new(), Vec::new(), 0u64);
+    let (mut modes_now, mut reentries) = (None::<String>, 0u64);
     for line in mode_log.lines() {
         let mut words = line.split(' ');
         let (Some(t), Some(kind)) = (words.next(), words.next()) else {
@@ -279,7 +281,17 @@ fn report_is_mode_log(
         };
         let t_s = t.parse::<i64>().map_or(f64::NAN, |t_us| t_us as f64 / 1e6);
         match kind {
-            "mode" => modes.push((words.next().unwrap_or("").to_string(), t_s)),
+            "mode" => {
+                let mode = words.next().unwrap_or("").to_string();
+                // A re-entry of the mode it was in: the report lists the first ones.
+                if modes_now.replace(mode.clone()).as_ref() == Some(&mode) {
+                    reentries += 1;
+                    if reentries > REFUSALS_MAX {
+                        continue;
+                    }
+                }
+                modes.push((mode, t_s));
+            }
             "failsafe" => failsafes.push((words.next().unwrap_or("").to_string(), t_s)),
             "refused" => refusals += 1,
             _ => {}
@@ -311,6 +323,15 @@ fn report_is_mode_log(
         broken(
             7,
             format!("refusals: report {}, mode.log {refusals}", r.refusals_total),
+        );
+    }
+    if r.mode_reentries_total != reentries {
+        broken(
+            7,
+            format!(
+                "re-entries: report {}, mode.log {reentries}",
+                r.mode_reentries_total
+            ),
         );
     }
     if let Some(h) = &s.fly.halt {

@@ -60,6 +60,7 @@ pub(super) fn spawn(
         control_cpu: i.control_cpu,
         stats: h.gcs_stats.clone().unwrap_or_default(),
         cancel: h.cancel.clone(),
+        signing_key: profile.signing_key,
         missions: Some(gcs::MissionDesk {
             profile: std::sync::Arc::new(profile.clone()),
             run_dir: h.run_dir.clone(),

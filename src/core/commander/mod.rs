@@ -283,6 +283,11 @@ pub struct Summary {
     /// Every refusal of the run (`events` keeps the first ones), and the newest.
     pub refusals_total: u64,
     pub refusal_last: Option<Event>,
+    /// Every re-entry of the mode the vehicle was in (a `hold` while holding; `events` keeps
+    /// the first ones), and the newest: a ground station repeating a command all flight long
+    /// is summarised, not listed.
+    pub reentries_total: u64,
+    pub reentry_last: Option<Event>,
 }
 
 /// Room for this many replaced missions before the list grows (an allocation at an

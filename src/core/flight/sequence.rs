@@ -276,6 +276,9 @@ pub struct EstimatorSide {
     history: Vec<commander::Event>,
     /// Every refusal counted, and the newest (the report's summary of those not kept).
     refusals: (u64, Option<commander::Event>),
+    /// Every re-entry of the current mode counted, and the newest; the mode it was in.
+    reentries: (u64, Option<commander::Event>),
+    mode_now: Option<Mode>,
     /// Why the last operator input was refused, if it was (a ground station's answer).
     last_refusal: Option<String>,
     /// The commander stopped the ESCs at this frame's tick: the step's command says so.
@@ -295,8 +298,9 @@ fn is_arm(input: &OperatorInput) -> bool {
     }
 }
 
-/// Refusals a run keeps whole for its report; beyond, they are counted and the newest kept
-/// (mode.log has every one). Mode changes, failsafes and halts are never dropped.
+/// Refusals (and re-entries of the current mode) a run keeps whole for its report; beyond,
+/// they are counted and the newest kept (mode.log has every one). Mode changes, failsafes
+/// and halts are never dropped.
 pub const REFUSALS_MAX: u64 = 100;
 
 impl EstimatorSide {
@@ -317,6 +321,8 @@ impl EstimatorSide {
             started: false,
             history: Vec::with_capacity(32),
             refusals: (0, None),
+            reentries: (0, None),
+            mode_now: None,
             last_refusal: None,
             stop_pending: false,
             imu: ImuWatch::LENIENT,
@@ -380,6 +386,8 @@ impl EstimatorSide {
             figures,
             refusals_total: self.refusals.0,
             refusal_last: self.refusals.1.clone(),
+            reentries_total: self.reentries.0,
+            reentry_last: self.reentries.1.clone(),
         }
     }
 
@@ -395,18 +403,34 @@ impl EstimatorSide {
 
     /// The commander's events into the mode stream, and a line each into err.log.
     fn record_events(&mut self, out: &mut impl Outputs) {
-        for e in self.events.drain(..) {
-            let refusal = matches!(e, commander::Event::Refusal { .. });
-            if refusal {
-                self.refusals.0 += 1;
-                self.refusals.1 = Some(e.clone());
-            }
-            if !refusal || self.refusals.0 <= REFUSALS_MAX {
-                self.history.push(e.clone());
+        let mut events = std::mem::take(&mut self.events);
+        for e in events.drain(..) {
+            if let Some(kept) = self.kept(&e) {
+                self.history.push(kept);
             }
             out.record(FlightRecord::Note(commander_line(&e)));
             out.record(FlightRecord::Commander(e));
         }
+        // Its room kept for the next events.
+        self.events = events;
+    }
+
+    /// `e` for the report's history, or `None` when it is only counted: refusals and
+    /// re-entries of the current mode beyond the first [`REFUSALS_MAX`] (the report gives
+    /// their count and the newest), and items reached (mode.log has them, the report lists
+    /// none). Mode changes and failsafes are always kept.
+    fn kept(&mut self, e: &commander::Event) -> Option<commander::Event> {
+        let counted = match e {
+            commander::Event::Refusal { .. } => &mut self.refusals,
+            commander::Event::Mode { mode, .. } if self.mode_now.replace(*mode) == Some(*mode) => {
+                &mut self.reentries
+            }
+            commander::Event::Reached { .. } => return None,
+            _ => return Some(e.clone()),
+        };
+        counted.0 += 1;
+        counted.1 = Some(e.clone());
+        (counted.0 <= REFUSALS_MAX).then(|| e.clone())
     }
 
     /// An operator's input at `t_us`. An `arm` is checked against `arm`: the facts the

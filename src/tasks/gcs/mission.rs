@@ -186,15 +186,8 @@ impl Gcs {
         let Some(desk) = &self.missions.desk else {
             return;
         };
-        // The takeoff point; before the takeoff, where the vehicle is (by its estimate, or
-        // before the estimate runs, by the fix): where it will take off.
-        let fix_m = snap.fix.map(|f| f.sample.pos_m());
-        let here = snap.state.map(|x| [x[0], x[1], x[2]]).or(fix_m);
-        let anchor = Anchor {
-            fix_deg: snap.fix.map(|f| [f.fix.lat_deg, f.fix.lon_deg]),
-            fix_xy_m: snap.fix.map_or([0.0; 2], |f| f.sample.xy_m),
-            home_m: snap.home_m.or(here).unwrap_or_default(),
-        };
+        let estimate_m = snap.state.map(|x| [x[0], x[1], x[2]]);
+        let anchor = Anchor::of(snap.fix.as_ref(), estimate_m, snap.home_m);
         let c = &desk.profile.config;
         let converted = conv::convert(&u.items, &anchor, c.mission.speed_m_s, c.control.hover_z_m);
         let converted = match converted {

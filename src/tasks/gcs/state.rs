@@ -10,6 +10,7 @@ use crate::core::commander::{Command, Event, Failsafe, LinkSource, Mode, Operato
 use crate::core::gps::LiveFix;
 use crate::gcs::commands::Args;
 use crate::gcs::params::Params;
+use crate::gcs::signing::Signing;
 use crate::gcs::telemetry::{self as tm, Health, Snapshot};
 use crate::gcs::wire::{Decoder, Encoder, Received};
 use crate::tasks::controller::Live;
@@ -55,6 +56,8 @@ pub struct GcsContext {
     pub cancel: CancellationToken,
     /// Plans ground stations' missions (none: uploads are refused).
     pub missions: Option<super::mission_state::MissionDesk>,
+    /// MAVLink 2 signing's key (`gcs.signing_key_file`; none: off).
+    pub signing_key: Option<[u8; 32]>,
 }
 
 /// Counts what arrives in the current second.
@@ -151,7 +154,12 @@ impl Gcs {
         params_per_tick: usize,
     ) -> Self {
         let now = Instant::now();
-        let encoder = Encoder::new(ctx.cfg.system_id, COMPONENT_ID);
+        let mut encoder = Encoder::new(ctx.cfg.system_id, COMPONENT_ID);
+        let mut decoder = decoder;
+        if let Some(key) = ctx.signing_key {
+            encoder = encoder.with_signing(Signing::new(key));
+            decoder = decoder.with_signing(Signing::new(key));
+        }
         let control_cpu_ns = ctx.control_cpu.map_or(0, super::clock_ns);
         let mut ctx = ctx;
         let missions = super::mission_state::Missions::new(ctx.missions.take());
