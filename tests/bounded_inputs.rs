@@ -251,7 +251,7 @@ fn a_replay_refuses_a_tampered_mode_log_naming_the_line() {
         ),
         (
             Box::new(retimed("9223372036854775807")),
-            format!("line {arm}: time 9223372036854775807 µs is after the run's last frame"),
+            format!("line {arm}: time 9223372036854775807 µs is more than a week after"),
         ),
         (
             Box::new(|s: &str| format!("{s}7000000 sing gcs\n")),
@@ -268,11 +268,15 @@ fn a_replay_refuses_a_tampered_mode_log_naming_the_line() {
         assert!(err.contains(&expected), "{expected}: {err}");
         assert!(err.len() < 2000, "a bounded message: {} bytes", err.len());
     }
-    // Another run's mode.log.
+    // Another run's mode.log, another run's gps.log.
     let foreign = std::fs::read_to_string(other.join("mode.log")).unwrap();
     let (code, err) = replay_edited(&run, |_| foreign);
     assert_ne!(code, Some(0), "{err}");
     assert!(err.contains("the mode.log of another run"), "{err}");
+    std::fs::copy(other.join("gps.log"), run.join("gps.log")).unwrap();
+    let (code, err) = run_replay(&run, out.path());
+    assert_ne!(code, Some(0), "{err}");
+    assert!(err.contains("the gps.log of another run"), "{err}");
 }
 
 #[test]

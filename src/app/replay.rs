@@ -372,6 +372,22 @@ fn summarize(
     })
 }
 
+/// The run gps.log's header names (`…; run ID`), if it has such a header: its first line,
+/// read bounded (the rest is the log reader's).
+fn gps_log_run(run_dir: &Path) -> Option<String> {
+    use std::io::{BufRead, Read};
+    let file = std::fs::File::open(run_dir.join("gps.log")).ok()?;
+    let mut first = String::new();
+    std::io::BufReader::new(file.take(4096))
+        .read_line(&mut first)
+        .ok()?;
+    let header = first.trim_end_matches(['\n', '\r']);
+    header
+        .starts_with(logs::UQUAD_GPS_HEADER)
+        .then(|| header.rsplit_once("; run ").map(|(_, id)| id.to_string()))
+        .flatten()
+}
+
 /// What a run's mode.log gives its replay; nothing for runs without one (the 2012 flights,
 /// which started flying).
 #[derive(Default)]
@@ -409,6 +425,14 @@ fn recorded_inputs(
         Err(e) => bail!("cannot read {}: {e}", path.display()),
     };
     let run_id = logs::mode_log::read_run(&text).map(str::to_string);
+    if let Some(gps_id) = gps_log_run(run_dir)
+        && Some(&gps_id) != folder_id.as_ref()
+    {
+        bail!(
+            "{}: names run {gps_id}, but the run folder's config.toml does not: the gps.log of another run",
+            run_dir.join("gps.log").display()
+        );
+    }
     if run_id != folder_id {
         let name = |id: &Option<String>| id.as_deref().unwrap_or("no run").to_string();
         bail!(

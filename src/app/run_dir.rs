@@ -90,7 +90,7 @@ pub fn run_id_of(run_dir: &Path) -> anyhow::Result<Option<String>> {
         .lines()
         .take_while(|l| l.starts_with('#'))
         .find_map(|l| l.strip_prefix(RUN_LINE))
-        .map(str::to_string))
+        .map(|id| id.trim_end_matches('\r').to_string()))
 }
 
 /// The mission a run flew, kept in its folder for its replay.

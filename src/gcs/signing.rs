@@ -24,7 +24,8 @@ const STREAMS_MAX: usize = 64;
 #[derive(Debug, Clone)]
 pub struct Signing {
     key: [u8; 32],
-    /// The newest timestamp seen or sent.
+    /// The newest timestamp known: the clock's at the start ([`Signing::since`]), then the
+    /// newest seen (receiving) or sent.
     newest: u64,
     /// The last timestamp of each stream that signed validly.
     streams: HashMap<(u8, u8, u8), u64>,
@@ -37,6 +38,15 @@ impl Signing {
             newest: 0,
             streams: HashMap::with_capacity(4),
         }
+    }
+
+    /// Known to be at least `now` (10 µs units since 2015): a new stream more than a minute
+    /// older is a recording. A board whose clock starts at 1970 until set gets no such guard
+    /// for new streams until a signed frame has been heard (a stream's own frames must
+    /// still grow).
+    pub fn since(mut self, now: u64) -> Self {
+        self.newest = now;
+        self
     }
 
     fn signature(&self, signed_part: &[u8]) -> [u8; SIGNATURE_LEN] {
@@ -120,9 +130,17 @@ mod tests {
     use mavlink::{MavHeader, Message};
 
     fn signed_heartbeat(s: &mut Signing, now: u64) -> Vec<u8> {
+        signed_from(s, now, 255)
+    }
+
+    fn signed_from(s: &mut Signing, now: u64, system_id: u32) -> Vec<u8> {
         let mut frame = Vec::new();
         let msg = MavMessage::HEARTBEAT(HEARTBEAT_DATA::DEFAULT);
-        let _ = mavlink::write_v2_msg(&mut frame, MavHeader::default(), &msg);
+        let header = MavHeader {
+            system_id,
+            ..MavHeader::default()
+        };
+        let _ = mavlink::write_v2_msg(&mut frame, header, &msg);
         s.sign(&mut frame, MavMessage::extra_crc(msg.message_id()), now);
         frame
     }
@@ -143,11 +161,13 @@ mod tests {
         assert!(receiver.verify(&newer), "its timestamp moved on");
         let mut stranger = Signing::new(crate::config::signing_key("other").unwrap());
         assert!(!receiver.verify(&signed_heartbeat(&mut stranger, 2_000_000)));
-        // A new stream a minute older than the newest time seen is a recording.
-        let mut old = Signing::new(key);
-        let mut recorded = signed_heartbeat(&mut old, 1);
-        recorded[5] = 9; // another system: a new stream (the signature no longer matters)
-        assert!(!receiver.verify(&recorded));
+        // A new stream more than a minute older than the newest time known is a recording,
+        // from the start on (the clock's time): validly signed, still refused.
+        let mut fresh = Signing::new(key).since(10_000_000);
+        let recorded = signed_from(&mut Signing::new(key), 1, 9);
+        assert!(!fresh.verify(&recorded));
+        let recent = signed_from(&mut Signing::new(key), 9_000_000, 9);
+        assert!(fresh.verify(&recent), "within the minute");
         // The decoder's frames carry the block: a whole encoded frame verifies.
         let mut enc = Encoder::new(1, 1).with_signing(Signing::new(key));
         let mut out = Vec::new();

@@ -126,11 +126,15 @@ pub fn write_input(
 /// One recorded input: its time, the input and an `arm`'s verdict.
 pub type RecordedInput = (i64, OperatorInput, Result<(), String>);
 
+/// Inputs later than this after the run's last recorded frame are not of the run, µs (a
+/// week: a run that stays up, disarmed, records its inputs long after its last frame).
+pub const LATE_MAX_US: i64 = 7 * 86_400 * 1_000_000;
+
 /// The inputs of a mode.log, in order; output lines are skipped. A line that is not
 /// understood is an error naming its number: one out of time order (inputs never go back),
-/// at a negative time, a `run` line not first, or an input after `last_frame_us` (the run's
-/// last frame: a replay could not apply it) that is not an expired one. `mission` gives the
-/// plan of a recorded mission's file name.
+/// at a negative time, more than [`LATE_MAX_US`] after `last_frame_us` (the run's last
+/// recorded frame), or a `run` line not first. `mission` gives the plan of a recorded
+/// mission's file name.
 pub fn read_inputs(
     text: &str,
     last_frame_us: i64,
@@ -150,8 +154,9 @@ pub fn read_inputs(
     Ok(inputs)
 }
 
-/// An input's time: not negative, not before the previous input's, and within the run's
-/// frames unless it expired (recorded at the run's end, after its last frame).
+/// An input's time: not negative, not before the previous input's, not far beyond the run's
+/// last frame (inputs after it are applied after it, as the run did: a run that never
+/// calibrated records no frame at all).
 fn check_time(
     input: Option<RecordedInput>,
     previous: Option<&RecordedInput>,
@@ -170,9 +175,9 @@ fn check_time(
             "time {t_us} µs is before the previous input's ({before_us} µs): inputs are recorded in order"
         ));
     }
-    if t_us > last_frame_us && !matches!(i, OperatorInput::Expired { .. }) {
+    if t_us > last_frame_us.saturating_add(LATE_MAX_US) {
         return Err(format!(
-            "time {t_us} µs is after the run's last frame ({last_frame_us} µs): no frame applied it"
+            "time {t_us} µs is more than a week after the run's last frame ({last_frame_us} µs): not of this run"
         ));
     }
     Ok(Some((t_us, i, v)))
@@ -227,6 +232,10 @@ fn parse_expired(
     mission: &mut dyn FnMut(&str) -> Result<Arc<MissionPlan>, String>,
 ) -> Result<RecordedInput, String> {
     let (waited, body) = rest.split_once(' ').unwrap_or((rest, ""));
+    // One level only: an expired input inside another is no record (and no recursion).
+    if body.starts_with("expired") {
+        return Err("expired: an expired input inside another".into());
+    }
     let waited_us: i64 = waited
         .parse()
         .ok()
@@ -391,9 +400,21 @@ mod tests {
             "{e}"
         );
         let e = read("9223372036854775807 in gcs arm\n").unwrap_err();
-        assert!(e.contains("after the run's last frame (1000 µs)"), "{e}");
-        // An expired input is recorded at the run's end, after its last frame.
-        assert_eq!(read("5000 expired 2000000 in gcs arm\n").unwrap().len(), 1);
+        assert!(
+            e.contains("a week after the run's last frame (1000 µs)"),
+            "{e}"
+        );
+        // Inputs after the last frame (a run that stayed up; an expired one recorded at the
+        // run's end) are the run's.
+        assert_eq!(
+            read("5000 expired 2000000 in gcs arm\n6000 fix\n")
+                .unwrap()
+                .len(),
+            2
+        );
+        // Nested expired inputs are refused without recursing (20 000 deep: no overflow).
+        let deep = format!("0 {}in gcs arm\n", "expired 0 ".repeat(20_000));
+        assert!(read(&deep).unwrap_err().contains("inside another"));
         let e = read("5 fix\n0 run r-1\n").unwrap_err();
         assert!(e.contains("a run line only starts a mode.log"), "{e}");
         assert_eq!(read_run("0 run r-1\n5 fix\n"), Some("r-1"));

@@ -192,8 +192,16 @@ impl EstimatorTask {
         })
     }
 
-    /// An operator input taken from the queue, applied at the next frame.
+    /// An operator input taken from the queue, applied at the next frame. A beat or a fix
+    /// replaces a held one of its kind (the newest is the fact): while no frame comes they
+    /// cannot fill the held inputs and shut the operator's commands out.
     fn hold(&mut self, input: OperatorInput) {
+        if !input.expires()
+            && let Some(h) = self.held.iter_mut().find(|h| h.input == input)
+        {
+            h.at = Instant::now();
+            return;
+        }
         self.held.push_back(Held {
             input,
             at: Instant::now(),
@@ -252,7 +260,9 @@ impl EstimatorTask {
     /// The operator's inputs that arrived since the previous frame, never waited for; `fly
     /// --arm` arms once the IMU has settled.
     fn operate(&mut self, t_us: i64) {
-        if self.auto_arm && self.side.phase() == Phase::EscStart {
+        // Once the IMU has settled and its frames vouch for it (a gap at the start would
+        // refuse an arm made at once).
+        if self.auto_arm && self.side.phase() == Phase::EscStart && self.side.imu_trusted(t_us) {
             self.auto_arm = false;
             self.apply(
                 OperatorInput::Command(Command::Arm, LinkSource::Terminal),
@@ -266,11 +276,20 @@ impl EstimatorTask {
         }
         let now = Instant::now();
         while let Some(h) = self.held.pop_front() {
-            let waited_us = now.saturating_duration_since(h.at).as_micros();
-            let input = self
-                .side
-                .commander()
-                .aged(h.input, waited_us.try_into().unwrap_or(i64::MAX));
+            let waited_us = now
+                .saturating_duration_since(h.at)
+                .as_micros()
+                .try_into()
+                .unwrap_or(i64::MAX);
+            let input = if h.answered {
+                // Answered refused already: refused, whatever the clock's rounding says now.
+                OperatorInput::Expired {
+                    input: Box::new(h.input),
+                    waited_us,
+                }
+            } else {
+                self.side.commander().aged(h.input, waited_us)
+            };
             if h.answered {
                 // Its refusal went out already: recorded, not answered twice.
                 let facts = ArmFacts::default();

@@ -338,6 +338,12 @@ impl EstimatorSide {
         self
     }
 
+    /// Whether the IMU's frames vouch for it at `t_us` (no silence now or just before): an
+    /// `arm` now would not be refused as stale.
+    pub fn imu_trusted(&self, t_us: i64) -> bool {
+        self.imu.stale(t_us).is_none()
+    }
+
     /// Why the flight could not start, judged at the run's end `end_us`: it was asked to fly
     /// (an `arm`, or `commander.start`), never started its ESCs, and the IMU never settled or
     /// is silent (for more than `commander.input_expiry_s`). `None` once the ESCs were asked

@@ -157,8 +157,9 @@ impl Gcs {
         let mut encoder = Encoder::new(ctx.cfg.system_id, COMPONENT_ID);
         let mut decoder = decoder;
         if let Some(key) = ctx.signing_key {
-            encoder = encoder.with_signing(Signing::new(key));
-            decoder = decoder.with_signing(Signing::new(key));
+            let now = crate::gcs::signing::now();
+            encoder = encoder.with_signing(Signing::new(key).since(now));
+            decoder = decoder.with_signing(Signing::new(key).since(now));
         }
         let control_cpu_ns = ctx.control_cpu.map_or(0, super::clock_ns);
         let mut ctx = ctx;
