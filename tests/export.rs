@@ -135,3 +135,63 @@ fn a_sim_run_exports_to_ulog_and_csv() {
     assert_eq!(c["x_hat_z_diff"], 0.0, "{c}");
     assert_eq!(c["headers_without_unit"], serde_json::json!([]), "{c}");
 }
+
+/// A log with an over-long line (a corrupted card) and one cut off at its end (a power cut):
+/// export and plot go on, the lines skipped and named on stderr (a bad line made them fail,
+/// and a line of a gigabyte was read whole).
+#[test]
+fn over_long_and_cut_off_lines_are_skipped_and_told() {
+    let logs = tempfile::tempdir().unwrap();
+    let run = sim_run(logs.path(), &["--fast", "--duration", "15"]);
+    let x_hat = run.join("x_hat.log");
+    let text = std::fs::read_to_string(&x_hat).unwrap();
+    let rows = text.lines().count();
+    let (first, rest) = text.split_once('\n').unwrap();
+    let long = "1".repeat(200_000);
+    std::fs::write(&x_hat, format!("{first}\n{long}\n{rest}")).unwrap();
+    let w = run.join("w.log");
+    let mut w_text = std::fs::read_to_string(&w).unwrap();
+    w_text.push_str("15.0 1 2");
+    std::fs::write(&w, w_text).unwrap();
+    let out = tempfile::tempdir().unwrap();
+    for (format, path) in [
+        ("csv", out.path().join("csv")),
+        ("ulog", out.path().join("r.ulg")),
+    ] {
+        let o = uquad(
+            &root(),
+            &[
+                "export",
+                run.to_str().unwrap(),
+                "--format",
+                format,
+                "--out",
+                path.to_str().unwrap(),
+            ],
+        );
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{format}: {err}");
+        assert!(
+            err.contains("x_hat.log: 1 line(s) skipped (1 over 65536 bytes"),
+            "{err}"
+        );
+        assert!(
+            err.contains("w.log: 1 line(s) skipped (0 over 65536 bytes, 1 cut off"),
+            "{err}"
+        );
+    }
+    let csv = std::fs::read_to_string(out.path().join("csv/x_hat.csv")).unwrap();
+    assert_eq!(csv.lines().count(), rows + 1, "every row and the header");
+    let o = uquad(
+        &root(),
+        &[
+            "plot",
+            run.to_str().unwrap(),
+            "--out",
+            out.path().join("p.svg").to_str().unwrap(),
+        ],
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("x_hat.log: 1 line(s) skipped"), "{err}");
+}

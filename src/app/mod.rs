@@ -1,7 +1,8 @@
 //! Composition roots: each mode wires the pure core to its edges (`fly`, `sim_fast`,
 //! `sim_realtime`, `replay`, `plot`, `export`, `lqr`, `gps`), and what the modes share: the
 //! flight's two sides as a profile builds them (`flight`), the run folder (`run_dir`) and its
-//! streams read back (`run_logs`), the simulation options (`sim`) and the reports (`report`).
+//! streams read a line at a time (`log_lines`), the simulation options (`sim`) and the reports
+//! (`report`).
 
 pub mod campaign;
 pub mod commander_report;
@@ -9,6 +10,7 @@ pub mod export;
 pub mod flight;
 pub mod fly;
 pub mod gps;
+pub mod log_lines;
 pub mod lqr;
 pub mod plot;
 pub mod replay;
@@ -17,7 +19,6 @@ pub mod replay_input;
 pub mod replay_output;
 pub mod report;
 pub mod run_dir;
-pub mod run_logs;
 pub mod sim;
 pub mod sim_fast;
 pub mod sim_realtime;

@@ -110,6 +110,23 @@ pub fn read_text(path: &Path, kind: FileKind) -> Result<String, ReadError> {
     })
 }
 
+/// `path` open for reading a piece at a time (a log streamed by `export`): a regular file
+/// only, refused like [`read_text`] refuses (a FIFO, a device, a folder, a link to
+/// nothing); no size limit, the reader bounds what it holds.
+pub fn open_regular(path: &Path) -> Result<std::fs::File, ReadError> {
+    let file = open(path)?;
+    let meta = file
+        .metadata()
+        .map_err(|e| refused(format!("cannot read it: {e}")))?;
+    if !meta.file_type().is_file() {
+        return Err(refused(format!(
+            "{}, not a regular file",
+            type_name(&meta.file_type())
+        )));
+    }
+    Ok(file)
+}
+
 /// Whether `path` names anything, a link to nothing included.
 pub fn exists(path: &Path) -> bool {
     std::fs::symlink_metadata(path).is_ok()

@@ -182,6 +182,19 @@ impl Ulog {
 
     /// One sample of `topic` at `t_us`: its values in the declared order, arrays flattened.
     pub fn data(&mut self, topic: &str, t_us: u64, values: &[Value]) -> Result<(), String> {
+        let bytes = self.data_message(topic, t_us, values)?;
+        self.push(t_us, bytes);
+        Ok(())
+    }
+
+    /// [`Ulog::data`]'s message, for a writer that orders the data itself (a streamed
+    /// export merges its logs by time).
+    pub fn data_message(
+        &self,
+        topic: &str,
+        t_us: u64,
+        values: &[Value],
+    ) -> Result<Vec<u8>, String> {
         let (id, fields) = *self
             .topics
             .get(topic)
@@ -200,30 +213,44 @@ impl Ulog {
         for v in values {
             v.put(&mut p);
         }
-        self.push(t_us, b'D', &p)
+        let mut bytes = Vec::with_capacity(p.len() + 3);
+        message(&mut bytes, b'D', &p)?;
+        Ok(bytes)
     }
 
     /// A logged string at `t_us`.
     pub fn log(&mut self, level: Level, t_us: u64, text: &str) -> Result<(), String> {
+        let bytes = Self::log_message(level, t_us, text)?;
+        self.push(t_us, bytes);
+        Ok(())
+    }
+
+    /// [`Ulog::log`]'s message.
+    pub fn log_message(level: Level, t_us: u64, text: &str) -> Result<Vec<u8>, String> {
         let mut p = vec![level.byte()];
         p.extend_from_slice(&t_us.to_le_bytes());
         p.extend_from_slice(text.as_bytes());
-        self.push(t_us, b'L', &p)
+        let mut bytes = Vec::with_capacity(p.len() + 3);
+        message(&mut bytes, b'L', &p)?;
+        Ok(bytes)
     }
 
-    fn push(&mut self, t_us: u64, kind: u8, payload: &[u8]) -> Result<(), String> {
-        let mut bytes = Vec::with_capacity(payload.len() + 3);
-        message(&mut bytes, kind, payload)?;
+    fn push(&mut self, t_us: u64, bytes: Vec<u8>) {
         let seq = self.data.len();
         self.data.push(Entry { t_us, seq, bytes });
-        Ok(())
+    }
+
+    /// The bytes before the data: header, definitions, subscriptions.
+    pub fn head(&self) -> Vec<u8> {
+        let mut out = self.defs.clone();
+        out.extend_from_slice(&self.subscriptions);
+        out
     }
 
     /// The file's bytes: definitions, subscriptions, then the data in time order.
     pub fn finish(mut self) -> Vec<u8> {
         self.data.sort_by_key(|e| (e.t_us, e.seq));
-        let mut out = self.defs;
-        out.extend_from_slice(&self.subscriptions);
+        let mut out = self.head();
         for e in self.data {
             out.extend_from_slice(&e.bytes);
         }

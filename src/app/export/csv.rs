@@ -1,16 +1,14 @@
 //! A run folder as CSV: one file per stream, a header row naming each column with its unit
-//! (`name [unit]`), numbers in the shortest form that reads back to the same double.
+//! (`name [unit]`), numbers in the shortest form that reads back to the same double. Each
+//! log is read a line at a time and written as it is read (memory does not grow with the
+//! run's length); a line over-long, cut off or not understood is skipped and reported.
 
-use crate::app::run_logs::RunLogs;
-use crate::logs::{GpsLogRecord, ImuRawRecord, InnovRecord};
-use std::fmt::Write as _;
+use crate::app::log_lines::LogLines;
+use crate::logs::{self, GpsLogRecord, ImuRawRecord, InnovRecord, KalmanInRecord};
+use anyhow::Context;
+use std::fs::File;
+use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
-
-/// A table: its header and rows of cells.
-struct Table {
-    header: &'static [&'static str],
-    rows: Vec<Vec<String>>,
-}
 
 const X_HAT: &[&str] = &[
     "t [s]",
@@ -114,45 +112,11 @@ fn row(t_us: i64, values: &[f64]) -> Vec<String> {
         .collect()
 }
 
-fn tables(run: &RunLogs) -> Vec<(&'static str, Table)> {
-    let x_hat = run
-        .x_hat
-        .iter()
-        .zip(run.estimate_times_us())
-        .map(|(x, t)| row(t, x))
-        .collect();
-    let kalman_in = run
-        .kalman_in
-        .iter()
-        .map(|k| {
-            let mut v = vec![k.dt_us as f64 / 1e6];
-            v.extend(k.acc_m_s2.iter().chain(&k.gyro_rad_s).chain(&k.euler_rad));
-            v.extend([k.temp_c, k.alt_m]);
-            row(k.t_us, &v)
-        })
-        .collect();
-    let t = |header, rows| Table { header, rows };
-    let mut out = vec![
-        (
-            "imu_raw",
-            t(IMU_RAW, run.imu_raw.iter().map(raw_row).collect()),
-        ),
-        ("x_hat", t(X_HAT, x_hat)),
-        ("kalman_in", t(KALMAN_IN, kalman_in)),
-        ("w", t(W, run.w.iter().map(|(t, v)| row(*t, v)).collect())),
-        (
-            "setpoint",
-            t(
-                SETPOINT,
-                run.setpoint.iter().map(|(t, v)| row(*t, v)).collect(),
-            ),
-        ),
-        ("innov", t(INNOV, run.innov.iter().map(innov_row).collect())),
-        ("gps", t(GPS, run.gps.iter().filter_map(gps_row).collect())),
-        ("mode", t(MODE, mode_rows(&run.mode_log))),
-    ];
-    out.retain(|(_, t)| !t.rows.is_empty());
-    out
+fn kalman_in_row(k: &KalmanInRecord) -> Vec<String> {
+    let mut v = vec![k.dt_us as f64 / 1e6];
+    v.extend(k.acc_m_s2.iter().chain(&k.gyro_rad_s).chain(&k.euler_rad));
+    v.extend([k.temp_c, k.alt_m]);
+    row(k.t_us, &v)
 }
 
 fn raw_row(r: &ImuRawRecord) -> Vec<String> {
@@ -199,38 +163,170 @@ fn gps_row(r: &GpsLogRecord) -> Option<Vec<String>> {
     Some(row(t_us, &values))
 }
 
-/// mode.log's lines: time, record (mode, failsafe, refused, reached, in, beat, key,
-/// mission) and the rest of the line.
-fn mode_rows(text: &str) -> Vec<Vec<String>> {
-    text.lines()
-        .filter_map(|l| {
-            let mut w = l.splitn(3, ' ');
-            let t_us: i64 = w.next()?.parse().ok()?;
-            let kind = w.next()?.to_string();
-            Some(vec![secs(t_us), kind, w.next().unwrap_or("").to_string()])
-        })
-        .collect()
+/// A mode.log line: time, record (mode, failsafe, refused, reached, in, beat, key,
+/// mission, run) and the rest of the line as written.
+fn mode_row(line: &str) -> Option<Vec<String>> {
+    let mut w = line.splitn(3, ' ');
+    let t_us: i64 = w.next()?.parse().ok()?;
+    let kind = w.next()?.to_string();
+    Some(vec![secs(t_us), kind, w.next().unwrap_or("").to_string()])
 }
 
-/// Writes the CSV files of `run` into `out_dir` (created); returns them.
-pub fn write(run: &RunLogs, out_dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
-    use anyhow::Context;
+/// Writes the CSV files of the run in `run_dir` into `out_dir` (created), each stream read a
+/// line at a time and written as it is read, so that memory does not grow with the run's
+/// length; returns the files written and a warning for each log that had lines skipped
+/// (over-long, cut off, not understood). A stream without rows writes no file.
+pub fn write(run_dir: &Path, out_dir: &Path) -> anyhow::Result<(Vec<PathBuf>, Vec<String>)> {
     std::fs::create_dir_all(out_dir)
         .with_context(|| format!("cannot create {}", out_dir.display()))?;
-    let mut written = Vec::new();
-    for (name, table) in tables(run) {
-        let mut s = String::with_capacity(table.rows.len() * 160);
-        let header: Vec<String> = table.header.iter().map(|h| cell(h)).collect();
-        let _ = writeln!(s, "{}", header.join(","));
-        for r in &table.rows {
-            let cells: Vec<String> = r.iter().map(|c| cell(c)).collect();
-            let _ = writeln!(s, "{}", cells.join(","));
-        }
-        let path = out_dir.join(format!("{name}.csv"));
-        std::fs::write(&path, s).with_context(|| format!("cannot write {}", path.display()))?;
-        written.push(path);
+    let mut w = Writer {
+        run_dir,
+        out_dir,
+        written: Vec::new(),
+        warnings: Vec::new(),
+    };
+    w.stream("imu_raw", IMU_RAW, ImuRawRecord::parse_fields, |r| {
+        Ok(Some(raw_row(&r)))
+    })?;
+    let mut times = EstimateTimes::open(run_dir)?;
+    w.stream("x_hat", X_HAT, logs::parse_x_hat, |x| {
+        Ok(Some(row(times.next()?, &x)))
+    })?;
+    w.warnings
+        .extend(times.lines.as_ref().and_then(LogLines::warning));
+    w.stream("kalman_in", KALMAN_IN, KalmanInRecord::parse_fields, |k| {
+        Ok(Some(kalman_in_row(&k)))
+    })?;
+    w.stream("w", W, logs::parse_time_and_4, |(t, v)| {
+        Ok(Some(row(t, &v)))
+    })?;
+    w.stream("setpoint", SETPOINT, logs::parse_time_and::<6>, |(t, v)| {
+        Ok(Some(row(t, &v)))
+    })?;
+    w.stream("innov", INNOV, InnovRecord::parse_fields, |r| {
+        Ok(Some(innov_row(&r)))
+    })?;
+    w.stream("gps", GPS, GpsLogRecord::parse_fields, |r| Ok(gps_row(&r)))?;
+    w.stream_text("mode", MODE, |line| Ok(mode_row(line)))?;
+    Ok((w.written, w.warnings))
+}
+
+/// Where the CSV files go, and what was written.
+struct Writer<'a> {
+    run_dir: &'a Path,
+    out_dir: &'a Path,
+    written: Vec<PathBuf>,
+    warnings: Vec<String>,
+}
+
+impl Writer<'_> {
+    /// `NAME.log`'s records, parsed by `parse`, each made a row by `to_row` (none: left
+    /// out), into `NAME.csv`.
+    fn stream<T>(
+        &mut self,
+        name: &str,
+        header: &[&str],
+        parse: impl Fn(&[&str]) -> Result<T, String>,
+        mut to_row: impl FnMut(T) -> anyhow::Result<Option<Vec<String>>>,
+    ) -> anyhow::Result<()> {
+        self.rows(name, header, |lines| match lines.next(&parse)? {
+            Some(r) => to_row(r).map(Some),
+            None => Ok(None),
+        })
     }
-    Ok(written)
+
+    /// `NAME.log`'s lines as they are written, each made a row by `to_row` (none: left out).
+    fn stream_text(
+        &mut self,
+        name: &str,
+        header: &[&str],
+        to_row: impl Fn(&str) -> anyhow::Result<Option<Vec<String>>>,
+    ) -> anyhow::Result<()> {
+        self.rows(name, header, |lines| match lines.next_raw()? {
+            Some(line) => to_row(line).map(Some),
+            None => Ok(None),
+        })
+    }
+
+    /// The rows `next` gives (`Some(None)`: a record left out) into `NAME.csv`, created at
+    /// the first row.
+    fn rows(
+        &mut self,
+        name: &str,
+        header: &[&str],
+        mut next: impl FnMut(&mut LogLines) -> anyhow::Result<Option<Option<Vec<String>>>>,
+    ) -> anyhow::Result<()> {
+        let Some(mut lines) = LogLines::open(&self.run_dir.join(format!("{name}.log")))? else {
+            return Ok(());
+        };
+        let path = self.out_dir.join(format!("{name}.csv"));
+        let mut out: Option<BufWriter<File>> = None;
+        let io = |e: std::io::Error| anyhow::anyhow!("cannot write {}: {e}", path.display());
+        while let Some(cells) = next(&mut lines)? {
+            let Some(cells) = cells else {
+                continue;
+            };
+            let f = match out.as_mut() {
+                Some(f) => f,
+                None => {
+                    let file = File::create(&path).map_err(io)?;
+                    let f = out.insert(BufWriter::with_capacity(64 * 1024, file));
+                    write_row(f, header.iter().copied()).map_err(io)?;
+                    f
+                }
+            };
+            write_row(f, cells.iter().map(String::as_str)).map_err(io)?;
+        }
+        if let Some(mut f) = out {
+            f.flush().map_err(io)?;
+            self.written.push(path);
+        }
+        self.warnings.extend(lines.warning());
+        Ok(())
+    }
+}
+
+/// One CSV row: the cells, quoted where needed, comma-separated.
+fn write_row<'c>(f: &mut impl Write, cells: impl Iterator<Item = &'c str>) -> std::io::Result<()> {
+    for (i, c) in cells.enumerate() {
+        if i > 0 {
+            f.write_all(b",")?;
+        }
+        f.write_all(cell(c).as_bytes())?;
+    }
+    f.write_all(b"\n")
+}
+
+/// The time of each estimate, µs, read alongside x_hat.log: kalman_in's, continued 10 ms
+/// apart past its last row (the original's x_hat.log has one row more than its
+/// kalman_in.log).
+pub(crate) struct EstimateTimes {
+    lines: Option<LogLines>,
+    last_us: Option<i64>,
+    past: i64,
+}
+
+impl EstimateTimes {
+    pub(crate) fn open(run_dir: &Path) -> anyhow::Result<Self> {
+        Ok(EstimateTimes {
+            lines: LogLines::open(&run_dir.join("kalman_in.log"))?,
+            last_us: None,
+            past: 0,
+        })
+    }
+
+    pub(crate) fn next(&mut self) -> anyhow::Result<i64> {
+        if self.past == 0
+            && let Some(lines) = self.lines.as_mut()
+            && let Some(t) = lines.next(|f| KalmanInRecord::parse_fields(f).map(|k| k.t_us))?
+        {
+            self.last_us = Some(t);
+            return Ok(t);
+        }
+        self.past += 1;
+        let start = self.last_us.unwrap_or(-10_000);
+        Ok(start.saturating_add(self.past.saturating_mul(10_000)))
+    }
 }
 
 #[cfg(test)]

@@ -5,8 +5,10 @@
 mod csv;
 mod ulog;
 
-use crate::app::run_logs::RunLogs;
+pub(crate) use csv::EstimateTimes;
+
 use anyhow::Context;
+use std::io::Write;
 use std::path::{Path, PathBuf};
 
 /// What to write.
@@ -45,14 +47,43 @@ fn params(run_dir: &Path) -> anyhow::Result<Vec<(String, f64)>> {
 
 /// Exports `run_dir` as `format` into `out`; returns the files written.
 pub fn run(run_dir: &Path, format: Format, out: &Path) -> anyhow::Result<Vec<PathBuf>> {
-    let run = RunLogs::read(run_dir)?;
     match format {
         Format::Ulog => {
-            let bytes = ulog::build(&run, &params(run_dir)?).map_err(anyhow::Error::msg)?;
-            std::fs::write(out, bytes)
+            has_estimates(run_dir)?;
+            let params = params(run_dir)?;
+            let file = std::fs::File::create(out)
                 .with_context(|| format!("cannot write {}", out.display()))?;
+            let mut w = std::io::BufWriter::with_capacity(256 * 1024, file);
+            let warnings = ulog::write(run_dir, &params, &mut w)
+                .and_then(|warnings| Ok(w.flush().map(|()| warnings)?))
+                .with_context(|| format!("cannot write {}", out.display()))?;
+            warn(warnings);
             Ok(vec![out.to_path_buf()])
         }
-        Format::Csv => csv::write(&run, out),
+        Format::Csv => {
+            has_estimates(run_dir)?;
+            let (files, warnings) = csv::write(run_dir, out)?;
+            warn(warnings);
+            Ok(files)
+        }
+    }
+}
+
+/// A run folder holds estimates (x_hat.log, not empty), or there is nothing to export.
+fn has_estimates(run_dir: &Path) -> anyhow::Result<()> {
+    let x_hat = run_dir.join("x_hat.log");
+    if std::fs::metadata(&x_hat).map_or(true, |m| m.len() == 0) {
+        anyhow::bail!(
+            "{}: no estimates (x_hat.log missing or empty)",
+            run_dir.display()
+        );
+    }
+    Ok(())
+}
+
+/// The logs' skipped lines, told on stderr (the export goes on).
+fn warn(warnings: Vec<String>) {
+    for w in warnings {
+        eprintln!("warning: {w}");
     }
 }

@@ -2,14 +2,17 @@
 //! Flight Review, PlotJuggler and pyulog plot it without a mapping. Frames are PX4's:
 //! north-east-down and forward-right-down (uquad's y and z change sign; roll stays, pitch and
 //! yaw change sign). Values from the text logs are written as doubles, so they read back
-//! equal to what the text printed.
+//! equal to what the text printed. Each log is read a line at a time and the logs merged by
+//! time as the file is written: memory does not grow with the run's length.
 
-use crate::app::run_logs::RunLogs;
+use super::csv::EstimateTimes;
+use crate::app::log_lines::LogLines;
 use crate::gcs::telemetry::{CUSTOM_MODES, ned, wrap_pi};
-use crate::logs::GpsLogRecord;
 use crate::logs::ulog::{Fields, Level, Type::*, Ulog, Value as V};
-
-type Result = std::result::Result<(), String>;
+use crate::logs::{self, GpsLogRecord, ImuRawRecord, InnovRecord, KalmanInRecord};
+use std::collections::VecDeque;
+use std::io::Write;
+use std::path::Path;
 
 /// The topics: name and fields after the timestamp.
 const TOPICS: &[(&str, Fields)] = &[
@@ -117,154 +120,285 @@ fn quaternion(roll: f64, pitch: f64, yaw: f64) -> [f32; 4] {
     ]
 }
 
-/// The ULog of `run`, with `params` (id, value) as its parameters.
-pub fn build(run: &RunLogs, params: &[(String, f64)]) -> std::result::Result<Vec<u8>, String> {
+/// Writes the ULog of the run in `run_dir` (its path named in the log as given) to `out`,
+/// with `params` (id, value) as its parameters. Each log is read a line at a time and the
+/// data is merged by time as it is written (memory does not grow with the run's length);
+/// returns a warning for each log that had lines skipped.
+pub fn write(
+    run_dir: &Path,
+    params: &[(String, f64)],
+    out: &mut impl Write,
+) -> anyhow::Result<Vec<String>> {
     let mut u = Ulog::new(0);
-    u.info("sys_name", "uquad")?;
-    u.info("ver_sw", env!("CARGO_PKG_VERSION"))?;
-    u.info("uquad_run", &run.dir.display().to_string())?;
+    u.info("sys_name", "uquad").map_err(anyhow::Error::msg)?;
+    u.info("ver_sw", env!("CARGO_PKG_VERSION"))
+        .map_err(anyhow::Error::msg)?;
+    u.info("uquad_run", &run_dir.display().to_string())
+        .map_err(anyhow::Error::msg)?;
     for (id, v) in params {
-        u.param(id, *v as f32)?;
+        u.param(id, *v as f32).map_err(anyhow::Error::msg)?;
     }
     for (name, fields) in TOPICS {
-        u.topic(name, fields)?;
+        u.topic(name, fields).map_err(anyhow::Error::msg)?;
     }
-    estimates(&mut u, run)?;
-    setpoints(&mut u, run)?;
-    for (t, w) in &run.w {
-        let out = [
-            V::U32(4),
-            V::F64(w[0]),
-            V::F64(w[1]),
-            V::F64(w[2]),
-            V::F64(w[3]),
-        ];
-        u.data("actuator_outputs", ts(*t), &out)?;
-    }
-    raw(&mut u, run)?;
-    sensors(&mut u, run)?;
-    gps(&mut u, run)?;
-    modes(&mut u, run)?;
-    // err.log's lines carry no time: they are logged at the start, in order, named.
-    for line in run.err_log.lines().filter(|l| !l.trim().is_empty()) {
-        u.log(Level::Info, 0, &format!("err.log: {line}"))?;
-    }
-    Ok(u.finish())
+    out.write_all(&u.head())?;
+    let mut sources = sources(run_dir)?;
+    merge(&u, &mut sources, out)?;
+    Ok(sources
+        .iter()
+        .filter_map(|s| s.lines.as_ref().and_then(LogLines::warning))
+        .collect())
 }
 
-fn estimates(u: &mut Ulog, run: &RunLogs) -> Result {
-    for (x, t) in run.x_hat.iter().zip(run.estimate_times_us()) {
-        let (p, v) = ned(x);
-        // θ is unwrapped in the logs; PX4's yaw lies in ±π.
-        let (roll, pitch, yaw) = (x[3], -x[4], wrap_pi(-x[5]));
-        let q = quaternion(roll, pitch, yaw);
-        u.data("vehicle_attitude", ts(t), &q.map(V::F32))?;
-        let lp = [
-            V::F64(p[0]),
-            V::F64(p[1]),
-            V::F64(p[2]),
-            V::F64(v[0]),
-            V::F64(v[1]),
-            V::F64(v[2]),
-            V::F64(yaw),
-            V::Bool(true),
-            V::Bool(true),
-        ];
-        u.data("vehicle_local_position", ts(t), &lp)?;
+/// A log's messages, one record's at a time.
+type Read = Box<dyn FnMut(&mut LogLines, &Ulog, &mut Pending) -> anyhow::Result<bool>>;
+/// A source's messages read and not yet written: time and bytes.
+type Pending = VecDeque<(u64, Vec<u8>)>;
+
+/// One log of the run as ULog messages in its own time order.
+struct Source {
+    lines: Option<LogLines>,
+    /// Reads the next record's messages into the pending ones; `false` at the log's end.
+    read: Read,
+    pending: Pending,
+}
+
+impl Source {
+    fn new(run_dir: &Path, name: &str, read: Read) -> anyhow::Result<Source> {
+        Ok(Source {
+            lines: LogLines::open(&run_dir.join(name))?,
+            read,
+            pending: VecDeque::with_capacity(4),
+        })
     }
-    for r in &run.innov {
-        let gps = r.ratios.gps.unwrap_or(f64::NAN);
-        let mask = crate::logs::InnovRecord::gated_mask(r.gated);
-        let v = [
-            V::F64(r.ratios.attitude),
-            V::F64(r.ratios.altitude),
-            V::F64(gps),
-            V::U8(mask),
-        ];
-        u.data("estimator_status", ts(r.t_us), &v)?;
+
+    /// The time of its next message, reading a record when none is pending.
+    fn next_t(&mut self, u: &Ulog) -> anyhow::Result<Option<u64>> {
+        while self.pending.is_empty() {
+            let Some(lines) = self.lines.as_mut() else {
+                return Ok(None);
+            };
+            if !(self.read)(lines, u, &mut self.pending)? {
+                return Ok(None);
+            }
+        }
+        Ok(self.pending.front().map(|(t, _)| *t))
     }
+}
+
+/// Writes every source's messages in time order; at one time, in the sources' order (each
+/// source's own order kept), as a sort by time over the whole run would.
+fn merge(u: &Ulog, sources: &mut [Source], out: &mut impl Write) -> anyhow::Result<()> {
+    loop {
+        let mut next: Option<(u64, usize)> = None;
+        for (i, s) in sources.iter_mut().enumerate() {
+            if let Some(t) = s.next_t(u)?
+                && next.is_none_or(|(best, _)| t < best)
+            {
+                next = Some((t, i));
+            }
+        }
+        let Some((_, i)) = next else {
+            return Ok(());
+        };
+        if let Some((_, bytes)) = sources[i].pending.pop_front() {
+            out.write_all(&bytes)?;
+        }
+    }
+}
+
+/// A message built, or the ULog writer's refusal as an error.
+fn msg(m: std::result::Result<Vec<u8>, String>) -> anyhow::Result<Vec<u8>> {
+    m.map_err(anyhow::Error::msg)
+}
+
+/// The run's logs as sources, in the order their messages go at one time.
+fn sources(run_dir: &Path) -> anyhow::Result<Vec<Source>> {
+    let mut times = EstimateTimes::open(run_dir)?;
+    Ok(vec![
+        Source::new(
+            run_dir,
+            "x_hat.log",
+            Box::new(move |l, u, p| {
+                let Some(x) = l.next(logs::parse_x_hat)? else {
+                    return Ok(false);
+                };
+                estimate(u, times.next()?, &x, p)?;
+                Ok(true)
+            }),
+        )?,
+        Source::new(run_dir, "innov.log", Box::new(innov))?,
+        Source::new(run_dir, "setpoint.log", Box::new(setpoint))?,
+        Source::new(run_dir, "w.log", Box::new(motors))?,
+        Source::new(run_dir, "imu_raw.log", Box::new(raw))?,
+        Source::new(run_dir, "kalman_in.log", Box::new(sensors))?,
+        Source::new(run_dir, "gps.log", Box::new(gps))?,
+        Source::new(run_dir, "mode.log", modes())?,
+        // err.log's lines carry no time: they are logged at the start, in order, named.
+        Source::new(
+            run_dir,
+            "err.log",
+            Box::new(|l, _, p| {
+                let Some(line) = l.next_raw()? else {
+                    return Ok(false);
+                };
+                if !line.trim().is_empty() {
+                    let text = format!("err.log: {line}");
+                    p.push_back((0, msg(Ulog::log_message(Level::Info, 0, &text))?));
+                }
+                Ok(true)
+            }),
+        )?,
+    ])
+}
+
+fn estimate(u: &Ulog, t_us: i64, x: &[f64; 15], p: &mut Pending) -> anyhow::Result<()> {
+    let t = ts(t_us);
+    let (pos, v) = ned(x);
+    // θ is unwrapped in the logs; PX4's yaw lies in ±π.
+    let (roll, pitch, yaw) = (x[3], -x[4], wrap_pi(-x[5]));
+    let q = quaternion(roll, pitch, yaw);
+    p.push_back((
+        t,
+        msg(u.data_message("vehicle_attitude", t, &q.map(V::F32)))?,
+    ));
+    let lp = [
+        V::F64(pos[0]),
+        V::F64(pos[1]),
+        V::F64(pos[2]),
+        V::F64(v[0]),
+        V::F64(v[1]),
+        V::F64(v[2]),
+        V::F64(yaw),
+        V::Bool(true),
+        V::Bool(true),
+    ];
+    p.push_back((t, msg(u.data_message("vehicle_local_position", t, &lp))?));
     Ok(())
 }
 
-fn setpoints(u: &mut Ulog, run: &RunLogs) -> Result {
-    for (t, sp) in &run.setpoint {
-        let yaw = wrap_pi(-sp[5]);
-        let pos = [V::F64(sp[0]), V::F64(-sp[1]), V::F64(-sp[2]), V::F64(yaw)];
-        u.data("vehicle_local_position_setpoint", ts(*t), &pos)?;
-        let att = [V::F64(sp[3]), V::F64(-sp[4]), V::F64(yaw)];
-        u.data("vehicle_attitude_setpoint", ts(*t), &att)?;
-    }
-    Ok(())
+fn innov(l: &mut LogLines, u: &Ulog, p: &mut Pending) -> anyhow::Result<bool> {
+    let Some(r) = l.next(InnovRecord::parse_fields)? else {
+        return Ok(false);
+    };
+    let gps = r.ratios.gps.unwrap_or(f64::NAN);
+    let v = [
+        V::F64(r.ratios.attitude),
+        V::F64(r.ratios.altitude),
+        V::F64(gps),
+        V::U8(InnovRecord::gated_mask(r.gated)),
+    ];
+    let t = ts(r.t_us);
+    p.push_back((t, msg(u.data_message("estimator_status", t, &v))?));
+    Ok(true)
 }
 
-fn raw(u: &mut Ulog, run: &RunLogs) -> Result {
-    for r in &run.imu_raw {
-        let f = &r.frame;
-        let mut v = vec![V::U32(f.t_us)];
-        v.extend(
-            f.acc
-                .iter()
-                .chain(&f.gyro)
-                .chain(&f.magn)
-                .map(|&c| V::I32(i32::from(c))),
-        );
-        v.extend([V::I32(i32::from(f.temp_dc)), V::U32(f.pres_pa)]);
-        u.data("uquad_imu_raw", ts(r.t_main_us), &v)?;
-    }
-    Ok(())
+fn setpoint(l: &mut LogLines, u: &Ulog, p: &mut Pending) -> anyhow::Result<bool> {
+    let Some((t_us, sp)) = l.next(logs::parse_time_and::<6>)? else {
+        return Ok(false);
+    };
+    let t = ts(t_us);
+    let yaw = wrap_pi(-sp[5]);
+    let pos = [V::F64(sp[0]), V::F64(-sp[1]), V::F64(-sp[2]), V::F64(yaw)];
+    p.push_back((
+        t,
+        msg(u.data_message("vehicle_local_position_setpoint", t, &pos))?,
+    ));
+    let att = [V::F64(sp[3]), V::F64(-sp[4]), V::F64(yaw)];
+    p.push_back((
+        t,
+        msg(u.data_message("vehicle_attitude_setpoint", t, &att))?,
+    ));
+    Ok(true)
 }
 
-fn sensors(u: &mut Ulog, run: &RunLogs) -> Result {
-    for k in &run.kalman_in {
-        let (g, a) = (k.gyro_rad_s, k.acc_m_s2);
-        let v = [
-            V::F64(g[0]),
-            V::F64(-g[1]),
-            V::F64(-g[2]),
-            V::F64(a[0]),
-            V::F64(-a[1]),
-            V::F64(-a[2]),
-        ];
-        u.data("sensor_combined", ts(k.t_us), &v)?;
-        u.data(
-            "vehicle_air_data",
-            ts(k.t_us),
-            &[V::F64(k.alt_m), V::F64(k.temp_c)],
-        )?;
-    }
-    Ok(())
+fn motors(l: &mut LogLines, u: &Ulog, p: &mut Pending) -> anyhow::Result<bool> {
+    let Some((t_us, w)) = l.next(logs::parse_time_and_4)? else {
+        return Ok(false);
+    };
+    let out = [
+        V::U32(4),
+        V::F64(w[0]),
+        V::F64(w[1]),
+        V::F64(w[2]),
+        V::F64(w[3]),
+    ];
+    let t = ts(t_us);
+    p.push_back((t, msg(u.data_message("actuator_outputs", t, &out))?));
+    Ok(true)
+}
+
+fn raw(l: &mut LogLines, u: &Ulog, p: &mut Pending) -> anyhow::Result<bool> {
+    let Some(r) = l.next(ImuRawRecord::parse_fields)? else {
+        return Ok(false);
+    };
+    let f = &r.frame;
+    let mut v = vec![V::U32(f.t_us)];
+    v.extend(
+        f.acc
+            .iter()
+            .chain(&f.gyro)
+            .chain(&f.magn)
+            .map(|&c| V::I32(i32::from(c))),
+    );
+    v.extend([V::I32(i32::from(f.temp_dc)), V::U32(f.pres_pa)]);
+    let t = ts(r.t_main_us);
+    p.push_back((t, msg(u.data_message("uquad_imu_raw", t, &v))?));
+    Ok(true)
+}
+
+fn sensors(l: &mut LogLines, u: &Ulog, p: &mut Pending) -> anyhow::Result<bool> {
+    let Some(k) = l.next(KalmanInRecord::parse_fields)? else {
+        return Ok(false);
+    };
+    let (g, a) = (k.gyro_rad_s, k.acc_m_s2);
+    let v = [
+        V::F64(g[0]),
+        V::F64(-g[1]),
+        V::F64(-g[2]),
+        V::F64(a[0]),
+        V::F64(-a[1]),
+        V::F64(-a[2]),
+    ];
+    let t = ts(k.t_us);
+    p.push_back((t, msg(u.data_message("sensor_combined", t, &v))?));
+    let air = [V::F64(k.alt_m), V::F64(k.temp_c)];
+    p.push_back((t, msg(u.data_message("vehicle_air_data", t, &air))?));
+    Ok(true)
 }
 
 /// The fixes of a gpsd gps.log (a fake-GPS log has none).
-fn gps(u: &mut Ulog, run: &RunLogs) -> Result {
-    for r in &run.gps {
-        let GpsLogRecord::Gpsd {
-            t_us,
-            fix_mode,
-            vel_m_s,
-            lat_deg,
-            lon_deg,
-            ..
-        } = *r
-        else {
-            continue;
-        };
-        let e7 = |d: f64| (d * 1e7).round().clamp(-2.1e9, 2.1e9) as i32;
-        let v = vel_m_s.unwrap_or([f64::NAN; 3]);
-        let fix = [
-            V::I32(e7(lat_deg)),
-            V::I32(e7(lon_deg)),
-            V::F64(lat_deg),
-            V::F64(lon_deg),
-            V::U8(u8::try_from(fix_mode.clamp(0, 255)).unwrap_or(0)),
-            V::F64(v[0]),
-            V::F64(-v[1]),
-            V::F64(-v[2]),
-            V::Bool(vel_m_s.is_some()),
-        ];
-        u.data("vehicle_gps_position", ts(t_us), &fix)?;
-    }
-    Ok(())
+fn gps(l: &mut LogLines, u: &Ulog, p: &mut Pending) -> anyhow::Result<bool> {
+    let Some(r) = l.next(GpsLogRecord::parse_fields)? else {
+        return Ok(false);
+    };
+    let GpsLogRecord::Gpsd {
+        t_us,
+        fix_mode,
+        vel_m_s,
+        lat_deg,
+        lon_deg,
+        ..
+    } = r
+    else {
+        return Ok(true);
+    };
+    let e7 = |d: f64| (d * 1e7).round().clamp(-2.1e9, 2.1e9) as i32;
+    let v = vel_m_s.unwrap_or([f64::NAN; 3]);
+    let fix = [
+        V::I32(e7(lat_deg)),
+        V::I32(e7(lon_deg)),
+        V::F64(lat_deg),
+        V::F64(lon_deg),
+        V::U8(u8::try_from(fix_mode.clamp(0, 255)).unwrap_or(0)),
+        V::F64(v[0]),
+        V::F64(-v[1]),
+        V::F64(-v[2]),
+        V::Bool(vel_m_s.is_some()),
+    ];
+    let t = ts(t_us);
+    p.push_back((t, msg(u.data_message("vehicle_gps_position", t, &fix))?));
+    Ok(true)
 }
 
 /// PX4's navigation state nearest each of uquad's modes (vehicle_status.nav_state); uquad's
@@ -283,14 +417,19 @@ fn nav_state(custom: usize) -> u8 {
 
 /// mode.log's outputs: vehicle_status at each mode change and failsafe, and every output
 /// line as a logged message at its time.
-fn modes(u: &mut Ulog, run: &RunLogs) -> Result {
+fn modes() -> Read {
     let (mut custom, mut failsafe) = (0usize, false);
-    for line in run.mode_log.lines() {
+    Box::new(move |l, u, p| {
+        let Some(line) = l.next_raw()? else {
+            return Ok(false);
+        };
         let mut w = line.splitn(3, ' ');
         let (Some(t), Some(kind), Some(rest)) = (w.next(), w.next(), w.next()) else {
-            continue;
+            return Ok(true);
         };
-        let Ok(t_us) = t.parse::<i64>() else { continue };
+        let Ok(t_us) = t.parse::<i64>() else {
+            return Ok(true);
+        };
         let level = match kind {
             "mode" => {
                 let name = rest.split(' ').next().unwrap_or("");
@@ -308,26 +447,27 @@ fn modes(u: &mut Ulog, run: &RunLogs) -> Result {
             }
             "refused" => Level::Warning,
             "reached" => Level::Info,
-            _ => continue,
+            _ => return Ok(true),
         };
-        u.log(level, ts(t_us), &format!("{kind} {rest}"))?;
+        let t = ts(t_us);
+        let text = format!("{kind} {rest}");
+        p.push_back((t, msg(Ulog::log_message(level, t, &text))?));
         if matches!(kind, "mode" | "failsafe") {
             // Standby (1) when disarmed or killed, else armed (2).
             let on_ground = matches!(
                 CUSTOM_MODES.get(custom).map(|m| m.name()),
                 Some("disarmed" | "kill")
             );
-            let armed = if on_ground { 1 } else { 2 };
             let status = [
-                V::U8(armed),
+                V::U8(if on_ground { 1 } else { 2 }),
                 V::U8(nav_state(custom)),
                 V::Bool(failsafe),
                 V::U8(custom as u8),
             ];
-            u.data("vehicle_status", ts(t_us), &status)?;
+            p.push_back((t, msg(u.data_message("vehicle_status", t, &status))?));
         }
-    }
-    Ok(())
+        Ok(true)
+    })
 }
 
 #[cfg(test)]

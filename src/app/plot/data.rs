@@ -3,7 +3,9 @@
 //! and failsafes (mode.log), and the horizontal track against the planned one. Works on our
 //! run folders and the original's (which have neither set points nor modes).
 
-use crate::app::run_logs::RunLogs;
+use crate::app::export::EstimateTimes;
+use crate::app::log_lines::LogLines;
+use crate::logs;
 use std::path::Path;
 
 /// At most this many points per series are kept (evenly picked): a 10-minute flight at
@@ -49,12 +51,37 @@ pub struct Figure {
 }
 
 /// Every `stride`-th point, so that at most [`MAX_POINTS`] remain.
+#[cfg(test)]
 fn thin(points: impl ExactSizeIterator<Item = (f64, f64)>) -> Vec<(f64, f64)> {
-    let stride = points.len().div_ceil(MAX_POINTS).max(1);
-    points
-        .step_by(stride)
-        .filter(|(a, b)| a.is_finite() && b.is_finite())
-        .collect()
+    let mut keep = Keep::new(points.len());
+    points.for_each(|p| keep.push(p));
+    keep.points
+}
+
+/// Keeps every `stride`-th of `len` points (the first included, those that are not numbers
+/// left out), so that at most [`MAX_POINTS`] remain: a series read a point at a time.
+#[derive(Debug, Clone)]
+struct Keep {
+    stride: usize,
+    seen: usize,
+    points: Vec<(f64, f64)>,
+}
+
+impl Keep {
+    fn new(len: usize) -> Keep {
+        Keep {
+            stride: len.div_ceil(MAX_POINTS).max(1),
+            seen: 0,
+            points: Vec::with_capacity(len.min(MAX_POINTS)),
+        }
+    }
+
+    fn push(&mut self, p: (f64, f64)) {
+        if self.seen.is_multiple_of(self.stride) && p.0.is_finite() && p.1.is_finite() {
+            self.points.push(p);
+        }
+        self.seen += 1;
+    }
 }
 
 fn series(name: &str, setpoint: bool, points: Vec<(f64, f64)>) -> Series {
@@ -65,53 +92,147 @@ fn series(name: &str, setpoint: bool, points: Vec<(f64, f64)>) -> Series {
     }
 }
 
-/// Reads the figure of `run_dir`.
+/// The records of `name` in `run_dir` that `parse` reads; 0 when it is missing.
+fn count<T>(
+    run_dir: &Path,
+    name: &str,
+    parse: impl Fn(&[&str]) -> Result<T, String>,
+) -> anyhow::Result<usize> {
+    let Some(mut lines) = LogLines::open(&run_dir.join(name))? else {
+        return Ok(0);
+    };
+    let mut n = 0;
+    while lines.next(&parse)?.is_some() {
+        n += 1;
+    }
+    Ok(n)
+}
+
+/// The points of one log's `N` series, kept evenly (the log counted first): `each` pushes a
+/// record's point into each series' keeper; with the log's warning, if lines were skipped.
+fn read_series<T, const N: usize>(
+    run_dir: &Path,
+    name: &str,
+    parse: impl Fn(&[&str]) -> Result<T, String>,
+    mut each: impl FnMut(&T, &mut [Keep; N]),
+) -> anyhow::Result<([Keep; N], Option<String>)> {
+    let len = count(run_dir, name, &parse)?;
+    let mut keeps: [Keep; N] = std::array::from_fn(|_| Keep::new(len));
+    let Some(mut lines) = LogLines::open(&run_dir.join(name))? else {
+        return Ok((keeps, None));
+    };
+    while let Some(r) = lines.next(&parse)? {
+        each(&r, &mut keeps);
+    }
+    Ok((keeps, lines.warning()))
+}
+
+/// Reads the figure of `run_dir`, each log a line at a time (twice: once to count its
+/// records, once to keep every so many): memory does not grow with the run's length. A
+/// log's skipped lines (over-long, cut off, not understood) are told on stderr.
 pub fn figure(run_dir: &Path) -> anyhow::Result<Figure> {
-    let run = RunLogs::read(run_dir)?;
-    let (x_hat, w, sp) = (&run.x_hat, &run.w, &run.setpoint);
-    let t: Vec<f64> = run
-        .estimate_times_us()
-        .iter()
-        .map(|&t| t as f64 / 1e6)
-        .collect();
-    let est = |i: usize| thin(t.iter().zip(x_hat).map(|(&t, x)| (t, x[i])));
-    let set = |i: usize| thin(sp.iter().map(|(t, v)| (*t as f64 / 1e6, v[i])));
-    let pair = |name: &str, i: usize| {
-        let mut v = vec![series(name, false, est(i))];
-        if !sp.is_empty() {
-            v.push(series(&format!("{name} set point"), true, set(i)));
+    let marks_t = marks(run_dir)?;
+    let mut at_m: Vec<Option<(f64, f64)>> = vec![None; marks_t.len()];
+    let mut last_at = None;
+    let mut times = EstimateTimes::open(run_dir)?;
+    // Estimates: z, roll, pitch, yaw over time, and the flown track.
+    let (est, warning) = read_series(
+        run_dir,
+        "x_hat.log",
+        logs::parse_x_hat,
+        |x, k: &mut [Keep; 5]| {
+            let t_s = times.next().unwrap_or(0) as f64 / 1e6;
+            for (keep, i) in k.iter_mut().zip([2, 3, 4, 5]) {
+                keep.push((t_s, x[i]));
+            }
+            k[4].push((-x[1], x[0]));
+            // A mark is placed where the first estimate at or after its time was.
+            for (m, at) in marks_t.iter().zip(at_m.iter_mut()) {
+                if at.is_none() && t_s >= m.t_s {
+                    *at = Some((-x[1], x[0]));
+                }
+            }
+            last_at = Some((-x[1], x[0]));
+        },
+    )?;
+    if est[0].seen == 0 {
+        anyhow::bail!(
+            "{}: no estimates (x_hat.log missing or empty)",
+            run_dir.display()
+        );
+    }
+    let (set, set_warning) = read_series(
+        run_dir,
+        "setpoint.log",
+        logs::parse_time_and::<6>,
+        |(t, v), k: &mut [Keep; 5]| {
+            for (keep, i) in k.iter_mut().zip([2, 3, 4, 5]) {
+                keep.push((*t as f64 / 1e6, v[i]));
+            }
+            k[4].push((-v[1], v[0]));
+        },
+    )?;
+    let (w, w_warning) = read_series(
+        run_dir,
+        "w.log",
+        logs::parse_time_and_4,
+        |(t, v), k: &mut [Keep; 4]| {
+            for (m, keep) in k.iter_mut().enumerate() {
+                keep.push((*t as f64 / 1e6, v[m]));
+            }
+        },
+    )?;
+    for w in [warning, set_warning, w_warning].into_iter().flatten() {
+        eprintln!("warning: {w}");
+    }
+    let has_set = set[0].seen > 0;
+    let [z, roll, pitch, yaw, flown] = est;
+    let [z_set, roll_set, pitch_set, yaw_set, planned] = set;
+    let pair = |name: &str, e: Keep, s: Keep| {
+        let mut v = vec![series(name, false, e.points)];
+        if has_set {
+            v.push(series(&format!("{name} set point"), true, s.points));
         }
         v
     };
-    let motors = (0..4)
-        .map(|m| {
-            let pts = thin(w.iter().map(|(t, v)| (*t as f64 / 1e6, v[m])));
-            series(&format!("motor {m}"), false, pts)
+    let motors = w
+        .into_iter()
+        .enumerate()
+        .map(|(m, k)| series(&format!("motor {m}"), false, k.points))
+        .collect();
+    let mut track = vec![series("flown (estimate)", false, flown.points)];
+    if has_set {
+        track.push(series("planned (set point)", true, planned.points));
+    }
+    let marks = marks_t
+        .into_iter()
+        .zip(at_m)
+        .map(|(m, at)| Mark {
+            at_m: at.or(last_at),
+            ..m
         })
         .collect();
-    let track = track(&run);
-    let east_north = |x: &[f64; 15]| (-x[1], x[0]);
-    let marks = marks(&run.mode_log, |t_s| {
-        let k = t.partition_point(|&s| s < t_s).min(x_hat.len() - 1);
-        east_north(&x_hat[k])
-    });
     Ok(Figure {
         title: format!("uquad run {}", run_dir.display()),
         panels: vec![
             TimePanel {
                 title: "altitude",
                 y_desc: "z (m, up)",
-                series: pair("z", 2),
+                series: pair("z", z, z_set),
             },
             TimePanel {
                 title: "roll and pitch",
                 y_desc: "angle (rad)",
-                series: [pair("roll ψ", 3), pair("pitch φ", 4)].concat(),
+                series: [
+                    pair("roll ψ", roll, roll_set),
+                    pair("pitch φ", pitch, pitch_set),
+                ]
+                .concat(),
             },
             TimePanel {
                 title: "yaw",
                 y_desc: "θ (rad)",
-                series: pair("yaw θ", 5),
+                series: pair("yaw θ", yaw, yaw_set),
             },
             TimePanel {
                 title: "motor speeds",
@@ -124,48 +245,44 @@ pub fn figure(run_dir: &Path) -> anyhow::Result<Figure> {
     })
 }
 
-/// The horizontal track, east and north (m): flown (the estimate) and, with set points, the
-/// planned one.
-fn track(run: &RunLogs) -> Vec<Series> {
-    let east_north = |x: f64, y: f64| (-y, x);
-    let flown = thin(run.x_hat.iter().map(|x| east_north(x[0], x[1])));
-    let mut track = vec![series("flown (estimate)", false, flown)];
-    if !run.setpoint.is_empty() {
-        let planned = thin(run.setpoint.iter().map(|(_, v)| east_north(v[0], v[1])));
-        track.push(series("planned (set point)", true, planned));
+/// The marks of the run's mode.log (at most [`MAX_POINTS`]: a ground station repeating a
+/// command all flight long would fill the figure), not yet placed on the track.
+fn marks(run_dir: &Path) -> anyhow::Result<Vec<Mark>> {
+    let mut marks = Vec::new();
+    let Some(mut lines) = LogLines::open(&run_dir.join("mode.log"))? else {
+        return Ok(marks);
+    };
+    while marks.len() < MAX_POINTS
+        && let Some(line) = lines.next_raw()?
+    {
+        marks.extend(mark(line));
     }
-    track
+    Ok(marks)
 }
 
-/// The mode changes (`T mode NAME why`) and failsafes (`T failsafe KIND ACTION`) of a
-/// mode.log; `at` places a time on the track.
-fn marks(mode_log: &str, at: impl Fn(f64) -> (f64, f64)) -> Vec<Mark> {
-    mode_log
-        .lines()
-        .filter_map(|line| {
-            let mut w = line.split_whitespace();
-            let t_s = w.next()?.parse::<i64>().ok()? as f64 / 1e6;
-            let (kind, name) = (w.next()?, w.next()?);
-            let failsafe = match kind {
-                "mode" => false,
-                "failsafe" => true,
-                _ => return None,
-            };
-            let label = if failsafe {
-                format!("failsafe {name}")
-            } else {
-                name.to_string()
-            };
-            Some(Mark {
-                t_s,
-                label,
-                failsafe,
-                at_m: Some(at(t_s)),
-            })
-        })
-        .collect()
+/// A mode change (`T mode NAME why`) or failsafe (`T failsafe KIND ACTION`) line as a mark
+/// (placed on the track later); other lines are none.
+fn mark(line: &str) -> Option<Mark> {
+    let mut w = line.split_whitespace();
+    let t_s = w.next()?.parse::<i64>().ok()? as f64 / 1e6;
+    let (kind, name) = (w.next()?, w.next()?);
+    let failsafe = match kind {
+        "mode" => false,
+        "failsafe" => true,
+        _ => return None,
+    };
+    let label = if failsafe {
+        format!("failsafe {name}")
+    } else {
+        name.to_string()
+    };
+    Some(Mark {
+        t_s,
+        label,
+        failsafe,
+        at_m: None,
+    })
 }
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -175,12 +292,11 @@ mod tests {
         let log = "0 mode disarmed start\n1000000 in gcs arm | ok\n2000000 beat gcs\n\
                    2500000 mode armed command arm\n9000000 failsafe link-loss land\n\
                    9500000 reached 1 goto\n";
-        let m = marks(log, |t| (t, -t));
+        let m: Vec<Mark> = log.lines().filter_map(mark).collect();
         let labels: Vec<&str> = m.iter().map(|m| m.label.as_str()).collect();
         assert_eq!(labels, ["disarmed", "armed", "failsafe link-loss"]);
         assert_eq!(m[2].t_s, 9.0);
         assert!(m[2].failsafe && !m[1].failsafe);
-        assert_eq!(m[1].at_m, Some((2.5, -2.5)));
     }
 
     #[test]
