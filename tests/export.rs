@@ -143,17 +143,19 @@ fn a_sim_run_exports_to_ulog_and_csv() {
 fn over_long_and_cut_off_lines_are_skipped_and_told() {
     let logs = tempfile::tempdir().unwrap();
     let run = sim_run(logs.path(), &["--fast", "--duration", "15"]);
+    let out = tempfile::tempdir().unwrap();
+    export(&run, "csv", &out.path().join("before"));
     let x_hat = run.join("x_hat.log");
     let text = std::fs::read_to_string(&x_hat).unwrap();
     let rows = text.lines().count();
-    let (first, rest) = text.split_once('\n').unwrap();
-    let long = "1".repeat(200_000);
-    std::fs::write(&x_hat, format!("{first}\n{long}\n{rest}")).unwrap();
+    // Line 2 overwritten by a line of 200 000 bytes.
+    let mut lines: Vec<String> = text.lines().map(str::to_string).collect();
+    lines[1] = "1".repeat(200_000);
+    std::fs::write(&x_hat, lines.join("\n") + "\n").unwrap();
     let w = run.join("w.log");
     let mut w_text = std::fs::read_to_string(&w).unwrap();
     w_text.push_str("15.0 1 2");
     std::fs::write(&w, w_text).unwrap();
-    let out = tempfile::tempdir().unwrap();
     for (format, path) in [
         ("csv", out.path().join("csv")),
         ("ulog", out.path().join("r.ulg")),
@@ -181,7 +183,23 @@ fn over_long_and_cut_off_lines_are_skipped_and_told() {
         );
     }
     let csv = std::fs::read_to_string(out.path().join("csv/x_hat.csv")).unwrap();
-    assert_eq!(csv.lines().count(), rows + 1, "every row and the header");
+    assert_eq!(
+        csv.lines().count(),
+        rows,
+        "every row but the lost one, and the header"
+    );
+    // The rows after the lost one keep their times (estimates pair with kalman_in by line).
+    let before = std::fs::read_to_string(out.path().join("before/x_hat.csv")).unwrap();
+    let time = |csv: &str, row: usize| {
+        csv.lines()
+            .nth(row)
+            .unwrap()
+            .split(',')
+            .next()
+            .unwrap()
+            .to_string()
+    };
+    assert_eq!(time(&csv, 2), time(&before, 3), "{csv:.300}");
     let o = uquad(
         &root(),
         &[
@@ -194,4 +212,32 @@ fn over_long_and_cut_off_lines_are_skipped_and_told() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "{err}");
     assert!(err.contains("x_hat.log: 1 line(s) skipped"), "{err}");
+    // A failed export leaves no partial files and an earlier export as it was.
+    std::fs::remove_file(run.join("w.log")).unwrap();
+    std::os::unix::fs::symlink("/dev/zero", run.join("w.log")).unwrap();
+    let o = uquad(
+        &root(),
+        &[
+            "export",
+            run.to_str().unwrap(),
+            "--format",
+            "csv",
+            "--out",
+            out.path().join("before").to_str().unwrap(),
+        ],
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert!(
+        err.contains("w.log: a character device, not a regular file"),
+        "{err}"
+    );
+    let kept = std::fs::read_to_string(out.path().join("before/x_hat.csv")).unwrap();
+    assert_eq!(kept, before);
+    let left: Vec<_> = std::fs::read_dir(out.path().join("before"))
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.path().extension().is_some_and(|x| x == "partial"))
+        .collect();
+    assert!(left.is_empty(), "{left:?}");
 }

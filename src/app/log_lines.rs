@@ -37,6 +37,10 @@ pub struct LogLines {
     reader: BufReader<std::fs::File>,
     buf: Vec<u8>,
     line: u64,
+    /// Records returned so far.
+    records: u64,
+    /// The last line read had no line end (the file's last).
+    unended: bool,
     pub skipped: Skipped,
 }
 
@@ -54,6 +58,8 @@ impl LogLines {
             reader: BufReader::with_capacity(64 * 1024, file),
             buf: Vec::with_capacity(256),
             line: 0,
+            records: 0,
+            unended: false,
             skipped: Skipped::default(),
         }))
     }
@@ -105,9 +111,10 @@ impl LogLines {
                         .note(self.line, format!("over {LINE_MAX} bytes"));
                     continue;
                 }
-                self.skipped.cut_off += 1;
-                self.skipped.note(self.line, "cut off (no line end)".into());
-                return Ok(None);
+                // The file's last line, without its end: taken if it reads (a file written
+                // without a final line end); a record that does not is counted cut off.
+                self.unended = true;
+                self.buf.push(b'\n');
             }
             let Ok(text) = std::str::from_utf8(&self.buf) else {
                 self.skipped.malformed += 1;
@@ -141,7 +148,16 @@ impl LogLines {
                 parse(&fields)
             };
             match parsed {
-                Ok(r) => return Ok(Some(r)),
+                Ok(r) => {
+                    self.records += 1;
+                    return Ok(Some(r));
+                }
+                Err(why) if self.unended => {
+                    self.skipped.cut_off += 1;
+                    let line = self.line;
+                    self.skipped
+                        .note(line, format!("cut off (no line end): {why}"));
+                }
                 Err(why) => {
                     self.skipped.malformed += 1;
                     let line = self.line;
@@ -149,6 +165,13 @@ impl LogLines {
                 }
             }
         }
+    }
+
+    /// Just after [`LogLines::next`] gave a record: its index among the log's record lines
+    /// (comments and blank lines not counted, skipped lines counted). Two logs written a line
+    /// per step (x_hat, kalman_in) pair by it even when one of them lost a line.
+    pub fn last_index(&self) -> u64 {
+        (self.records + self.skipped.total()).saturating_sub(1)
     }
 
     /// Reads past the rest of an over-long line without keeping it.
@@ -189,6 +212,62 @@ impl LogLines {
     }
 }
 
+/// The time of each estimate, µs, read alongside x_hat.log: kalman_in's record on the same
+/// line index; past kalman_in's end (the original's x_hat.log has one row more than its
+/// kalman_in.log), or where kalman_in lost that line, 10 ms a line after the last one known.
+pub struct EstimateTimes {
+    lines: Option<LogLines>,
+    /// The newest kalman_in record read and not yet used: its line index and time.
+    pending: Option<(u64, i64)>,
+    /// The last one used.
+    last: Option<(u64, i64)>,
+}
+
+impl EstimateTimes {
+    pub fn open(run_dir: &Path) -> anyhow::Result<Self> {
+        Ok(EstimateTimes {
+            lines: LogLines::open(&run_dir.join("kalman_in.log"))?,
+            pending: None,
+            last: None,
+        })
+    }
+
+    /// The time of the estimate on x_hat.log's line `index` ([`LogLines::last_index`]).
+    pub fn at(&mut self, index: u64) -> anyhow::Result<i64> {
+        while let Some(lines) = self.lines.as_mut() {
+            match self.pending {
+                Some((i, t)) if i == index => {
+                    self.last = self.pending.take();
+                    return Ok(t);
+                }
+                // kalman_in has no record on this line: from the last one known.
+                Some((i, _)) if i > index => break,
+                Some(_) => self.last = self.pending.take(),
+                None => {}
+            }
+            let parse = |f: &[&str]| crate::logs::KalmanInRecord::parse_fields(f).map(|k| k.t_us);
+            match lines.next(parse)? {
+                Some(t) => self.pending = Some((lines.last_index(), t)),
+                None => self.lines = None,
+            }
+        }
+        Ok(match self.last {
+            Some((i, t)) => {
+                let lines_on = i64::try_from(index.saturating_sub(i)).unwrap_or(i64::MAX);
+                t.saturating_add(lines_on.saturating_mul(10_000))
+            }
+            None => i64::try_from(index)
+                .unwrap_or(i64::MAX)
+                .saturating_mul(10_000),
+        })
+    }
+
+    /// kalman_in.log's skipped lines, if any (for a reader that does not read it otherwise).
+    pub fn warning(&self) -> Option<String> {
+        self.lines.as_ref().and_then(LogLines::warning)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -198,7 +277,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("w.log");
         let long = "9".repeat(LINE_MAX + 10);
-        let text = format!("# header\n1 2\r\n\n{long}\nx y\n3 4\n5 6");
+        let text = format!("# header\n1 2\r\n\n{long}\nx y\n3 4\n5");
         std::fs::write(&path, text).unwrap();
         let mut lines = LogLines::open(&path).unwrap().unwrap();
         let parse = |f: &[&str]| -> Result<(i64, i64), String> {
@@ -212,9 +291,10 @@ mod tests {
         };
         let mut got = Vec::new();
         while let Some(r) = lines.next(parse).unwrap() {
-            got.push(r);
+            got.push((r, lines.last_index()));
         }
-        assert_eq!(got, [(1, 2), (3, 4)]);
+        // (3, 4) is record line 3, after a line too long and one not understood.
+        assert_eq!(got, [((1, 2), 0), ((3, 4), 3)]);
         let s = &lines.skipped;
         assert_eq!((s.over_long, s.malformed, s.cut_off), (1, 1, 1));
         assert_eq!(s.first, Some((4, format!("over {LINE_MAX} bytes"))));
@@ -228,12 +308,27 @@ mod tests {
                 .is_none()
         );
         assert!(LogLines::open(dir.path()).is_err(), "a folder is no log");
+        // Estimates pair with kalman_in by line, whichever of the two lost one.
+        std::fs::write(dir.path().join("kalman_in.log"), "").unwrap();
+        let mut none = EstimateTimes::open(dir.path()).unwrap();
+        assert_eq!((none.at(0).unwrap(), none.at(1).unwrap()), (0, 10_000));
+        // A last line without its end that reads is taken.
+        std::fs::write(&path, "1 2\n3 4").unwrap();
+        let mut unended = LogLines::open(&path).unwrap().unwrap();
+        assert_eq!(unended.next(parse).unwrap(), Some((1, 2)));
+        assert_eq!(unended.next(parse).unwrap(), Some((3, 4)));
+        assert_eq!(unended.skipped.total(), 0);
         // Raw lines keep their text, blank and comment lines included.
-        std::fs::write(&path, "  a b \r\n# c\n\n").unwrap();
+        std::fs::write(&path, "  a b \r\n# c\n\nlast").unwrap();
         let mut raw = LogLines::open(&path).unwrap().unwrap();
         assert_eq!(raw.next_raw().unwrap(), Some("  a b "));
         assert_eq!(raw.next_raw().unwrap(), Some("# c"));
         assert_eq!(raw.next_raw().unwrap(), Some(""));
+        assert_eq!(
+            raw.next_raw().unwrap(),
+            Some("last"),
+            "a last line without its end"
+        );
         assert_eq!(raw.next_raw().unwrap(), None);
     }
 }

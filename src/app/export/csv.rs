@@ -3,7 +3,7 @@
 //! log is read a line at a time and written as it is read (memory does not grow with the
 //! run's length); a line over-long, cut off or not understood is skipped and reported.
 
-use crate::app::log_lines::LogLines;
+use crate::app::log_lines::{EstimateTimes, LogLines};
 use crate::logs::{self, GpsLogRecord, ImuRawRecord, InnovRecord, KalmanInRecord};
 use anyhow::Context;
 use std::fs::File;
@@ -172,11 +172,11 @@ fn mode_row(line: &str) -> Option<Vec<String>> {
     Some(vec![secs(t_us), kind, w.next().unwrap_or("").to_string()])
 }
 
-/// Writes the CSV files of the run in `run_dir` into `out_dir` (created), each stream read a
-/// line at a time and written as it is read, so that memory does not grow with the run's
-/// length; returns the files written and a warning for each log that had lines skipped
-/// (over-long, cut off, not understood). A stream without rows writes no file.
-pub fn write(run_dir: &Path, out_dir: &Path) -> anyhow::Result<(Vec<PathBuf>, Vec<String>)> {
+/// Writes the CSV files of the run in `run_dir` into `out_dir` (created) as `NAME.csv.partial`,
+/// each stream read a line at a time and written as it is read, so that memory does not grow
+/// with the run's length; a warning for each log that had lines skipped (over-long, cut off,
+/// not understood). A stream without rows writes no file.
+pub fn write(run_dir: &Path, out_dir: &Path) -> anyhow::Result<Written> {
     std::fs::create_dir_all(out_dir)
         .with_context(|| format!("cannot create {}", out_dir.display()))?;
     let mut w = Writer {
@@ -188,12 +188,16 @@ pub fn write(run_dir: &Path, out_dir: &Path) -> anyhow::Result<(Vec<PathBuf>, Ve
     w.stream("imu_raw", IMU_RAW, ImuRawRecord::parse_fields, |r| {
         Ok(Some(raw_row(&r)))
     })?;
+    // Each estimate at the time of kalman_in's record on its line (kalman_in.log's own
+    // skipped lines are told by its stream below).
     let mut times = EstimateTimes::open(run_dir)?;
-    w.stream("x_hat", X_HAT, logs::parse_x_hat, |x| {
-        Ok(Some(row(times.next()?, &x)))
+    w.rows("x_hat", X_HAT, |lines| {
+        match lines.next(logs::parse_x_hat)? {
+            Some(x) => Ok(Some(Some(row(times.at(lines.last_index())?, &x)))),
+            None => Ok(None),
+        }
     })?;
-    w.warnings
-        .extend(times.lines.as_ref().and_then(LogLines::warning));
+    let estimates = w.rows_of("x_hat");
     w.stream("kalman_in", KALMAN_IN, KalmanInRecord::parse_fields, |k| {
         Ok(Some(kalman_in_row(&k)))
     })?;
@@ -208,14 +212,27 @@ pub fn write(run_dir: &Path, out_dir: &Path) -> anyhow::Result<(Vec<PathBuf>, Ve
     })?;
     w.stream("gps", GPS, GpsLogRecord::parse_fields, |r| Ok(gps_row(&r)))?;
     w.stream_text("mode", MODE, |line| Ok(mode_row(line)))?;
-    Ok((w.written, w.warnings))
+    Ok(Written {
+        files: w.written.into_iter().map(|(path, _)| path).collect(),
+        warnings: w.warnings,
+        estimates,
+    })
+}
+
+/// What [`write`] wrote: its files (still `.partial`, for the caller to keep or remove),
+/// the logs' skipped lines, and how many estimates (x_hat rows) there were.
+pub struct Written {
+    pub files: Vec<PathBuf>,
+    pub warnings: Vec<String>,
+    pub estimates: u64,
 }
 
 /// Where the CSV files go, and what was written.
 struct Writer<'a> {
     run_dir: &'a Path,
     out_dir: &'a Path,
-    written: Vec<PathBuf>,
+    /// Each file written and its rows.
+    written: Vec<(PathBuf, u64)>,
     warnings: Vec<String>,
 }
 
@@ -248,8 +265,17 @@ impl Writer<'_> {
         })
     }
 
-    /// The rows `next` gives (`Some(None)`: a record left out) into `NAME.csv`, created at
-    /// the first row.
+    /// The rows written for `name`.
+    fn rows_of(&self, name: &str) -> u64 {
+        let file = format!("{name}.csv.partial");
+        self.written
+            .iter()
+            .find(|(p, _)| p.file_name().is_some_and(|f| *f == *file))
+            .map_or(0, |(_, n)| *n)
+    }
+
+    /// The rows `next` gives (`Some(None)`: a record left out) into `NAME.csv.partial`,
+    /// created at the first row.
     fn rows(
         &mut self,
         name: &str,
@@ -259,7 +285,8 @@ impl Writer<'_> {
         let Some(mut lines) = LogLines::open(&self.run_dir.join(format!("{name}.log")))? else {
             return Ok(());
         };
-        let path = self.out_dir.join(format!("{name}.csv"));
+        let path = self.out_dir.join(format!("{name}.csv.partial"));
+        let mut rows = 0u64;
         let mut out: Option<BufWriter<File>> = None;
         let io = |e: std::io::Error| anyhow::anyhow!("cannot write {}: {e}", path.display());
         while let Some(cells) = next(&mut lines)? {
@@ -276,10 +303,11 @@ impl Writer<'_> {
                 }
             };
             write_row(f, cells.iter().map(String::as_str)).map_err(io)?;
+            rows += 1;
         }
         if let Some(mut f) = out {
+            self.written.push((path.clone(), rows));
             f.flush().map_err(io)?;
-            self.written.push(path);
         }
         self.warnings.extend(lines.warning());
         Ok(())
@@ -295,38 +323,6 @@ fn write_row<'c>(f: &mut impl Write, cells: impl Iterator<Item = &'c str>) -> st
         f.write_all(cell(c).as_bytes())?;
     }
     f.write_all(b"\n")
-}
-
-/// The time of each estimate, µs, read alongside x_hat.log: kalman_in's, continued 10 ms
-/// apart past its last row (the original's x_hat.log has one row more than its
-/// kalman_in.log).
-pub(crate) struct EstimateTimes {
-    lines: Option<LogLines>,
-    last_us: Option<i64>,
-    past: i64,
-}
-
-impl EstimateTimes {
-    pub(crate) fn open(run_dir: &Path) -> anyhow::Result<Self> {
-        Ok(EstimateTimes {
-            lines: LogLines::open(&run_dir.join("kalman_in.log"))?,
-            last_us: None,
-            past: 0,
-        })
-    }
-
-    pub(crate) fn next(&mut self) -> anyhow::Result<i64> {
-        if self.past == 0
-            && let Some(lines) = self.lines.as_mut()
-            && let Some(t) = lines.next(|f| KalmanInRecord::parse_fields(f).map(|k| k.t_us))?
-        {
-            self.last_us = Some(t);
-            return Ok(t);
-        }
-        self.past += 1;
-        let start = self.last_us.unwrap_or(-10_000);
-        Ok(start.saturating_add(self.past.saturating_mul(10_000)))
-    }
 }
 
 #[cfg(test)]

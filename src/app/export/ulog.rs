@@ -5,14 +5,16 @@
 //! equal to what the text printed. Each log is read a line at a time and the logs merged by
 //! time as the file is written: memory does not grow with the run's length.
 
-use super::csv::EstimateTimes;
-use crate::app::log_lines::LogLines;
+use crate::app::log_lines::{EstimateTimes, LogLines};
 use crate::gcs::telemetry::{CUSTOM_MODES, ned, wrap_pi};
 use crate::logs::ulog::{Fields, Level, Type::*, Ulog, Value as V};
 use crate::logs::{self, GpsLogRecord, ImuRawRecord, InnovRecord, KalmanInRecord};
+use anyhow::Context;
+use std::cell::Cell;
 use std::collections::VecDeque;
 use std::io::Write;
 use std::path::Path;
+use std::rc::Rc;
 
 /// The topics: name and fields after the timestamp.
 const TOPICS: &[(&str, Fields)] = &[
@@ -123,12 +125,13 @@ fn quaternion(roll: f64, pitch: f64, yaw: f64) -> [f32; 4] {
 /// Writes the ULog of the run in `run_dir` (its path named in the log as given) to `out`,
 /// with `params` (id, value) as its parameters. Each log is read a line at a time and the
 /// data is merged by time as it is written (memory does not grow with the run's length);
-/// returns a warning for each log that had lines skipped.
+/// returns a warning for each log that had lines skipped or whose times went back (its
+/// messages are then out of time order in the file), and how many estimates were written.
 pub fn write(
     run_dir: &Path,
     params: &[(String, f64)],
     out: &mut impl Write,
-) -> anyhow::Result<Vec<String>> {
+) -> anyhow::Result<(Vec<String>, u64)> {
     let mut u = Ulog::new(0);
     u.info("sys_name", "uquad").map_err(anyhow::Error::msg)?;
     u.info("ver_sw", env!("CARGO_PKG_VERSION"))
@@ -141,13 +144,22 @@ pub fn write(
     for (name, fields) in TOPICS {
         u.topic(name, fields).map_err(anyhow::Error::msg)?;
     }
-    out.write_all(&u.head())?;
-    let mut sources = sources(run_dir)?;
+    let estimates = Rc::new(Cell::new(0u64));
+    let mut sources = sources(run_dir, estimates.clone())?;
+    out.write_all(&u.head()).context("cannot write the ULog")?;
     merge(&u, &mut sources, out)?;
-    Ok(sources
-        .iter()
-        .filter_map(|s| s.lines.as_ref().and_then(LogLines::warning))
-        .collect())
+    let mut warnings = Vec::new();
+    for s in &sources {
+        warnings.extend(s.lines.as_ref().and_then(LogLines::warning));
+        if let (Some(l), Some(at)) = (&s.lines, &s.went_back) {
+            warnings.push(format!(
+                "{}: {} time(s) earlier than the one before (the first at {at} µs): its messages are out of time order in the ULog",
+                l.path().display(),
+                s.backs
+            ));
+        }
+    }
+    Ok((warnings, estimates.get()))
 }
 
 /// A log's messages, one record's at a time.
@@ -161,6 +173,10 @@ struct Source {
     /// Reads the next record's messages into the pending ones; `false` at the log's end.
     read: Read,
     pending: Pending,
+    /// The newest time read, and how often (and first where) a time went back.
+    newest: u64,
+    backs: u64,
+    went_back: Option<u64>,
 }
 
 impl Source {
@@ -169,6 +185,9 @@ impl Source {
             lines: LogLines::open(&run_dir.join(name))?,
             read,
             pending: VecDeque::with_capacity(4),
+            newest: 0,
+            backs: 0,
+            went_back: None,
         })
     }
 
@@ -180,6 +199,13 @@ impl Source {
             };
             if !(self.read)(lines, u, &mut self.pending)? {
                 return Ok(None);
+            }
+            if let Some(&(t, _)) = self.pending.front() {
+                if t < self.newest {
+                    self.backs += 1;
+                    self.went_back.get_or_insert(t);
+                }
+                self.newest = self.newest.max(t);
             }
         }
         Ok(self.pending.front().map(|(t, _)| *t))
@@ -202,7 +228,7 @@ fn merge(u: &Ulog, sources: &mut [Source], out: &mut impl Write) -> anyhow::Resu
             return Ok(());
         };
         if let Some((_, bytes)) = sources[i].pending.pop_front() {
-            out.write_all(&bytes)?;
+            out.write_all(&bytes).context("cannot write the ULog")?;
         }
     }
 }
@@ -212,8 +238,9 @@ fn msg(m: std::result::Result<Vec<u8>, String>) -> anyhow::Result<Vec<u8>> {
     m.map_err(anyhow::Error::msg)
 }
 
-/// The run's logs as sources, in the order their messages go at one time.
-fn sources(run_dir: &Path) -> anyhow::Result<Vec<Source>> {
+/// The run's logs as sources, in the order their messages go at one time; `estimates`
+/// counts the estimates read.
+fn sources(run_dir: &Path, estimates: Rc<Cell<u64>>) -> anyhow::Result<Vec<Source>> {
     let mut times = EstimateTimes::open(run_dir)?;
     Ok(vec![
         Source::new(
@@ -223,7 +250,8 @@ fn sources(run_dir: &Path) -> anyhow::Result<Vec<Source>> {
                 let Some(x) = l.next(logs::parse_x_hat)? else {
                     return Ok(false);
                 };
-                estimate(u, times.next()?, &x, p)?;
+                estimates.set(estimates.get() + 1);
+                estimate(u, times.at(l.last_index())?, &x, p)?;
                 Ok(true)
             }),
         )?,

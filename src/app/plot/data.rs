@@ -3,8 +3,7 @@
 //! and failsafes (mode.log), and the horizontal track against the planned one. Works on our
 //! run folders and the original's (which have neither set points nor modes).
 
-use crate::app::export::EstimateTimes;
-use crate::app::log_lines::LogLines;
+use crate::app::log_lines::{EstimateTimes, LogLines};
 use crate::logs;
 use std::path::Path;
 
@@ -114,7 +113,7 @@ fn read_series<T, const N: usize>(
     run_dir: &Path,
     name: &str,
     parse: impl Fn(&[&str]) -> Result<T, String>,
-    mut each: impl FnMut(&T, &mut [Keep; N]),
+    mut each: impl FnMut(&T, u64, &mut [Keep; N]) -> anyhow::Result<()>,
 ) -> anyhow::Result<([Keep; N], Option<String>)> {
     let len = count(run_dir, name, &parse)?;
     let mut keeps: [Keep; N] = std::array::from_fn(|_| Keep::new(len));
@@ -122,7 +121,7 @@ fn read_series<T, const N: usize>(
         return Ok((keeps, None));
     };
     while let Some(r) = lines.next(&parse)? {
-        each(&r, &mut keeps);
+        each(&r, lines.last_index(), &mut keeps)?;
     }
     Ok((keeps, lines.warning()))
 }
@@ -140,8 +139,8 @@ pub fn figure(run_dir: &Path) -> anyhow::Result<Figure> {
         run_dir,
         "x_hat.log",
         logs::parse_x_hat,
-        |x, k: &mut [Keep; 5]| {
-            let t_s = times.next().unwrap_or(0) as f64 / 1e6;
+        |x, index, k: &mut [Keep; 5]| {
+            let t_s = times.at(index)? as f64 / 1e6;
             for (keep, i) in k.iter_mut().zip([2, 3, 4, 5]) {
                 keep.push((t_s, x[i]));
             }
@@ -153,37 +152,43 @@ pub fn figure(run_dir: &Path) -> anyhow::Result<Figure> {
                 }
             }
             last_at = Some((-x[1], x[0]));
+            Ok(())
         },
     )?;
-    if est[0].seen == 0 {
-        anyhow::bail!(
-            "{}: no estimates (x_hat.log missing or empty)",
-            run_dir.display()
-        );
-    }
     let (set, set_warning) = read_series(
         run_dir,
         "setpoint.log",
         logs::parse_time_and::<6>,
-        |(t, v), k: &mut [Keep; 5]| {
+        |(t, v), _, k: &mut [Keep; 5]| {
             for (keep, i) in k.iter_mut().zip([2, 3, 4, 5]) {
                 keep.push((*t as f64 / 1e6, v[i]));
             }
             k[4].push((-v[1], v[0]));
+            Ok(())
         },
     )?;
     let (w, w_warning) = read_series(
         run_dir,
         "w.log",
         logs::parse_time_and_4,
-        |(t, v), k: &mut [Keep; 4]| {
+        |(t, v), _, k: &mut [Keep; 4]| {
             for (m, keep) in k.iter_mut().enumerate() {
                 keep.push((*t as f64 / 1e6, v[m]));
             }
+            Ok(())
         },
     )?;
-    for w in [warning, set_warning, w_warning].into_iter().flatten() {
+    for w in [warning, times.warning(), set_warning, w_warning]
+        .into_iter()
+        .flatten()
+    {
         eprintln!("warning: {w}");
+    }
+    if est[0].seen == 0 {
+        anyhow::bail!(
+            "{}: no estimates (x_hat.log missing, or no line of it could be read)",
+            run_dir.display()
+        );
     }
     let has_set = set[0].seen > 0;
     let [z, roll, pitch, yaw, flown] = est;
