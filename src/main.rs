@@ -116,7 +116,11 @@ vehicle_attitude_setpoint, actuator_outputs (motor speeds, rad/s), sensor_combin
 vehicle_air_data, vehicle_gps_position, estimator_status (the innovation test ratios), \
 vehicle_status (modes and failsafes), uquad_imu_raw (the IMU frames in counts), north-east-down; the run's configuration as parameters \
 (the ids `uquad params` lists); mode.log's events and err.log's lines as logged messages. \
---format csv writes a folder with one file per stream, each column's unit in its header."
+--format csv writes a folder with one file per stream, each column's unit in its header. \
+The logs are read a line at a time, so memory does not grow with the run's length (a 1.2 GB \
+run folder exports at under 10 MB); a line over 64 KiB, a last line cut off or a line not \
+understood is skipped and named on stderr. The files are written as .partial and take their \
+names once the export has succeeded: a failed export leaves an earlier one as it was."
     )]
     Export(ExportArgs),
     /// Attach to a running fly or sim: live events, statistics, manual commands.

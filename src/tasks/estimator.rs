@@ -218,7 +218,15 @@ impl EstimatorTask {
         let end_us = self.out.beats.us(Instant::now()).max(last_frame_us + 1);
         for h in std::mem::take(&mut self.held) {
             let waited_us = h.at.elapsed().as_micros().try_into().unwrap_or(i64::MAX);
-            let input = self.side.commander().aged(h.input, waited_us);
+            let input = if h.answered {
+                // Answered refused already: recorded refused, whatever the rounding says.
+                OperatorInput::Expired {
+                    input: Box::new(h.input),
+                    waited_us,
+                }
+            } else {
+                self.side.commander().aged(h.input, waited_us)
+            };
             if !matches!(input, OperatorInput::Expired { .. }) {
                 if input.expires() {
                     tracing::warn!("{} not applied: the run ended", input.what());
