@@ -48,6 +48,16 @@ pub struct GcsConfig {
     pub signing_key_file: PathBuf,
 }
 
+/// A MAVLink 2 signing key (`gcs.signing_key_file`'s); its debug print never shows it.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub struct SigningKey(pub [u8; 32]);
+
+impl std::fmt::Debug for SigningKey {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("SigningKey(secret)")
+    }
+}
+
 /// The signing key in a key file's text: 64 hexadecimal digits as the key itself, else the
 /// SHA-256 of the passphrase (the text without its line end), as MAVProxy's `signing setup
 /// PASSPHRASE` derives it. An empty file is refused.

@@ -415,7 +415,7 @@ fn resolve_paths(c: &mut Config, path: &Path) {
 
 /// The data files a configuration names, loaded.
 struct DataFiles {
-    signing_key: Option<[u8; 32]>,
+    signing_key: Option<super::SigningKey>,
     calib: Calibration,
     k_prop: Vec<f64>,
     k_int: Vec<f64>,
@@ -453,7 +453,7 @@ fn load_data(c: &Config, report: &mut Report<'_>) -> Option<DataFiles> {
 
 /// `gcs.signing_key_file`'s key (`None`: signing off), read bounded; a file that cannot be
 /// read or holds no key is reported against the configuration.
-fn load_signing_key(report: &mut Report<'_>, file: &Path) -> Option<Option<[u8; 32]>> {
+fn load_signing_key(report: &mut Report<'_>, file: &Path) -> Option<Option<super::SigningKey>> {
     const KEY: &str = "gcs.signing_key_file";
     if file.as_os_str().is_empty() {
         return Some(None);
@@ -464,7 +464,7 @@ fn load_signing_key(report: &mut Report<'_>, file: &Path) -> Option<Option<[u8; 
             super::gcs::signing_key(&text).map_err(|e| format!("{}: {e}", file.display()))
         });
     match key {
-        Ok(k) => Some(Some(k)),
+        Ok(k) => Some(Some(super::SigningKey(k))),
         Err(why) => {
             report.push(Some(KEY), why);
             None

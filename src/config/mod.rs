@@ -24,7 +24,7 @@ mod schema;
 mod validate;
 
 pub use commander::{CommanderConfig, FailsafeConfig, Fence};
-pub use gcs::{GcsConfig, GcsEnabled, signing_key};
+pub use gcs::{GcsConfig, GcsEnabled, SigningKey, signing_key};
 pub use load::{
     ConfigError, DEFAULT_CONFIG, Problem, check_kept, check_set, kept_params_path, load, load_kept,
     resolve_path, write_kept,

@@ -21,7 +21,7 @@ pub struct Profile {
     pub lqr_q: Vec<f64>,
     pub lqr_r: Vec<f64>,
     /// `gcs.signing_key_file`'s key (`None`: MAVLink 2 signing off).
-    pub signing_key: Option<[u8; 32]>,
+    pub signing_key: Option<super::SigningKey>,
     /// The mission `start` flies (`--mission FILE`), with its gains.
     pub mission: Option<std::sync::Arc<super::LoadedMission>>,
 }

@@ -21,7 +21,7 @@ const NEW_STREAM_SLACK: u64 = 60 * 100_000;
 const STREAMS_MAX: usize = 64;
 
 /// The key and the replay guard of one link.
-#[derive(Debug, Clone)]
+#[derive(Clone)]
 pub struct Signing {
     key: [u8; 32],
     /// The newest timestamp known: the clock's at the start ([`Signing::since`]), then the
@@ -29,6 +29,17 @@ pub struct Signing {
     newest: u64,
     /// The last timestamp of each stream that signed validly.
     streams: HashMap<(u8, u8, u8), u64>,
+}
+
+/// Never the key: a debug print of the link's state must not give it away.
+impl std::fmt::Debug for Signing {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Signing")
+            .field("key", &"(secret)")
+            .field("newest", &self.newest)
+            .field("streams", &self.streams.len())
+            .finish()
+    }
 }
 
 impl Signing {
@@ -173,6 +184,14 @@ mod tests {
         let mut out = Vec::new();
         enc.encode(&MavMessage::HEARTBEAT(HEARTBEAT_DATA::DEFAULT), &mut out);
         assert!(Signing::new(key).verify(&out));
+    }
+
+    #[test]
+    fn a_debug_print_never_shows_the_key() {
+        let s = Signing::new([0xab; 32]);
+        let text = format!("{s:?}");
+        assert!(!text.contains("171") && !text.contains("ab, ab"), "{text}");
+        assert!(text.contains("(secret)"), "{text}");
     }
 
     #[test]

@@ -57,7 +57,7 @@ pub struct GcsContext {
     /// Plans ground stations' missions (none: uploads are refused).
     pub missions: Option<super::mission_state::MissionDesk>,
     /// MAVLink 2 signing's key (`gcs.signing_key_file`; none: off).
-    pub signing_key: Option<[u8; 32]>,
+    pub signing_key: Option<crate::config::SigningKey>,
 }
 
 /// Counts what arrives in the current second.
@@ -156,7 +156,7 @@ impl Gcs {
         let now = Instant::now();
         let mut encoder = Encoder::new(ctx.cfg.system_id, COMPONENT_ID);
         let mut decoder = decoder;
-        if let Some(key) = ctx.signing_key {
+        if let Some(crate::config::SigningKey(key)) = ctx.signing_key {
             let now = crate::gcs::signing::now();
             encoder = encoder.with_signing(Signing::new(key).since(now));
             decoder = decoder.with_signing(Signing::new(key).since(now));
