@@ -240,4 +240,26 @@ fn over_long_and_cut_off_lines_are_skipped_and_told() {
         .filter(|e| e.path().extension().is_some_and(|x| x == "partial"))
         .collect();
     assert!(left.is_empty(), "{left:?}");
+    // A config.toml that is a link to nothing is said, not read as absent.
+    std::fs::remove_file(run.join("w.log")).unwrap();
+    std::fs::remove_file(run.join("config.toml")).unwrap();
+    std::os::unix::fs::symlink("/nowhere", run.join("config.toml")).unwrap();
+    let ulg = out.path().join("dangling.ulg");
+    let o = uquad(
+        &root(),
+        &[
+            "export",
+            run.to_str().unwrap(),
+            "--format",
+            "ulog",
+            "--out",
+            ulg.to_str().unwrap(),
+        ],
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.contains("which does not exist; exported without parameters"),
+        "{err}"
+    );
 }

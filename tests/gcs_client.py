@@ -522,6 +522,18 @@ def mission(s):
     back = download(s)
     if [i.command for i in back] != [i.command for i in items] or back[2].param3 != 2.0:
         fail(f"download: {back}")
+    # Items there are not, asked for in a loop: each answered, told once (not 50 texts).
+    for _ in range(50):
+        s.conn.mav.mission_request_int_send(1, 1, 999, mav.MAV_MISSION_TYPE_MISSION)
+        s.wait(
+            "MISSION_ACK of a missing item",
+            lambda m: m.get_type() == "MISSION_ACK"
+            and m.type == mav.MAV_MISSION_INVALID_SEQUENCE,
+        )
+    s.pump(0.5)
+    told = [t for t in s.texts if t.startswith("mission download: no item 999")]
+    if len(told) != 1:
+        fail(f"missing items told {len(told)} times: {told}")
     arm(s)
     s.wait("ATTITUDE", lambda m: m.get_type() == "ATTITUDE")
     s.command(mav.MAV_CMD_MISSION_START, [0] * 7)

@@ -22,7 +22,8 @@ pub enum Format {
 /// ground station sees; none for a folder without one (the original's).
 fn params(run_dir: &Path) -> anyhow::Result<Vec<(String, f64)>> {
     let path = run_dir.join("config.toml");
-    if !path.exists() {
+    // Only a file that is not there is absent: a link to nothing is said (below).
+    if !crate::config::bounded::exists(&path) {
         return Ok(Vec::new());
     }
     // A configuration an older uquad wrote may not load now: the export goes on without it.

@@ -351,13 +351,16 @@ impl Gcs {
             .as_ref()
             .and_then(|f| f.items.get(usize::from(seq)));
         let Some(item) = item else {
-            let why = format!("mission download: no item {seq}");
-            return self.mission_refuse(
-                to,
-                MavMissionResult::MAV_MISSION_INVALID_SEQUENCE,
-                &why,
-                link,
-            );
+            // Every request is answered, but told (a text, err.log) once in a hundred: a
+            // client asking for items there are not in a loop must not flood either.
+            self.missions.missing_requests += 1;
+            let n = self.missions.missing_requests;
+            let result = MavMissionResult::MAV_MISSION_INVALID_SEQUENCE;
+            if n % 100 != 1 {
+                return self.send(&ack(to, result), link);
+            }
+            let why = format!("mission download: no item {seq} ({n} such requests so far)");
+            return self.mission_refuse(to, result, &why, link);
         };
         let msg = MavMessage::MISSION_ITEM_INT(MISSION_ITEM_INT_DATA {
             target_system: to.0,

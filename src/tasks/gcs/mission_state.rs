@@ -63,6 +63,8 @@ pub struct Missions {
     /// The last MISSION_CURRENT sent, and the last item reached (upload numbering).
     pub(super) told: Option<MissionStatus>,
     pub(super) reached: Option<u16>,
+    /// Download requests for items there are not (each answered; told once in a hundred).
+    pub(super) missing_requests: u64,
 }
 
 impl Missions {
@@ -83,6 +85,7 @@ impl Missions {
             uploads: 0,
             done_tx,
             done_rx: Some(done_rx),
+            missing_requests: 0,
             told: None,
             reached: None,
         }
