@@ -13,18 +13,14 @@ fn python() -> String {
 
 /// Exports `run` as `format` into `out`, which must succeed.
 fn export(run: &Path, format: &str, out: &Path) {
-    let o = uquad(
-        &root(),
-        &[
-            "export",
-            run.to_str().unwrap(),
-            "--format",
-            format,
-            "--out",
-            out.to_str().unwrap(),
-        ],
-    );
+    let o = try_export(run, format, out);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+/// `uquad export RUN --format FORMAT --out OUT`: its status and output.
+fn try_export(run: &Path, format: &str, out: &Path) -> std::process::Output {
+    let (run, out) = (run.to_str().unwrap(), out.to_str().unwrap());
+    uquad(&root(), &["export", run, "--format", format, "--out", out])
 }
 
 /// `script` with `args` under the python that has pyulog; its JSON line.
@@ -160,17 +156,7 @@ fn over_long_and_cut_off_lines_are_skipped_and_told() {
         ("csv", out.path().join("csv")),
         ("ulog", out.path().join("r.ulg")),
     ] {
-        let o = uquad(
-            &root(),
-            &[
-                "export",
-                run.to_str().unwrap(),
-                "--format",
-                format,
-                "--out",
-                path.to_str().unwrap(),
-            ],
-        );
+        let o = try_export(&run, format, &path);
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(o.status.success(), "{format}: {err}");
         assert!(
@@ -215,17 +201,7 @@ fn over_long_and_cut_off_lines_are_skipped_and_told() {
     // A failed export leaves no partial files and an earlier export as it was.
     std::fs::remove_file(run.join("w.log")).unwrap();
     std::os::unix::fs::symlink("/dev/zero", run.join("w.log")).unwrap();
-    let o = uquad(
-        &root(),
-        &[
-            "export",
-            run.to_str().unwrap(),
-            "--format",
-            "csv",
-            "--out",
-            out.path().join("before").to_str().unwrap(),
-        ],
-    );
+    let o = try_export(&run, "csv", &out.path().join("before"));
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success(), "{err}");
     assert!(
@@ -245,17 +221,7 @@ fn over_long_and_cut_off_lines_are_skipped_and_told() {
     std::fs::remove_file(run.join("config.toml")).unwrap();
     std::os::unix::fs::symlink("/nowhere", run.join("config.toml")).unwrap();
     let ulg = out.path().join("dangling.ulg");
-    let o = uquad(
-        &root(),
-        &[
-            "export",
-            run.to_str().unwrap(),
-            "--format",
-            "ulog",
-            "--out",
-            ulg.to_str().unwrap(),
-        ],
-    );
+    let o = try_export(&run, "ulog", &ulg);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "{err}");
     assert!(

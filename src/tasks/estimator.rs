@@ -216,17 +216,9 @@ impl EstimatorTask {
     fn expire_held(&mut self, last_frame_us: i64) {
         self.answer_expired();
         let end_us = self.out.beats.us(Instant::now()).max(last_frame_us + 1);
+        let now = Instant::now();
         for h in std::mem::take(&mut self.held) {
-            let waited_us = h.at.elapsed().as_micros().try_into().unwrap_or(i64::MAX);
-            let input = if h.answered {
-                // Answered refused already: recorded refused, whatever the rounding says.
-                OperatorInput::Expired {
-                    input: Box::new(h.input),
-                    waited_us,
-                }
-            } else {
-                self.side.commander().aged(h.input, waited_us)
-            };
+            let (input, _) = self.aged(h, now);
             if !matches!(input, OperatorInput::Expired { .. }) {
                 if input.expires() {
                     tracing::warn!("{} not applied: the run ended", input.what());
@@ -237,6 +229,26 @@ impl EstimatorTask {
             self.side
                 .operator(input, end_us, ArmCheck::Facts(&facts), &mut self.out);
         }
+    }
+
+    /// A held input as it reaches the flight at `now` (expired past
+    /// `commander.input_expiry_s`), and whether its refusal already went out: an answered
+    /// one is refused whatever the clock's rounding says now.
+    fn aged(&self, h: Held, now: Instant) -> (OperatorInput, bool) {
+        let waited_us = now
+            .saturating_duration_since(h.at)
+            .as_micros()
+            .try_into()
+            .unwrap_or(i64::MAX);
+        let input = if h.answered {
+            OperatorInput::Expired {
+                input: Box::new(h.input),
+                waited_us,
+            }
+        } else {
+            self.side.commander().aged(h.input, waited_us)
+        };
+        (input, h.answered)
     }
 
     /// When the oldest unanswered held input expires.
@@ -284,21 +296,8 @@ impl EstimatorTask {
         }
         let now = Instant::now();
         while let Some(h) = self.held.pop_front() {
-            let waited_us = now
-                .saturating_duration_since(h.at)
-                .as_micros()
-                .try_into()
-                .unwrap_or(i64::MAX);
-            let input = if h.answered {
-                // Answered refused already: refused, whatever the clock's rounding says now.
-                OperatorInput::Expired {
-                    input: Box::new(h.input),
-                    waited_us,
-                }
-            } else {
-                self.side.commander().aged(h.input, waited_us)
-            };
-            if h.answered {
+            let (input, answered) = self.aged(h, now);
+            if answered {
                 // Its refusal went out already: recorded, not answered twice.
                 let facts = ArmFacts::default();
                 self.side
