@@ -92,6 +92,11 @@ fn a_sim_run_replays_to_identical_bytes() {
     for group in ["attitude", "altitude", "gps"] {
         assert!(report["ekf_gated"][group].is_u64(), "{group}: {report}");
     }
+    assert_truth_matches_the_report(&run, &report);
+    assert!(
+        !out.path().join("truth.log").exists(),
+        "replay writes no truth"
+    );
     // The same seed flies the same flight; another seed another one.
     let (again, _l2) = sim(&["--seed", "7"]);
     let (other, _l3) = sim(&["--seed", "8"]);
@@ -100,6 +105,47 @@ fn a_sim_run_replays_to_identical_bytes() {
     };
     assert_eq!(x(&report), x(&again));
     assert_ne!(x(&report), x(&other));
+}
+
+/// truth.log has a line per Kalman step, at the estimate's times, and the report's `est_error`
+/// is the estimate (x_hat.log) against it; `ekf_consistency` has every figure.
+fn assert_truth_matches_the_report(run: &Path, report: &serde_json::Value) {
+    let truth = read_table(&run.join("truth.log"));
+    let kalman_in = read_table(&run.join("kalman_in.log"));
+    let x_hat = read_table(&run.join("x_hat.log"));
+    assert_eq!(truth.len(), kalman_in.len());
+    assert_eq!(truth.len(), x_hat.len());
+    assert!(truth.iter().zip(&kalman_in).all(|(t, k)| t[0] == k[0]));
+    assert!(truth.iter().all(|t| t.len() == 16));
+    let err = &report["est_error"];
+    assert_eq!(err["steps"].as_u64(), Some(truth.len() as u64), "{report}");
+    let (mut sq, mut max) = (0.0f64, 0.0f64);
+    for (t, x) in truth.iter().zip(&x_hat) {
+        let v = |row: &[String], i: usize| row[i].parse::<f64>().unwrap();
+        let d: f64 = (0..3).map(|i| (v(x, i) - v(t, 1 + i)).powi(2)).sum();
+        sq += d;
+        max = max.max(d.sqrt());
+    }
+    let rms = (sq / truth.len() as f64).sqrt();
+    let close = |a: f64, k: &str| (a - err[k].as_f64().unwrap()).abs() < 1e-6;
+    assert!(
+        close(rms, "position_rms_m") && close(max, "position_max_m"),
+        "{err} vs {rms} {max}"
+    );
+    for group in ["position", "velocity", "attitude"] {
+        let f = &report["ekf_consistency"]["nees"][group];
+        assert!(
+            f["mean"].as_f64().is_some() && f["in_95"].as_f64().is_some(),
+            "{report}"
+        );
+    }
+    for group in ["attitude", "altitude", "gps"] {
+        let f = &report["ekf_consistency"]["nis"][group];
+        assert!(
+            f["steps"].as_u64().is_some_and(|n| n > 0),
+            "{group}: {report}"
+        );
+    }
 }
 
 #[test]

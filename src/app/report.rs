@@ -9,6 +9,7 @@ use crate::sim::esc::EscEnd;
 use crate::sim::hover::HoverStats;
 use crate::sim::safety::SafetyFigures;
 use crate::sim::track::TrackStats;
+use crate::sim::truth::{Consistency, EstError};
 use anyhow::Context;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -140,6 +141,11 @@ pub struct SimReport {
     /// With a mission: its track and durations.
     #[serde(flatten, skip_serializing_if = "Option::is_none")]
     pub track: Option<TrackStats>,
+    /// The estimate against the simulated truth (`sim::truth`); absent before a Kalman step.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub est_error: Option<EstError>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ekf_consistency: Option<Consistency>,
     pub simulated_s: f64,
     pub esc_end: Vec<EscEnd>,
     /// `sim --fast`: what the true vehicle did that the safety campaign judges.
@@ -347,6 +353,8 @@ pub struct SimSummary {
     pub fly: FlySummary,
     pub hover: HoverStats,
     pub track: Option<TrackStats>,
+    /// The estimate against the truth, and the filter's consistency.
+    pub truth: Option<(EstError, Consistency)>,
     pub simulated_s: f64,
     pub esc_end: Vec<EscEnd>,
     /// `sim --fast`: what the true vehicle did that the safety campaign judges.
@@ -360,6 +368,8 @@ impl SimSummary {
             fly: self.fly.report(),
             hover: self.hover,
             track: self.track,
+            est_error: self.truth.map(|t| t.0),
+            ekf_consistency: self.truth.map(|t| t.1),
             simulated_s: self.simulated_s,
             esc_end: self.esc_end.clone(),
             safety: self.safety.clone(),
@@ -385,8 +395,12 @@ impl SimSummary {
             .track
             .map(|t| format!("\n  {}", t.text()))
             .unwrap_or_default();
+        let truth = self
+            .truth
+            .map(|(e, c)| format!("\n  {}", crate::sim::truth::text(&e, &c)))
+            .unwrap_or_default();
         format!(
-            "{}{track}\n  simulated {:.1} s; {hover}",
+            "{}{track}{truth}\n  simulated {:.1} s; {hover}",
             self.fly.text(),
             self.simulated_s
         )

@@ -34,6 +34,7 @@ use crate::sim::hover::{CycleTrace, FlightView, HoverWindow, TrueState, progress
 use crate::sim::operator::SimOperator;
 use crate::sim::safety::SafetyTrace;
 use crate::sim::track::TrackTrace;
+use crate::sim::truth::TruthTrace;
 use crate::sim::{FRAME_US, frame_start_byte, imu::SimImu, physics::Plant};
 use crate::tasks::prearm::PreArm;
 use bytes::BytesMut;
@@ -141,6 +142,7 @@ struct FastSim<'a> {
     trace: CycleTrace,
     track: TrackTrace,
     safety: SafetyTrace,
+    truth: TruthTrace,
 }
 
 pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSummary> {
@@ -176,6 +178,17 @@ fn write_streams(fly: &mut FlySummary, text: &PerStream<String>) {
             tracing::error!("{why}");
             fly.error.get_or_insert(why);
         }
+    }
+}
+
+/// Writes truth.log, the simulator's own (no flight stream: `replay` neither writes nor reads
+/// it); a failed write ends the run in error as a stream's does.
+fn write_truth(fly: &mut FlySummary, text: &str) {
+    let path = fly.run_dir.join(crate::sim::truth::FILE);
+    if let Err(e) = std::fs::write(&path, text) {
+        let why = format!("cannot write {}: {e}", path.display());
+        tracing::error!("{why}");
+        fly.error.get_or_insert(why);
     }
 }
 
@@ -258,6 +271,7 @@ impl<'a> FastSim<'a> {
             trace: CycleTrace::default(),
             track: TrackTrace::default(),
             safety: SafetyTrace::default(),
+            truth: TruthTrace::default(),
             faults,
         }
     }
@@ -408,6 +422,14 @@ impl<'a> FastSim<'a> {
         else {
             return;
         };
+        if let Some(ekf) = self.estimator.ekf() {
+            let bias_m = if self.gps_live {
+                self.gps.bias_m()
+            } else {
+                [0.0; 3]
+            };
+            self.truth.sample(self.t_us, &est, ekf, &self.plant, bias_m);
+        }
         self.dispatch_events();
         let (t, driver, cycles) = (self.t_us, &mut self.driver, &mut self.cycles);
         let send = |c: &Command| {
@@ -556,6 +578,7 @@ impl<'a> FastSim<'a> {
             self.out.log(r);
         }
         write_streams(fly, &self.out.text);
+        write_truth(fly, &self.truth.text);
         fly.log_records = self.out.records;
         let mission = self.estimator.commander().mission_figures();
         let safety = self.safety.finish(&mut self.plant, self.step_us);
@@ -564,6 +587,7 @@ impl<'a> FastSim<'a> {
             fly: self.fly,
             hover: self.hover.stats(),
             track: self.track.stats(mission),
+            truth: self.truth.figures(),
             simulated_s: self.t_us as f64 / 1e6,
             esc_end: self.escs.end_state(),
         })

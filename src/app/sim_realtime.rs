@@ -148,6 +148,7 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
         fly,
         hover: result.hover,
         track: None,
+        truth: None,
         simulated_s: result.simulated_us as f64 / 1e6,
         safety: None,
     })

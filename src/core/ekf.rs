@@ -190,6 +190,74 @@ pub struct StepReport {
     pub ratios: TestRatios,
     /// The groups left out of the update (only with `gate_fusion`).
     pub gated: GatedGroups,
+    /// The normalised innovation squared of each group fused or judged in the step.
+    pub nis: StepNis,
+}
+
+/// A group's normalised innovation squared, yᵀ·S⁻¹·y over its rows with S = H·P·Hᵀ + R taken
+/// before the update (and before any group is left out): for a consistent filter it follows
+/// a chi-square law with `dof` degrees of freedom.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Nis {
+    pub value: f64,
+    pub dof: u8,
+}
+
+/// The NIS of each measurement group of one step; `None` for a group the step did not measure
+/// (no fix, a lost barometer, the first fix that places the position).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct StepNis {
+    pub attitude: Option<Nis>,
+    pub altitude: Option<Nis>,
+    pub gps: Option<Nis>,
+}
+
+/// The NIS over `rows` of an innovation `y` with covariance `s` (at most four rows, the
+/// largest group: a fix's horizontal position and velocity); `None` if a row is not finite or
+/// the block is not positive definite.
+pub(crate) fn group_nis<const M: usize>(
+    y: &SVector<f64, M>,
+    s: &SMatrix<f64, M, M>,
+    rows: impl Iterator<Item = usize>,
+) -> Option<Nis> {
+    let mut idx = [0usize; 4];
+    let mut n = 0;
+    for r in rows {
+        *idx.get_mut(n)? = r;
+        n += 1;
+    }
+    if n == 0 {
+        return None;
+    }
+    // Padded with identity rows (zero innovation): they add nothing to yᵀ·S⁻¹·y.
+    let block = nalgebra::Matrix4::<f64>::from_fn(|r, c| match (r < n, c < n) {
+        (true, true) => s[(idx[r], idx[c])],
+        _ if r == c => 1.0,
+        _ => 0.0,
+    });
+    let v = nalgebra::Vector4::<f64>::from_fn(|r, _| if r < n { y[idx[r]] } else { 0.0 });
+    if !v.iter().all(|e| e.is_finite()) {
+        return None;
+    }
+    let value = v.dot(&block.cholesky()?.solve(&v));
+    Some(Nis {
+        value,
+        dof: n as u8,
+    })
+}
+
+/// The NIS of each tested group of an update over rows grouped as `groups`.
+fn step_nis<const M: usize>(
+    y: &SVector<f64, M>,
+    s: &SMatrix<f64, M, M>,
+    groups: &[Group; M],
+) -> StepNis {
+    let of = |g: Group| group_nis(y, s, (0..M).filter(|&i| groups[i] == g));
+    StepNis {
+        attitude: of(Group::Attitude),
+        altitude: of(Group::Altitude),
+        gps: of(Group::Gps),
+    }
 }
 
 /// Normalised innovation test ratios of one step, one per measurement group: the largest over
@@ -252,6 +320,7 @@ impl GatedGroups {
 pub(crate) struct UpdateOutcome {
     pub(crate) ratios: TestRatios,
     pub(crate) gated: GatedGroups,
+    pub(crate) nis: StepNis,
     pub(crate) result: Result<(), EkfError>,
 }
 
@@ -570,6 +639,7 @@ impl Ekf {
             theta_unwrapped_rad: theta_m,
             ratios: out.ratios,
             gated: out.gated,
+            nis: out.nis,
         };
         (report, out.result)
     }
@@ -635,6 +705,10 @@ impl Ekf {
                     gated: GatedGroups {
                         gps: fix.gated.gps,
                         ..imu.gated
+                    },
+                    nis: StepNis {
+                        gps: fix.nis.gps,
+                        ..imu.nis
                     },
                     result: imu.result.and(fix.result),
                 }
@@ -734,6 +808,7 @@ impl Ekf {
             s[(i, i)] += r_diag[i];
         }
         let ratios = test_ratios(&innovation, &s, groups, self.params.gate_sigma);
+        let nis = step_nis(&innovation, &s, groups);
         let lost = non_finite_groups(z, groups);
         // Without the barometer the other rows still hold the attitude (position-velocity
         // fusion: the fixes then hold the vertical); any other row not a number refuses the
@@ -751,6 +826,7 @@ impl Ekf {
             return UpdateOutcome {
                 ratios,
                 gated: GatedGroups::default(),
+                nis,
                 result: Err(EkfError::NonFiniteMeasurement),
             };
         }
@@ -767,6 +843,7 @@ impl Ekf {
         UpdateOutcome {
             ratios,
             gated,
+            nis,
             result,
         }
     }
@@ -1267,5 +1344,23 @@ mod tests {
         let three_d = z_after(Some(GpsSample::at([0.0, 0.0, 0.0])));
         assert!((two_d - baro_only).abs() < 1e-6, "{two_d} vs {baro_only}");
         assert!(three_d < baro_only - 0.5, "{three_d} vs {baro_only}");
+    }
+
+    #[test]
+    fn the_nis_of_a_group_is_its_innovation_weighed_by_its_covariance() {
+        // Rows 0 and 2 of a correlated S: yᵀ·S⁻¹·y by hand.
+        let s = SMatrix::<f64, 3, 3>::new(4.0, 0.0, 1.0, 0.0, 9.0, 0.0, 1.0, 0.0, 2.0);
+        let y = SVector::<f64, 3>::new(1.0, 5.0, -1.0);
+        let nis = group_nis(&y, &s, [0, 2].into_iter()).unwrap();
+        // S₀₂ = [[4, 1], [1, 2]], det 7, inverse [[2, -1], [-1, 4]] / 7; y = (1, -1).
+        assert!(
+            (nis.value - (2.0 + 2.0 + 4.0) / 7.0).abs() < 1e-12,
+            "{nis:?}"
+        );
+        assert_eq!(nis.dof, 2);
+        assert!(group_nis(&y, &s, std::iter::empty()).is_none());
+        let bad = SVector::<f64, 3>::new(f64::NAN, 0.0, 0.0);
+        assert!(group_nis(&bad, &s, [0].into_iter()).is_none());
+        assert!(group_nis(&y, &s, [0, 1, 2, 0, 1].into_iter()).is_none());
     }
 }

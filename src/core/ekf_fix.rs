@@ -10,7 +10,8 @@
 //! updated in Joseph form (right for any gain); the first fix places the position.
 
 use crate::core::ekf::{
-    Ekf, EkfError, GPS_ROWS, GatedGroups, N_STATES, StateMatrix, TestRatios, UpdateOutcome, idx,
+    Ekf, EkfError, GPS_ROWS, GatedGroups, N_STATES, StateMatrix, StepNis, TestRatios,
+    UpdateOutcome, group_nis, idx,
 };
 use crate::core::gps::GpsSample;
 use crate::core::math::rotation_portable;
@@ -96,11 +97,19 @@ impl Ekf {
             gps: Some(ratio),
             ..TestRatios::default()
         };
+        let nis = group_nis(&y, &s, [0, 1, 3, 4].into_iter().filter(|&i| used[i]));
+        let judged = |gated, result| UpdateOutcome {
+            nis: StepNis {
+                gps: nis,
+                ..StepNis::default()
+            },
+            ..outcome(ratios, gated, result)
+        };
         if self.params.gate_fusion && (ratio > 1.0 || ratio.is_nan()) {
-            return outcome(ratios, true, Ok(()));
+            return judged(true, Ok(()));
         }
         let Some(s_inv) = s.try_inverse() else {
-            return outcome(ratios, false, Err(EkfError::SingularInnovation));
+            return judged(false, Err(EkfError::SingularInnovation));
         };
         let mut k = pht * s_inv;
         for st in 0..N_STATES {
@@ -117,7 +126,7 @@ impl Ekf {
         }
         self.x += k * y;
         self.joseph(&k, &h, &r, &used);
-        outcome(ratios, false, Ok(()))
+        judged(false, Ok(()))
     }
 
     /// H, the innovation, P·Hᵀ and S = H·P·Hᵀ + R over the rows `used` (the others zero, with
@@ -207,6 +216,7 @@ fn outcome(ratios: TestRatios, gps_gated: bool, result: Result<(), EkfError>) ->
             gps: gps_gated,
             ..GatedGroups::default()
         },
+        nis: StepNis::default(),
         result,
     }
 }

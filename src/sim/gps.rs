@@ -110,6 +110,11 @@ impl Receiver {
         }
     }
 
+    /// The bias the receiver's fixes carry now (north, west, up), m.
+    pub fn bias_m(&self) -> [f64; 3] {
+        self.bias_m
+    }
+
     fn period_us(&self) -> i64 {
         (1e6 / self.p.rate_hz).round() as i64
     }
@@ -185,6 +190,11 @@ impl SimGps {
             eph_m: p.eph_m(),
             seq: 0,
         }
+    }
+
+    /// The bias the receiver's fixes carry now (north, west, up), m.
+    pub fn bias_m(&self) -> [f64; 3] {
+        self.receiver.bias_m()
     }
 
     /// Called at every physics step (simulated time `t_us`) with the true position and

@@ -15,7 +15,7 @@ use crate::core::control::{
     Controller, Horizontal, HoverPlanner, ManualCommand, ManualOutcome, SetPoint,
 };
 use crate::core::ekf::{
-    Ekf, EkfError, EkfParams, GatedGroups, Input, State, StepInput, TestRatios,
+    Ekf, EkfError, EkfParams, GatedGroups, Input, State, StepInput, StepNis, TestRatios,
 };
 use crate::core::gps::GpsSample;
 use crate::core::imu::calib::{Calibration, ImuSample};
@@ -69,6 +69,8 @@ pub struct Estimate {
     pub ratios: TestRatios,
     /// The measurement groups the step left out of its update.
     pub gated: GatedGroups,
+    /// The step's normalised innovations squared (the simulator's consistency figures).
+    pub nis: StepNis,
 }
 
 /// The estimator half: front end (settle, calibrate, FIR, conversion) and EKF.
@@ -181,6 +183,7 @@ impl EstimatorCore {
             stop_escs: false,
             ratios: report.ratios,
             gated: report.gated,
+            nis: report.nis,
         })
     }
 }

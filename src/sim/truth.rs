@@ -1,0 +1,266 @@
+//! The estimate against the truth: at every Kalman step of a simulation, the true state in the
+//! estimate's convention (`truth.log`), and the figures that say how far the estimate is from
+//! it (`est_error`) and whether the filter's own covariance says so (`ekf_consistency`).
+//!
+//! Consistency is judged as in Bar-Shalom's tests: the normalised estimation error squared
+//! (NEES, eᵀ·P⁻¹·e over a block of states) and the normalised innovation squared (NIS, per
+//! measurement group) of a consistent filter follow chi-square laws with the block's
+//! dimension; a step is inside when its value lies between the law's 2.5 % and 97.5 %
+//! quantiles (0.95 of the steps for a perfectly consistent filter).
+//!
+//! The receiver's wandering bias is not observable by the filter (nothing but the fixes sees
+//! the horizontal position): the position NEES is taken against the true position plus the
+//! receiver's current bias — what the fixes let the filter know — and only once a fix has
+//! placed the position. `est_error` is against the truth alone: it holds the bias.
+
+use crate::core::ekf::{Ekf, Nis, idx};
+use crate::core::flight::Estimate;
+use crate::logs::format::write_values_row;
+use crate::sim::physics::Plant;
+use serde::Serialize;
+
+/// The file in the run folder: per Kalman step, the time (µs) and the true x y z (m), ψ φ θ
+/// (rad), body velocities (m/s), body rates (rad/s), then the receiver's bias north, west, up
+/// (m) where the estimate has its accelerometer biases.
+pub const FILE: &str = "truth.log";
+
+/// Two-sided 95 % bounds of the chi-square law with 1 to 4 degrees of freedom: its 2.5 % and
+/// 97.5 % quantiles (standard tables).
+const CHI2_95: [(f64, f64); 4] = [
+    (0.000_982, 5.024),
+    (0.050_6, 7.378),
+    (0.215_8, 9.348),
+    (0.484_4, 11.143),
+];
+
+/// Whether `value` with `dof` degrees of freedom lies inside the two-sided 95 % bounds.
+pub fn inside_95(value: f64, dof: u8) -> bool {
+    let Some(&(lo, hi)) = CHI2_95.get(usize::from(dof).wrapping_sub(1)) else {
+        return false;
+    };
+    value >= lo && value <= hi
+}
+
+/// The mean of a normalised error and the fraction of steps inside its 95 % bounds.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct ChiFigure {
+    pub mean: f64,
+    pub in_95: f64,
+    /// Steps judged.
+    pub steps: u64,
+}
+
+#[derive(Debug, Clone, Copy, Default)]
+struct ChiSum {
+    sum: f64,
+    inside: u64,
+    n: u64,
+}
+
+impl ChiSum {
+    fn add(&mut self, value: f64, dof: u8) {
+        if !value.is_finite() {
+            // A non-finite value is a failed step: counted, never inside.
+            self.n += 1;
+            return;
+        }
+        self.sum += value;
+        self.inside += u64::from(inside_95(value, dof));
+        self.n += 1;
+    }
+
+    fn figure(&self) -> ChiFigure {
+        let per = |v: f64| if self.n > 0 { v / self.n as f64 } else { 0.0 };
+        ChiFigure {
+            mean: per(self.sum),
+            in_95: per(self.inside as f64),
+            steps: self.n,
+        }
+    }
+}
+
+/// NEES per block of states.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct NeesFigures {
+    pub position: ChiFigure,
+    pub velocity: ChiFigure,
+    pub attitude: ChiFigure,
+}
+
+/// NIS per measurement group.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct NisFigures {
+    pub attitude: ChiFigure,
+    pub altitude: ChiFigure,
+    pub gps: ChiFigure,
+}
+
+/// The report's `ekf_consistency`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct Consistency {
+    pub nees: NeesFigures,
+    pub nis: NisFigures,
+}
+
+/// The report's `est_error`: the estimate against the truth over every Kalman step.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct EstError {
+    /// 3-D position error, RMS and largest, m.
+    pub position_rms_m: f64,
+    pub position_max_m: f64,
+    /// Body-frame velocity error, RMS of its norm, m/s.
+    pub velocity_rms_m_s: f64,
+    /// Euler angle error (each wrapped to ±π), RMS of its norm, rad.
+    pub attitude_rms_rad: f64,
+    pub steps: u64,
+}
+
+/// The true state at every Kalman step, and the figures.
+#[derive(Debug, Default)]
+pub struct TruthTrace {
+    /// truth.log's text.
+    pub text: String,
+    pos_sq: f64,
+    pos_max: f64,
+    vel_sq: f64,
+    att_sq: f64,
+    n: u64,
+    nees: [ChiSum; 3],
+    nis: [ChiSum; 3],
+}
+
+/// The wrapped difference a − b of two angles, in (−π, π].
+fn angle_diff(a: f64, b: f64) -> f64 {
+    let d = (a - b).rem_euclid(std::f64::consts::TAU);
+    if d > std::f64::consts::PI {
+        d - std::f64::consts::TAU
+    } else {
+        d
+    }
+}
+
+/// eᵀ·P⁻¹·e over the three states from `first`; NaN when the block is not invertible.
+fn nees3(ekf: &Ekf, first: usize, e: [f64; 3]) -> f64 {
+    let p = ekf.p.fixed_view::<3, 3>(first, first).into_owned();
+    let e = nalgebra::Vector3::from(e);
+    match p.cholesky() {
+        Some(c) => e.dot(&c.solve(&e)),
+        None => f64::NAN,
+    }
+}
+
+impl TruthTrace {
+    /// One Kalman step at `t_us`: the estimate `est` from filter `ekf`, the vehicle `plant`,
+    /// and the receiver's current bias (north, west, up), m.
+    pub fn sample(
+        &mut self,
+        t_us: i64,
+        est: &Estimate,
+        ekf: &Ekf,
+        plant: &Plant,
+        bias_m: [f64; 3],
+    ) {
+        let x = &plant.x;
+        let truth: [f64; 15] = std::array::from_fn(|i| match i {
+            0..12 => x[i],
+            _ => bias_m[i - 12],
+        });
+        write_values_row(&mut self.text, Some(t_us), &truth);
+        let e = &est.x;
+        let d = |i: usize| e[i] - x[i];
+        let pos = [d(idx::X), d(idx::Y), d(idx::Z)];
+        let vel = [d(idx::VQX), d(idx::VQY), d(idx::VQZ)];
+        let att = [idx::PSI, idx::PHI, idx::THETA].map(|i| angle_diff(e[i], x[i]));
+        let norm_sq = |v: [f64; 3]| v.iter().map(|c| c * c).sum::<f64>();
+        self.pos_sq += norm_sq(pos);
+        self.pos_max = self.pos_max.max(norm_sq(pos).sqrt());
+        self.vel_sq += norm_sq(vel);
+        self.att_sq += norm_sq(att);
+        self.n += 1;
+        if ekf.fix_seen {
+            let known = [pos[0] - bias_m[0], pos[1] - bias_m[1], pos[2]];
+            self.nees[0].add(nees3(ekf, idx::X, known), 3);
+        }
+        self.nees[1].add(nees3(ekf, idx::VQX, vel), 3);
+        self.nees[2].add(nees3(ekf, idx::PSI, att), 3);
+        let groups = [est.nis.attitude, est.nis.altitude, est.nis.gps];
+        for (sum, nis) in self.nis.iter_mut().zip(groups) {
+            if let Some(Nis { value, dof }) = nis {
+                sum.add(value, dof);
+            }
+        }
+    }
+
+    /// The figures; `None` before a Kalman step.
+    pub fn figures(&self) -> Option<(EstError, Consistency)> {
+        if self.n == 0 {
+            return None;
+        }
+        let rms = |s: f64| (s / self.n as f64).sqrt();
+        let error = EstError {
+            position_rms_m: rms(self.pos_sq),
+            position_max_m: self.pos_max,
+            velocity_rms_m_s: rms(self.vel_sq),
+            attitude_rms_rad: rms(self.att_sq),
+            steps: self.n,
+        };
+        let consistency = Consistency {
+            nees: NeesFigures {
+                position: self.nees[0].figure(),
+                velocity: self.nees[1].figure(),
+                attitude: self.nees[2].figure(),
+            },
+            nis: NisFigures {
+                attitude: self.nis[0].figure(),
+                altitude: self.nis[1].figure(),
+                gps: self.nis[2].figure(),
+            },
+        };
+        Some((error, consistency))
+    }
+}
+
+/// The summary's line: the error, and the fraction of steps inside the 95 % bounds.
+pub fn text(e: &EstError, c: &Consistency) -> String {
+    let (n, s) = (&c.nees, &c.nis);
+    format!(
+        "estimate against the truth: position RMS {:.3} m (largest {:.3} m), velocity RMS {:.3} m/s, \
+         attitude RMS {:.4} rad; inside the 95 % bounds: NEES position {:.2}, velocity {:.2}, \
+         attitude {:.2}; NIS attitude {:.2}, altitude {:.2}, gps {:.2}",
+        e.position_rms_m,
+        e.position_max_m,
+        e.velocity_rms_m_s,
+        e.attitude_rms_rad,
+        n.position.in_95,
+        n.velocity.in_95,
+        n.attitude.in_95,
+        s.attitude.in_95,
+        s.altitude.in_95,
+        s.gps.in_95
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_bounds_hold_the_chi_square_middle() {
+        assert!(inside_95(3.0, 3) && !inside_95(0.1, 3) && !inside_95(10.0, 3));
+        assert!(inside_95(1.0, 1) && !inside_95(6.0, 1));
+        assert!(!inside_95(1.0, 0) && !inside_95(1.0, 5));
+        let mut s = ChiSum::default();
+        s.add(2.0, 2);
+        s.add(f64::NAN, 2);
+        s.add(100.0, 2);
+        let f = s.figure();
+        assert_eq!(f.steps, 3);
+        assert!((f.in_95 - 1.0 / 3.0).abs() < 1e-12 && (f.mean - 34.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn angles_differ_the_short_way() {
+        assert!((angle_diff(3.1, -3.1) - (6.2 - std::f64::consts::TAU)).abs() < 1e-12);
+        assert!((angle_diff(0.2, 0.1) - 0.1).abs() < 1e-12);
+    }
+}
