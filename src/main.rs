@@ -107,6 +107,21 @@ extension: .png (default RUN_DIR/plot.png; text in the embedded DejaVu Sans, the
 machine) or .svg."
     )]
     Plot(PlotArgs),
+    /// Each sensor's noise from a still segment of a run: Allan deviation, the filter's R.
+    #[command(
+        long_about = "Each sensor's noise from a still segment of a run's imu_raw.log (the vehicle \
+at rest: a calibration, or a simulated vehicle on the ground). The frames are converted with the \
+run's imu_calib.txt (or --calib) as the estimator converts them. For each gyro and accelerometer \
+axis: the mean, the standard deviation, and the terms of the Allan deviation fitted by IEEE Std \
+952's model — the white noise per frame and its density (unit·√s), the bias instability and the \
+bias random walk (unit/√s); the standard deviation of the barometer's altitude and pressure and \
+of the angles the IMU derives (roll, pitch from the accelerometer, yaw from the magnetometer). \
+Then the ekf.r_imu diagonal those imply and the accelerometer biases' process noise per step. \
+Minutes of stillness are needed for the slow terms; a short or moving segment is warned about. \
+Example (the 2012 flight's calibration, motors idling): uquad noise \
+tests/data/flight-2012-05-25 --calib config/imu_calib.txt --to 12.12"
+    )]
+    Noise(NoiseArgs),
     /// Export a run for Flight Review, PlotJuggler, pyulog (ULog) or spreadsheets (CSV).
     #[command(
         long_about = "Export a run folder (ours, or the original's) for the tools people use. \
@@ -318,6 +333,24 @@ struct ExportArgs {
 }
 
 #[derive(clap::Args, Debug)]
+struct NoiseArgs {
+    /// A run folder with imu_raw.log (ours, or the original's).
+    run_dir: PathBuf,
+    /// The segment's start, s in the log's first column (t_main); default its first frame.
+    #[arg(long, value_name = "S")]
+    from: Option<f64>,
+    /// The segment's end, s; default the log's last frame.
+    #[arg(long, value_name = "S")]
+    to: Option<f64>,
+    /// The calibration to convert the frames with (default RUN_DIR/imu_calib.txt).
+    #[arg(long, value_name = "FILE")]
+    calib: Option<PathBuf>,
+    /// Also write the figures as JSON.
+    #[arg(long, value_name = "FILE")]
+    report: Option<PathBuf>,
+}
+
+#[derive(clap::Args, Debug)]
 struct PlotArgs {
     /// A run folder: ours (logs/<run-id>) or the original's (x_hat.log, w.log).
     run_dir: PathBuf,
@@ -521,6 +554,7 @@ fn main() -> ExitCode {
         Command::Sim(a) => a.run(),
         Command::Campaign(a) => a.run(),
         Command::Plot(a) => a.run(),
+        Command::Noise(a) => a.run(),
         Command::Export(a) => a.run(),
         Command::Console(a) => a.run(),
         Command::Params(a) => a.run(),
@@ -737,6 +771,27 @@ impl ExportArgs {
         let files = uquad::app::export::run(&self.run_dir, self.format, &self.out)?;
         for f in files {
             println!("{}", f.display());
+        }
+        Ok(ExitCode::SUCCESS)
+    }
+}
+
+impl NoiseArgs {
+    fn run(self) -> anyhow::Result<ExitCode> {
+        for (name, v) in [("--from", self.from), ("--to", self.to)] {
+            if v.is_some_and(|v| !v.is_finite()) {
+                anyhow::bail!("{name}: not a number of seconds");
+            }
+        }
+        let report = uquad::app::noise::run(&uquad::app::noise::NoiseOptions {
+            run_dir: self.run_dir,
+            from_s: self.from,
+            to_s: self.to,
+            calib: self.calib,
+        })?;
+        print!("{}", report.text());
+        if let Some(path) = &self.report {
+            uquad::app::report::write_json(&report, path)?;
         }
         Ok(ExitCode::SUCCESS)
     }

@@ -12,6 +12,7 @@ pub mod fly;
 pub mod gps;
 pub mod log_lines;
 pub mod lqr;
+pub mod noise;
 pub mod plot;
 pub mod replay;
 pub mod replay_batch;

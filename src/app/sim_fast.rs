@@ -143,6 +143,8 @@ struct FastSim<'a> {
     track: TrackTrace,
     safety: SafetyTrace,
     truth: TruthTrace,
+    /// truth.log's text.
+    truth_text: String,
 }
 
 pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSummary> {
@@ -272,6 +274,7 @@ impl<'a> FastSim<'a> {
             track: TrackTrace::default(),
             safety: SafetyTrace::default(),
             truth: TruthTrace::default(),
+            truth_text: String::new(),
             faults,
         }
     }
@@ -428,7 +431,8 @@ impl<'a> FastSim<'a> {
             } else {
                 [0.0; 3]
             };
-            self.truth.sample(self.t_us, &est, ekf, &self.plant, bias_m);
+            let row = self.truth.sample(&est, ekf, &self.plant, bias_m);
+            crate::logs::format::write_values_row(&mut self.truth_text, Some(self.t_us), &row);
         }
         self.dispatch_events();
         let (t, driver, cycles) = (self.t_us, &mut self.driver, &mut self.cycles);
@@ -578,7 +582,7 @@ impl<'a> FastSim<'a> {
             self.out.log(r);
         }
         write_streams(fly, &self.out.text);
-        write_truth(fly, &self.truth.text);
+        write_truth(fly, &self.truth_text);
         fly.log_records = self.out.records;
         let mission = self.estimator.commander().mission_figures();
         let safety = self.safety.finish(&mut self.plant, self.step_us);

@@ -78,6 +78,8 @@ pub const PARAMETERS: &[(&str, &str)] = &[
     ("SIM_GYRO_NOISE", "sim.gyro_noise_rad_s"),
     ("SIM_BARO_NOISE", "sim.baro_noise_pa"),
     ("SIM_MAG_NOISE", "sim.mag_noise"),
+    ("SIM_GYRO_WALK", "sim.gyro_bias_walk_rad_s_per_sqrt_s"),
+    ("SIM_ACC_WALK", "sim.acc_bias_walk_m_s2_per_sqrt_s"),
     ("SIM_TEMP_C", "sim.temp_c"),
     ("SIM_YAW0", "sim.initial_yaw_rad"),
     ("SIM_SEED", "sim.seed"),

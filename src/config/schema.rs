@@ -75,6 +75,10 @@ pub struct Sim {
     pub gyro_bias_rad_s: [f64; 3],
     pub baro_noise_pa: f64,
     pub mag_noise: f64,
+    /// The gyro's and accelerometer's bias random walk (rate random walk): the bias drifts by
+    /// this much per √s, rad/s/√s and m/s²/√s; 0 holds the bias.
+    pub gyro_bias_walk_rad_s_per_sqrt_s: f64,
+    pub acc_bias_walk_m_s2_per_sqrt_s: f64,
     /// IMU temperature, °C.
     pub temp_c: f64,
     /// Heading at start, rad.
@@ -112,6 +116,8 @@ impl Default for Sim {
             gyro_bias_rad_s: [0.01, -0.005, 0.002],
             baro_noise_pa: 1.0,
             mag_noise: 0.005,
+            gyro_bias_walk_rad_s_per_sqrt_s: 0.0,
+            acc_bias_walk_m_s2_per_sqrt_s: 0.0,
             temp_c: 30.0,
             initial_yaw_rad: 0.3,
             seed: 1,

@@ -579,6 +579,18 @@ fn sim_rules(sim: &Sim) -> Vec<Check> {
         each_within("sim.gyro_bias_rad_s", &sim.gyro_bias_rad_s, 1.0, "rad/s"),
         in_range("sim.baro_noise_pa", sim.baro_noise_pa, 0.0..=1000.0, "Pa"),
         in_range("sim.mag_noise", sim.mag_noise, 0.0..=1.0, ""),
+        in_range(
+            "sim.gyro_bias_walk_rad_s_per_sqrt_s",
+            sim.gyro_bias_walk_rad_s_per_sqrt_s,
+            0.0..=0.1,
+            "rad/s/√s",
+        ),
+        in_range(
+            "sim.acc_bias_walk_m_s2_per_sqrt_s",
+            sim.acc_bias_walk_m_s2_per_sqrt_s,
+            0.0..=1.0,
+            "m/s²/√s",
+        ),
         in_range("sim.temp_c", sim.temp_c, -20.0..=50.0, "°C"),
         within("sim.initial_yaw_rad", sim.initial_yaw_rad, 3.2, "rad"),
         in_range("sim.gust_n", sim.gust_n, 0.0..=100.0, "N"),

@@ -2,6 +2,7 @@
 //! Time and data come in as arguments; decisions come out as return values. Each file names the
 //! section of `../shared/spec/uquad-original.md` it follows.
 
+pub mod allan;
 pub mod commander;
 pub mod control;
 pub mod ekf;

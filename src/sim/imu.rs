@@ -18,7 +18,13 @@ pub struct ImuNoise {
     pub baro_pa: f64,
     pub mag: f64,
     pub temp_c: f64,
+    /// Bias random walk of the gyro and the accelerometer, per √s (0: none).
+    pub gyro_walk_rad_s_per_sqrt_s: f64,
+    pub acc_walk_m_s2_per_sqrt_s: f64,
 }
+
+/// The firmware samples its accelerometer and gyro every 5 ms, two per frame, s.
+pub const SUB_SAMPLE_S: f64 = 0.005;
 
 /// Gaussian samples from the seeded generator (Box–Muller).
 #[derive(Debug, Clone)]
@@ -59,6 +65,9 @@ pub struct SimImu {
     held_mag: [i16; 3],
     held_baro: (i16, u32),
     first_sub: Option<[f64; 6]>,
+    /// The random walks' part of the biases so far: gyro (rad/s), accelerometer (m/s²).
+    gyro_walk_rad_s: [f64; 3],
+    acc_walk_m_s2: [f64; 3],
 }
 
 impl SimImu {
@@ -72,6 +81,8 @@ impl SimImu {
             held_mag: [0; 3],
             held_baro: (0, 0),
             first_sub: None,
+            gyro_walk_rad_s: [0.0; 3],
+            acc_walk_m_s2: [0.0; 3],
         }
     }
 
@@ -80,9 +91,18 @@ impl SimImu {
         let f = plant.specific_force_m_s2;
         let w = plant.rates_rad_s();
         let n = self.noise;
-        let acc: [f64; 3] = std::array::from_fn(|i| f[i] + self.rng.sample(n.acc_m_s2));
-        let gyro: [f64; 3] =
-            std::array::from_fn(|i| w[i] + n.gyro_bias_rad_s[i] + self.rng.sample(n.gyro_rad_s));
+        // A random walk's step over one sub-sample (no draw when it is off: the default
+        // runs' noise stays the same).
+        let sqrt_dt = SUB_SAMPLE_S.sqrt();
+        for i in 0..3 {
+            self.gyro_walk_rad_s[i] += self.rng.sample(n.gyro_walk_rad_s_per_sqrt_s * sqrt_dt);
+            self.acc_walk_m_s2[i] += self.rng.sample(n.acc_walk_m_s2_per_sqrt_s * sqrt_dt);
+        }
+        let acc: [f64; 3] =
+            std::array::from_fn(|i| f[i] + self.acc_walk_m_s2[i] + self.rng.sample(n.acc_m_s2));
+        let gyro: [f64; 3] = std::array::from_fn(|i| {
+            w[i] + n.gyro_bias_rad_s[i] + self.gyro_walk_rad_s[i] + self.rng.sample(n.gyro_rad_s)
+        });
         let (a, g) = self.calib.counts_for(&acc, self.temp_c, &gyro, &[0.0; 3]);
         [a[0], a[1], a[2], g[0], g[1], g[2]]
     }
@@ -127,6 +147,87 @@ impl SimImu {
     }
 }
 
+/// The per-frame noise this IMU produces, as `uquad noise` should find it: the standard
+/// deviation of each accelerometer and gyro axis of a frame (m/s², rad/s) with the vehicle at
+/// rest reading `acc_m_s2` and `gyro_rad_s` (the bias included), at `temp_c`.
+///
+/// How: `sim.*_noise_*` is each 5 ms sub-sample's. The sub-sample becomes counts through the
+/// inverted calibration (sd in counts: the noise through K⁻¹), is rounded to a count; the
+/// firmware sums two and halves the sum toward zero ([`frame_counts_sd`]); the frame's counts
+/// go back to units through K. Far from zero counts that is about σ²/2 + (5/48)·Σⱼ Kᵢⱼ²
+/// (rounding 1/24 count², the halving's truncation 1/16); near zero counts the truncation is
+/// a dead zone that makes it narrower.
+pub fn expected_frame_sd(
+    calib: &Calibration,
+    noise: &ImuNoise,
+    temp_c: f64,
+    acc_m_s2: [f64; 3],
+    gyro_rad_s: [f64; 3],
+) -> ([f64; 3], [f64; 3]) {
+    let counts = |a: &[f64; 3], g: &[f64; 3]| calib.counts_for(a, temp_c, g, &[0.0; 3]);
+    let (mean_a, mean_g) = counts(&acc_m_s2, &gyro_rad_s);
+    // Each unit axis's noise through K⁻¹: the counts it moves, per axis of counts.
+    let mut var_a = [0.0; 3];
+    let mut var_g = [0.0; 3];
+    for i in 0..3 {
+        let mut a = acc_m_s2;
+        a[i] += noise.acc_m_s2;
+        let mut g = gyro_rad_s;
+        g[i] += noise.gyro_rad_s;
+        let (da, dg) = (counts(&a, &gyro_rad_s).0, counts(&acc_m_s2, &g).1);
+        for j in 0..3 {
+            var_a[j] += (da[j] - mean_a[j]).powi(2);
+            var_g[j] += (dg[j] - mean_g[j]).powi(2);
+        }
+    }
+    let frame_var = |mean: [f64; 3], var: [f64; 3]| -> [f64; 3] {
+        std::array::from_fn(|j| frame_counts_sd(mean[j], var[j].sqrt()).powi(2))
+    };
+    let (fa, fg) = (frame_var(mean_a, var_a), frame_var(mean_g, var_g));
+    let to_units = |k: &[[f64; 3]; 3], v: [f64; 3]| -> [f64; 3] {
+        std::array::from_fn(|i| (0..3).map(|j| k[i][j].powi(2) * v[j]).sum::<f64>().sqrt())
+    };
+    (
+        to_units(&calib.acc.tk_inv, fa),
+        to_units(&calib.gyro.tk_inv, fg),
+    )
+}
+
+/// The standard deviation, counts, of `(round(a) + round(b)) / 2` halved toward zero, with a
+/// and b independent Gaussian about `mean` with `sd` (counts): summed exactly over the
+/// rounded values' distribution.
+pub fn frame_counts_sd(mean: f64, sd: f64) -> f64 {
+    if sd <= 0.0 {
+        return 0.0;
+    }
+    let lo = (mean - 9.0 * sd).floor() as i64 - 1;
+    let hi = (mean + 9.0 * sd).ceil() as i64 + 1;
+    let cdf = |x: f64| 0.5 * (1.0 + erf((x - mean) / (sd * std::f64::consts::SQRT_2)));
+    let p: Vec<(i64, f64)> = (lo..=hi)
+        .map(|k| (k, cdf(k as f64 + 0.5) - cdf(k as f64 - 0.5)))
+        .collect();
+    let (mut m1, mut m2) = (0.0, 0.0);
+    for &(a, pa) in &p {
+        for &(b, pb) in &p {
+            let v = ((a + b) / 2) as f64;
+            m1 += pa * pb * v;
+            m2 += pa * pb * v * v;
+        }
+    }
+    (m2 - m1 * m1).max(0.0).sqrt()
+}
+
+/// The error function (Abramowitz and Stegun 7.1.26; absolute error under 1.5e-7).
+fn erf(x: f64) -> f64 {
+    let t = 1.0 / (1.0 + 0.327_591_1 * x.abs());
+    let poly = t
+        * (0.254_829_592
+            + t * (-0.284_496_736
+                + t * (1.421_413_741 + t * (-1.453_152_027 + t * 1.061_405_429))));
+    let y = 1.0 - poly * (-x * x).exp();
+    if x < 0.0 { -y } else { y }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -143,6 +244,8 @@ mod tests {
             baro_pa: 0.0,
             mag: 0.0,
             temp_c: 0.0,
+            gyro_walk_rad_s_per_sqrt_s: 0.0,
+            acc_walk_m_s2_per_sqrt_s: 0.0,
         };
         let mut imu = SimImu::new(calib.clone(), noise, 30.0, 1);
         let mut plant = Plant::new(
@@ -168,5 +271,16 @@ mod tests {
         assert!((e[2] - 1.2).abs() < 0.02, "yaw {e:?}");
         assert!(s.alt_m.abs() < 0.5);
         assert_eq!(f.temp_dc, 300);
+    }
+
+    #[test]
+    fn a_frame_halves_the_variance_and_adds_the_counts_rounding() {
+        // Far from zero: σ²/2 + 5/48 count².
+        let sd = frame_counts_sd(100.3, 3.0);
+        assert!((sd - (4.5f64 + 5.0 / 48.0).sqrt()).abs() < 0.01, "{sd}");
+        // About zero the truncation's dead zone narrows it.
+        assert!(frame_counts_sd(0.0, 1.3) < frame_counts_sd(50.0, 1.3));
+        assert_eq!(frame_counts_sd(3.0, 0.0), 0.0);
+        assert!((erf(0.5) - 0.520_499_877_8).abs() < 2e-7 && (erf(-0.5) + erf(0.5)).abs() < 1e-12);
     }
 }

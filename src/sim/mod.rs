@@ -38,6 +38,8 @@ pub fn vehicle(profile: &Profile, seed: u64) -> (physics::Plant, imu::SimImu) {
             baro_pa: sc.baro_noise_pa,
             mag: sc.mag_noise,
             temp_c: 0.0,
+            gyro_walk_rad_s_per_sqrt_s: sc.gyro_bias_walk_rad_s_per_sqrt_s,
+            acc_walk_m_s2_per_sqrt_s: sc.acc_bias_walk_m_s2_per_sqrt_s,
         },
         sc.temp_c,
         seed,

@@ -15,7 +15,6 @@
 
 use crate::core::ekf::{Ekf, Nis, idx};
 use crate::core::flight::Estimate;
-use crate::logs::format::write_values_row;
 use crate::sim::physics::Plant;
 use serde::Serialize;
 
@@ -115,11 +114,9 @@ pub struct EstError {
     pub steps: u64,
 }
 
-/// The true state at every Kalman step, and the figures.
+/// The figures over every Kalman step.
 #[derive(Debug, Default)]
 pub struct TruthTrace {
-    /// truth.log's text.
-    pub text: String,
     pos_sq: f64,
     pos_max: f64,
     vel_sq: f64,
@@ -150,22 +147,20 @@ fn nees3(ekf: &Ekf, first: usize, e: [f64; 3]) -> f64 {
 }
 
 impl TruthTrace {
-    /// One Kalman step at `t_us`: the estimate `est` from filter `ekf`, the vehicle `plant`,
-    /// and the receiver's current bias (north, west, up), m.
+    /// One Kalman step: the estimate `est` from filter `ekf`, the vehicle `plant`, and the
+    /// receiver's current bias (north, west, up), m. Returns truth.log's row ([`FILE`]).
     pub fn sample(
         &mut self,
-        t_us: i64,
         est: &Estimate,
         ekf: &Ekf,
         plant: &Plant,
         bias_m: [f64; 3],
-    ) {
+    ) -> [f64; 15] {
         let x = &plant.x;
         let truth: [f64; 15] = std::array::from_fn(|i| match i {
             0..12 => x[i],
             _ => bias_m[i - 12],
         });
-        write_values_row(&mut self.text, Some(t_us), &truth);
         let e = &est.x;
         let d = |i: usize| e[i] - x[i];
         let pos = [d(idx::X), d(idx::Y), d(idx::Z)];
@@ -189,6 +184,7 @@ impl TruthTrace {
                 sum.add(value, dof);
             }
         }
+        truth
     }
 
     /// The figures; `None` before a Kalman step.
