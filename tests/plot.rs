@@ -90,6 +90,7 @@ fn plots_the_2012_flight() {
             .all(|p| p.series.iter().all(|s| s.points.len() > 500))
     );
     assert!(fig.marks.is_empty() && fig.track.len() == 1);
+    assert!(fig.panels.iter().all(|p| p.series.iter().all(|s| !s.truth)));
     let (png, _dir) = plot(&flight_dir(), "flight.png");
     assert_eq!(png_size(&png), (1600, 1200));
     let (svg, _dir) = plot(&flight_dir(), "flight.svg");
@@ -132,7 +133,21 @@ fn plots_a_sim_run_with_its_set_points_modes_and_track() {
         labels,
         ["disarmed", "armed", "takeoff", "hold", "land", "disarmed"]
     );
-    assert_eq!(fig.track.len(), 2, "flown and planned");
+    assert_eq!(fig.track.len(), 3, "flown, planned and the truth");
+    // A sim run has truth.log: each pose panel draws it beside the estimate, and a panel of
+    // the innovation test ratios has the gate.
+    for p in &fig.panels[..3] {
+        let truth: Vec<_> = p.series.iter().filter(|s| s.truth).collect();
+        assert!(
+            !truth.is_empty() && truth.iter().all(|s| s.points.len() > 500),
+            "{}",
+            p.title
+        );
+    }
+    let ratios = fig.panels.last().unwrap();
+    let names: Vec<&str> = ratios.series.iter().map(|s| s.name.as_str()).collect();
+    assert_eq!(names, ["attitude", "altitude", "gps", "gate (ratio 1)"]);
+    assert!(ratios.series[0].points.len() > 500);
     // The default output is RUN_DIR/plot.png.
     let o = uquad(&root(), &["plot", run.to_str().unwrap()]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));

@@ -1,7 +1,9 @@
 //! What `uquad plot` draws, read from a run folder: the estimate (x_hat.log, timed by
-//! kalman_in.log), the set points (setpoint.log), the motor speeds (w.log), the mode changes
-//! and failsafes (mode.log), and the horizontal track against the planned one. Works on our
-//! run folders and the original's (which have neither set points nor modes).
+//! kalman_in.log), the set points (setpoint.log), the simulated truth (truth.log, a `sim`
+//! run's), the motor speeds (w.log), the innovation test ratios against their gate
+//! (innov.log), the mode changes and failsafes (mode.log), and the horizontal track against
+//! the planned one. Works on our run folders and the original's (which have neither set
+//! points, truth, ratios nor modes).
 
 use crate::app::log_lines::{EstimateTimes, LogLines};
 use crate::logs;
@@ -18,6 +20,8 @@ pub struct Series {
     pub points: Vec<(f64, f64)>,
     /// A set point (drawn dashed, in the colour of the series it is the set point of).
     pub setpoint: bool,
+    /// The simulated truth (drawn in black).
+    pub truth: bool,
 }
 
 /// One panel over time.
@@ -88,7 +92,24 @@ fn series(name: &str, setpoint: bool, points: Vec<(f64, f64)>) -> Series {
         name: name.to_string(),
         points,
         setpoint,
+        truth: false,
     }
+}
+
+fn truth_series(name: &str, points: Vec<(f64, f64)>) -> Series {
+    Series {
+        truth: true,
+        ..series(name, false, points)
+    }
+}
+
+/// The five series of a state log row (z, roll, pitch, yaw, and the track east-north) from
+/// `x` holding x y z ψ φ θ first.
+fn push_pose(t_s: f64, x: &[f64], k: &mut [Keep; 5]) {
+    for (keep, i) in k.iter_mut().zip([2, 3, 4, 5]) {
+        keep.push((t_s, x[i]));
+    }
+    k[4].push((-x[1], x[0]));
 }
 
 /// The records of `name` in `run_dir` that `parse` reads; 0 when it is missing.
@@ -141,10 +162,7 @@ pub fn figure(run_dir: &Path) -> anyhow::Result<Figure> {
         logs::parse_x_hat,
         |x, index, k: &mut [Keep; 5]| {
             let t_s = times.at(index)? as f64 / 1e6;
-            for (keep, i) in k.iter_mut().zip([2, 3, 4, 5]) {
-                keep.push((t_s, x[i]));
-            }
-            k[4].push((-x[1], x[0]));
+            push_pose(t_s, &x[..], k);
             // A mark is placed where the first estimate at or after its time was.
             for (m, at) in marks_t.iter().zip(at_m.iter_mut()) {
                 if at.is_none() && t_s >= m.t_s {
@@ -160,13 +178,20 @@ pub fn figure(run_dir: &Path) -> anyhow::Result<Figure> {
         "setpoint.log",
         logs::parse_time_and::<6>,
         |(t, v), _, k: &mut [Keep; 5]| {
-            for (keep, i) in k.iter_mut().zip([2, 3, 4, 5]) {
-                keep.push((*t as f64 / 1e6, v[i]));
-            }
-            k[4].push((-v[1], v[0]));
+            push_pose(*t as f64 / 1e6, v, k);
             Ok(())
         },
     )?;
+    let (truth, truth_warning) = read_series(
+        run_dir,
+        "truth.log",
+        logs::parse_time_and::<15>,
+        |(t, v), _, k: &mut [Keep; 5]| {
+            push_pose(*t as f64 / 1e6, v, k);
+            Ok(())
+        },
+    )?;
+    let (ratios, ratio_warning) = ratio_series(run_dir)?;
     let (w, w_warning) = read_series(
         run_dir,
         "w.log",
@@ -178,10 +203,15 @@ pub fn figure(run_dir: &Path) -> anyhow::Result<Figure> {
             Ok(())
         },
     )?;
-    for w in [warning, times.warning(), set_warning, w_warning]
-        .into_iter()
-        .flatten()
-    {
+    let warnings = [
+        warning,
+        times.warning(),
+        set_warning,
+        w_warning,
+        truth_warning,
+        ratio_warning,
+    ];
+    for w in warnings.into_iter().flatten() {
         eprintln!("warning: {w}");
     }
     if est[0].seen == 0 {
@@ -191,12 +221,17 @@ pub fn figure(run_dir: &Path) -> anyhow::Result<Figure> {
         );
     }
     let has_set = set[0].seen > 0;
+    let has_truth = truth[0].seen > 0;
     let [z, roll, pitch, yaw, flown] = est;
     let [z_set, roll_set, pitch_set, yaw_set, planned] = set;
-    let pair = |name: &str, e: Keep, s: Keep| {
+    let [z_true, roll_true, pitch_true, yaw_true, true_track] = truth;
+    let pair = |name: &str, e: Keep, s: Keep, t: Keep| {
         let mut v = vec![series(name, false, e.points)];
         if has_set {
             v.push(series(&format!("{name} set point"), true, s.points));
+        }
+        if has_truth {
+            v.push(truth_series(&format!("{name} truth"), t.points));
         }
         v
     };
@@ -209,6 +244,9 @@ pub fn figure(run_dir: &Path) -> anyhow::Result<Figure> {
     if has_set {
         track.push(series("planned (set point)", true, planned.points));
     }
+    if has_truth {
+        track.push(truth_series("flown (truth)", true_track.points));
+    }
     let marks = marks_t
         .into_iter()
         .zip(at_m)
@@ -217,37 +255,79 @@ pub fn figure(run_dir: &Path) -> anyhow::Result<Figure> {
             ..m
         })
         .collect();
+    let mut panels = vec![
+        TimePanel {
+            title: "altitude",
+            y_desc: "z (m, up)",
+            series: pair("z", z, z_set, z_true),
+        },
+        TimePanel {
+            title: "roll and pitch",
+            y_desc: "angle (rad)",
+            series: [
+                pair("roll ψ", roll, roll_set, roll_true),
+                pair("pitch φ", pitch, pitch_set, pitch_true),
+            ]
+            .concat(),
+        },
+        TimePanel {
+            title: "yaw",
+            y_desc: "θ (rad)",
+            series: pair("yaw θ", yaw, yaw_set, yaw_true),
+        },
+        TimePanel {
+            title: "motor speeds",
+            y_desc: "ω (rad/s)",
+            series: motors,
+        },
+    ];
+    panels.extend(ratios);
     Ok(Figure {
         title: format!("uquad run {}", run_dir.display()),
-        panels: vec![
-            TimePanel {
-                title: "altitude",
-                y_desc: "z (m, up)",
-                series: pair("z", z, z_set),
-            },
-            TimePanel {
-                title: "roll and pitch",
-                y_desc: "angle (rad)",
-                series: [
-                    pair("roll ψ", roll, roll_set),
-                    pair("pitch φ", pitch, pitch_set),
-                ]
-                .concat(),
-            },
-            TimePanel {
-                title: "yaw",
-                y_desc: "θ (rad)",
-                series: pair("yaw θ", yaw, yaw_set),
-            },
-            TimePanel {
-                title: "motor speeds",
-                y_desc: "ω (rad/s)",
-                series: motors,
-            },
-        ],
+        panels,
         track,
         marks,
     })
+}
+
+/// The innovation test ratios of innov.log on a log scale, with the gate (a ratio of 1);
+/// `None` when the run has none (the original's).
+fn ratio_series(run_dir: &Path) -> anyhow::Result<(Option<TimePanel>, Option<String>)> {
+    let mut span_s: Option<(f64, f64)> = None;
+    let (k, warning) = read_series(
+        run_dir,
+        "innov.log",
+        logs::InnovRecord::parse_fields,
+        |r, _, k: &mut [Keep; 3]| {
+            let t_s = r.t_us as f64 / 1e6;
+            let (first, _) = span_s.get_or_insert((t_s, t_s));
+            span_s = Some((*first, t_s));
+            let g = r.ratios.gps.unwrap_or(f64::NAN);
+            for (keep, ratio) in k.iter_mut().zip([r.ratios.attitude, r.ratios.altitude, g]) {
+                // A ratio of 0 has no logarithm: left out, as a NaN is.
+                keep.push((t_s, ratio.log10()));
+            }
+            Ok(())
+        },
+    )?;
+    let Some((t0, t1)) = span_s else {
+        return Ok((None, warning));
+    };
+    let [attitude, altitude, gps] = k;
+    let mut series_ = vec![
+        series("attitude", false, attitude.points),
+        series("altitude", false, altitude.points),
+    ];
+    if !gps.points.is_empty() {
+        series_.push(series("gps", false, gps.points));
+    }
+    series_.push(series("gate (ratio 1)", true, vec![(t0, 0.0), (t1, 0.0)]));
+    let panel = TimePanel {
+        title: "innovation test ratios",
+        y_desc: "log10 ratio (gate at 0)",
+        series: series_,
+    };
+    Ok((Some(panel), warning))
 }
 
 /// The marks of the run's mode.log (at most [`MAX_POINTS`]: a ground station repeating a

@@ -56,15 +56,25 @@ fn span(values: impl Iterator<Item = f64>) -> Range<f64> {
     (lo - pad)..(hi + pad)
 }
 
+/// The truth's colours: black, then dark grey.
+const TRUTH: [RGBColor; 2] = [RGBColor(0, 0, 0), RGBColor(120, 120, 120)];
+
 fn colour(k: usize) -> RGBColor {
     PALETTE[k % PALETTE.len()]
 }
 
-/// A set point's colour is its series' (the same name without " set point").
+/// A set point's colour is its series' (the same name without " set point"); the truth is
+/// black, a panel's second truth dark grey.
 fn colours(series: &[Series]) -> Vec<RGBColor> {
     let mut out = Vec::with_capacity(series.len());
     let mut k = 0;
+    let mut truths = 0;
     for s in series {
+        if s.truth {
+            out.push(TRUTH[truths % TRUTH.len()]);
+            truths += 1;
+            continue;
+        }
         let own = series
             .iter()
             .position(|o| !o.setpoint && s.name.starts_with(&o.name) && s.setpoint);
