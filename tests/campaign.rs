@@ -29,19 +29,20 @@ fn campaign(args: &[&str]) -> (bool, serde_json::Value, String) {
 
 #[test]
 fn every_fault_alone_in_every_phase_holds_the_invariants() {
-    // The first 90 runs: the ten faults, each alone, in each of the nine phases.
+    // The first 90 runs: the twelve faults, each alone, in each of the first seven phases
+    // (then six of them in the eighth). All 108 single-fault runs, and the 1000 of a default
+    // campaign, are `uquad campaign`'s to report (see the README's figures).
     let (ok, r, text) = campaign(&["--runs", "90"]);
     assert!(ok, "{text}");
     assert_eq!(r["runs"], 90, "{text}");
     assert_eq!(r["violations"].as_array().unwrap().len(), 0, "{text}");
     assert!(r["wall_s"].as_f64().unwrap() > 0.0, "{text}");
     let outcomes = r["outcomes"].as_object().unwrap();
-    assert_eq!(outcomes.len(), 10, "every fault: {text}");
+    assert_eq!(outcomes.len(), 12, "every fault: {text}");
     for (fault, phases) in outcomes {
-        assert_eq!(
-            phases.as_object().unwrap().len(),
-            9,
-            "{fault} in every phase: {text}"
+        assert!(
+            phases.as_object().unwrap().len() >= 7,
+            "{fault} in the first seven phases: {text}"
         );
     }
     // The stuck gyro, which the estimator cannot see yet, is listed apart, never silently.
@@ -53,12 +54,12 @@ fn every_fault_alone_in_every_phase_holds_the_invariants() {
 
 #[test]
 fn a_broken_invariant_is_named_with_the_run_that_broke_it() {
-    // Without the drag's velocity a GPS lost at the takeoff drifts; the fence, grown by the
-    // position's uncertainty, would land it in time, but set to only hold it lets it drift
-    // out: run 42 (seed 43) of the campaign is that one.
+    // Without the drag's velocity a GPS lost on the way back (a return) drifts; the fence,
+    // grown by the position's uncertainty, would land it in time, but set to only hold it
+    // lets it drift out: run 86 (seed 87) of the campaign is that one.
     let (ok, r, text) = campaign(&[
         "--runs",
-        "43",
+        "87",
         "--set",
         "ekf.drag_per_s=0",
         "--set",
@@ -69,7 +70,7 @@ fn a_broken_invariant_is_named_with_the_run_that_broke_it() {
     assert_eq!(v["invariant"], 5, "{text}");
     let line = v["run"].as_str().unwrap();
     assert!(
-        line.contains("--seed 43") && line.contains("--inject gps-loss@"),
+        line.contains("--seed 87") && line.contains("--inject gps-loss@"),
         "{line}"
     );
     assert!(line.contains("--set 'ekf.drag_per_s=0'"), "{line}");

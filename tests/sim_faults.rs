@@ -279,3 +279,63 @@ fn bad_injections_are_refused() {
         assert!(err.contains("--inject"), "{bad}: {err}");
     }
 }
+
+/// A run folder's numeric log as rows of numbers.
+fn table(r: &serde_json::Value, name: &str) -> Vec<Vec<f64>> {
+    let run = std::path::Path::new(r["run_dir"].as_str().unwrap());
+    read_table(&run.join(name))
+        .into_iter()
+        .map(|row| row.iter().map(|v| v.parse().unwrap_or(f64::NAN)).collect())
+        .collect()
+}
+
+/// The truth.log row at or just before `t_s`.
+fn truth_at(truth: &[Vec<f64>], t_s: f64) -> &[f64] {
+    let i = truth.partition_point(|row| row[0] <= t_s);
+    &truth[i.saturating_sub(1)]
+}
+
+#[test]
+fn a_gps_glitch_moves_the_fixes_20_m_north_for_10_s() {
+    let (r, _logs) = sim_report(&["--duration", "45", "--inject", "gps-glitch@30"]);
+    let (gps, truth) = (table(&r, "gps.log"), table(&r, "truth.log"));
+    let (mut inside, mut outside) = (0, 0);
+    for fix in gps.iter().filter(|f| f.len() == 15) {
+        let t_s = fix[0];
+        // Against the true position plus the receiver's own bias, when it sampled (0.1 s
+        // before it reported).
+        let at = truth_at(&truth, t_s - 0.1);
+        let excess_m = fix[3] - (at[1] + at[13]);
+        if (30.2..=40.0).contains(&t_s) {
+            inside += 1;
+            assert!((15.0..=25.0).contains(&excess_m), "{t_s} s: {excess_m} m");
+        } else if !(29.9..=40.3).contains(&t_s) {
+            outside += 1;
+            assert!(excess_m.abs() < 5.0, "{t_s} s: {excess_m} m");
+        }
+    }
+    assert!(
+        inside >= 9 && outside >= 20,
+        "{inside} fixes in, {outside} out"
+    );
+}
+
+#[test]
+fn a_gyro_bias_steps_the_x_gyro_by_0_05_rad_s() {
+    let (r, _logs) = sim_report(&["--duration", "40", "--inject", "gyro-bias@30"]);
+    let (k, truth) = (table(&r, "kalman_in.log"), table(&r, "truth.log"));
+    // kalman_in's x gyro against the true x rate, before and after.
+    let mean_excess = |from: f64, to: f64| {
+        let rows: Vec<f64> = k
+            .iter()
+            .filter(|row| (from..to).contains(&row[0]))
+            .map(|row| row[6] - truth_at(&truth, row[0])[10])
+            .collect();
+        rows.iter().sum::<f64>() / rows.len() as f64
+    };
+    let step = mean_excess(31.0, 40.0) - mean_excess(20.0, 29.9);
+    assert!(
+        (step - 0.05).abs() < 0.01,
+        "the x gyro stepped by {step} rad/s"
+    );
+}

@@ -288,15 +288,16 @@ impl<'a> FastSim<'a> {
             self.plant.thrust_scale[0] = 0.7;
         }
         self.plant.push_n = crate::sim::gust_n(&self.faults, &self.cfg.sim, t);
+        self.imu.gyro_step_rad_s = crate::sim::gyro_step_rad_s(&self.faults, &self.cfg.sim, t);
         // The motors follow what the ESCs were last told, then the physics advances.
         self.plant.w_cmd_rad_s = self.escs.commands_rad_s(t);
         self.plant.step(self.step_us);
         if t % FRAME_US == FRAME_US / 2 {
             self.imu.first_half(&self.plant);
         }
-        let fix = self
-            .gps
-            .step(t, self.plant.position_m(), self.plant.velocity_m_s(), t);
+        let seen_m =
+            crate::sim::gps_seen_m(&self.faults, &self.cfg.sim, t, self.plant.position_m());
+        let fix = self.gps.step(t, seen_m, self.plant.velocity_m_s(), t);
         if self.gps_live && fix.is_some() && !self.faults.active(Fault::GpsLoss, t) {
             self.pending_fix = fix;
             self.newest_fix = fix;

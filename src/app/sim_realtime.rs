@@ -180,10 +180,12 @@ impl SimThread {
             }
             let now_us = self.start.elapsed().as_micros() as i64;
             self.physics(&mut plant, t_us, now_us, step_us);
+            imu.gyro_step_rad_s = crate::sim::gyro_step_rad_s(&self.faults, &sc, t_us);
             if t_us % FRAME_US == FRAME_US / 2 {
                 imu.first_half(&plant);
             }
-            let fix = gps.step(t_us, plant.position_m(), plant.velocity_m_s(), now_us);
+            let seen_m = crate::sim::gps_seen_m(&self.faults, &sc, t_us, plant.position_m());
+            let fix = gps.step(t_us, seen_m, plant.velocity_m_s(), now_us);
             if let (Some(tx), Some(fix)) = (&self.gps_tx, fix)
                 && !self.faults.active(Fault::GpsLoss, t_us)
             {

@@ -88,6 +88,12 @@ pub struct Sim {
     /// The `gust` fault: a push northward of this force, N, for this long, s.
     pub gust_n: f64,
     pub gust_s: f64,
+    /// The `gps-glitch` fault: the receiver's position jumps this far north, m, for this
+    /// long, s.
+    pub gps_glitch_m: f64,
+    pub gps_glitch_s: f64,
+    /// The `gyro-bias` fault: the x gyro's bias steps by this much, rad/s.
+    pub gyro_bias_step_rad_s: f64,
     /// The simulated receiver (`sim::gps`): fixes a second, delay, s; white noise and the
     /// wandering bias's spread (horizontal per axis, vertical), m; the bias's correlation
     /// time, s.
@@ -123,6 +129,9 @@ impl Default for Sim {
             seed: 1,
             gust_n: 3.0,
             gust_s: 3.0,
+            gps_glitch_m: 20.0,
+            gps_glitch_s: 10.0,
+            gyro_bias_step_rad_s: 0.05,
             // A u-blox NEO-M8N (`sim::gps::GpsErrors::NEO_M8N`).
             gps_rate_hz: 1.0,
             gps_delay_s: 0.1,

@@ -31,10 +31,14 @@ pub enum Fault {
     LinkLoss,
     /// A sideways push (`sim.gust_n` north, for `sim.gust_s`).
     Gust,
+    /// The receiver's position jumps `sim.gps_glitch_m` north for `sim.gps_glitch_s`.
+    GpsGlitch,
+    /// The x gyro's bias steps by `sim.gyro_bias_step_rad_s`.
+    GyroBias,
 }
 
 impl Fault {
-    pub const NAMES: [(&'static str, Fault); 10] = [
+    pub const NAMES: [(&'static str, Fault); 12] = [
         ("imu-stall", Fault::ImuStall),
         ("esc-nack", Fault::EscNack),
         ("gps-loss", Fault::GpsLoss),
@@ -45,6 +49,8 @@ impl Fault {
         ("imu-garbage", Fault::ImuGarbage),
         ("link-loss", Fault::LinkLoss),
         ("gust", Fault::Gust),
+        ("gps-glitch", Fault::GpsGlitch),
+        ("gyro-bias", Fault::GyroBias),
     ];
 
     pub fn name(self) -> &'static str {
@@ -98,6 +104,12 @@ impl FaultSchedule {
     /// `fault` has struck by `t_us`.
     pub fn active(&self, fault: Fault, t_us: i64) -> bool {
         self.at_us(fault).is_some_and(|at| t_us >= at)
+    }
+
+    /// `fault` has struck by `t_us`, less than `lasts_s` ago.
+    pub fn active_for(&self, fault: Fault, t_us: i64, lasts_s: f64) -> bool {
+        self.at_us(fault)
+            .is_some_and(|at| t_us >= at && ((t_us - at) as f64) < lasts_s * 1e6)
     }
 
     /// The err.log lines announcing the injections.

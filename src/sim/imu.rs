@@ -68,6 +68,8 @@ pub struct SimImu {
     /// The random walks' part of the biases so far: gyro (rad/s), accelerometer (m/s²).
     gyro_walk_rad_s: [f64; 3],
     acc_walk_m_s2: [f64; 3],
+    /// A step in the gyro's bias (the `gyro-bias` fault), rad/s.
+    pub gyro_step_rad_s: [f64; 3],
 }
 
 impl SimImu {
@@ -83,6 +85,7 @@ impl SimImu {
             first_sub: None,
             gyro_walk_rad_s: [0.0; 3],
             acc_walk_m_s2: [0.0; 3],
+            gyro_step_rad_s: [0.0; 3],
         }
     }
 
@@ -101,7 +104,8 @@ impl SimImu {
         let acc: [f64; 3] =
             std::array::from_fn(|i| f[i] + self.acc_walk_m_s2[i] + self.rng.sample(n.acc_m_s2));
         let gyro: [f64; 3] = std::array::from_fn(|i| {
-            w[i] + n.gyro_bias_rad_s[i] + self.gyro_walk_rad_s[i] + self.rng.sample(n.gyro_rad_s)
+            let bias = n.gyro_bias_rad_s[i] + self.gyro_walk_rad_s[i] + self.gyro_step_rad_s[i];
+            w[i] + bias + self.rng.sample(n.gyro_rad_s)
         });
         let (a, g) = self.calib.counts_for(&acc, self.temp_c, &gyro, &[0.0; 3]);
         [a[0], a[1], a[2], g[0], g[1], g[2]]

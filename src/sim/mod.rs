@@ -93,11 +93,38 @@ pub fn frame_start_byte(k: u64) -> u8 {
 /// The push of the `gust` fault at `t_us` (inertial frame, N): `sim.gust_n` northward for
 /// `sim.gust_s` from its time.
 pub fn gust_n(faults: &faults::FaultSchedule, sim: &crate::config::Sim, t_us: i64) -> [f64; 3] {
-    let blowing = faults
-        .at_us(faults::Fault::Gust)
-        .is_some_and(|at| t_us >= at && ((t_us - at) as f64) < sim.gust_s * 1e6);
-    if blowing {
+    if faults.active_for(faults::Fault::Gust, t_us, sim.gust_s) {
         [sim.gust_n, 0.0, 0.0]
+    } else {
+        [0.0; 3]
+    }
+}
+
+/// Where the receiver takes the vehicle to be at `t_us`: the true position `pos_m`, moved
+/// `sim.gps_glitch_m` north for `sim.gps_glitch_s` from the `gps-glitch` fault's time (a
+/// multipath jump; the receiver's own errors and delay come on top).
+pub fn gps_seen_m(
+    faults: &faults::FaultSchedule,
+    sim: &crate::config::Sim,
+    t_us: i64,
+    pos_m: [f64; 3],
+) -> [f64; 3] {
+    let mut seen = pos_m;
+    if faults.active_for(faults::Fault::GpsGlitch, t_us, sim.gps_glitch_s) {
+        seen[0] += sim.gps_glitch_m;
+    }
+    seen
+}
+
+/// The `gyro-bias` fault's step on the gyro at `t_us`, rad/s: `sim.gyro_bias_step_rad_s` on
+/// x from its time on.
+pub fn gyro_step_rad_s(
+    faults: &faults::FaultSchedule,
+    sim: &crate::config::Sim,
+    t_us: i64,
+) -> [f64; 3] {
+    if faults.active(faults::Fault::GyroBias, t_us) {
+        [sim.gyro_bias_step_rad_s, 0.0, 0.0]
     } else {
         [0.0; 3]
     }
