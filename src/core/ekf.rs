@@ -623,6 +623,7 @@ impl Ekf {
     ) -> (StepReport, Result<(), EkfError>) {
         let theta_m = unwrap_theta(sample.euler_rad[2], self.x[idx::THETA]);
         let (dt_used_us, dt_clamped) = self.clamp_dt_us(input.dt_us);
+        let before_fix = self.steps_without_fix;
         self.steps_without_fix = match input.gps {
             Some(_) => 0,
             None => self.steps_without_fix.saturating_add(1),
@@ -633,6 +634,10 @@ impl Ekf {
         self.predict(u, dt_used_us as f64 / 1e6, input.mass_kg);
         let az_pred = total_thrust_n(u) / input.mass_kg + self.x[idx::BAZ];
         let out = self.correct(sample, theta_m, az_pred, input.gps);
+        if out.gated.gps {
+            // A fix left out is no fix: the drag takes over the velocity as without one.
+            self.steps_without_fix = before_fix.saturating_add(1);
+        }
         let report = StepReport {
             dt_used_us,
             dt_clamped,

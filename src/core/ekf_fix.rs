@@ -351,5 +351,15 @@ mod tests {
         let (rep, _) = ekf.step(&still, &input);
         assert!(rep.gated.gps && rep.ratios.gps.is_some_and(|r| r > 1.0));
         assert!(ekf.x[idx::X].abs() < 1e-6);
+        // A fix left out counts as none: the steps without a fix go on (the drag's hold).
+        assert_eq!(ekf.steps_without_fix, 1);
+        input.gps = None;
+        ekf.step(&still, &input);
+        input.gps = Some(fix(500.0, 0.0, None));
+        ekf.step(&still, &input);
+        assert_eq!(ekf.steps_without_fix, 3);
+        input.gps = Some(fix(0.0, 0.0, None));
+        let (rep, _) = ekf.step(&still, &input);
+        assert!(!rep.gated.gps && ekf.steps_without_fix == 0);
     }
 }

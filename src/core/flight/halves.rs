@@ -46,6 +46,8 @@ pub struct Estimate {
     pub x: State,
     /// Yaw measured at calibration (the hover set point's θ).
     pub theta_cal_rad: f64,
+    /// A fix was fused in this step: offered, and not left out by the innovation gate (a
+    /// receiver whose fixes are all gated is a lost one to the commander and the control).
     pub gps_used: bool,
     /// The filter observes the horizontal velocity without fixes (the drag).
     pub velocity_observed: bool,
@@ -170,7 +172,7 @@ impl EstimatorCore {
             sample,
             x: ekf.x,
             theta_cal_rad: self.theta_cal_rad,
-            gps_used: gps.is_some(),
+            gps_used: gps.is_some() && !report.gated.gps,
             velocity_observed: ekf.drag_active(),
             vertical_observed: ekf.vertical_observed(),
             pos_sigma_m: ekf.horizontal_sigma_m(),
