@@ -22,6 +22,7 @@ fn bench_step(c: &mut Criterion) {
         mass_kg: 1.55,
         dt_us: 10_000,
         gps: None,
+        ground_m: None,
     };
     // Each iteration starts from the same state, so the filter cannot drift into an
     // unrepresentative (diverged or refused) regime over millions of iterations.

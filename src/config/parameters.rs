@@ -18,6 +18,7 @@ pub const PARAMETERS: &[(&str, &str)] = &[
     ("EKF_ORIG_MODEL", "ekf.original_model"),
     ("EKF_GATE_SIGMA", "ekf.gate_sigma"),
     ("EKF_GATE_FUSE", "ekf.gate_fusion"),
+    ("EKF_GROUND", "ekf.ground_fusion"),
     ("CTL_STATES", "control.states"),
     ("CTL_ORIG_TIMING", "control.original_timing"),
     ("CTL_ERR_LIMITS", "control.error_limits"),

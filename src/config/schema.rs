@@ -269,6 +269,10 @@ pub struct Ekf {
     /// Drag per m/s of airspeed, 1/s (PX4's EKF2_MCOEF): without fixes it holds the
     /// horizontal velocity; 0: off.
     pub drag_per_s: f64,
+    /// Fuse the ground's height and a still body while the vehicle rests on it.
+    pub ground_fusion: bool,
+    /// Their noise: height (m²), each body velocity ((m/s)²).
+    pub r_ground: [f64; 2],
 }
 
 impl Default for Ekf {
@@ -286,6 +290,8 @@ impl Default for Ekf {
             gps_fusion: p.gps_fusion,
             r_gps_vel: p.r_gps_vel,
             drag_per_s: p.drag_per_s,
+            ground_fusion: p.ground_fusion,
+            r_ground: p.r_ground,
         }
     }
 }
@@ -306,6 +312,8 @@ impl Ekf {
             gps_fusion: self.gps_fusion,
             r_gps_vel: self.r_gps_vel,
             drag_per_s: self.drag_per_s,
+            ground_fusion: self.ground_fusion,
+            r_ground: self.r_ground,
         }
     }
 }

@@ -867,11 +867,12 @@ fn failsafe_rules(c: &Config) -> Vec<Check> {
 /// Every element of the estimator's noise diagonals is a variance; the innovation gate has a
 /// width (a gate of 0 would refuse every measurement, one of infinity none).
 fn ekf_rules(c: &Config) -> Vec<Check> {
-    let lists: [(&str, &[f64]); 4] = [
+    let lists: [(&str, &[f64]); 5] = [
         ("ekf.q", &c.ekf.q),
         ("ekf.r_imu", &c.ekf.r_imu),
         ("ekf.r_gps", &c.ekf.r_gps),
         ("ekf.p0", &c.ekf.p0),
+        ("ekf.r_ground", &c.ekf.r_ground),
     ];
     let variance = positive_to(1e12);
     lists

@@ -112,6 +112,12 @@ pub struct EkfParams {
     /// The drag's specific force per m/s of airspeed across the thrust axis, 1/s (PX4's
     /// EKF2_MCOEF): without fixes it holds the horizontal velocity (`core::ekf_drag`); 0: off.
     pub drag_per_s: f64,
+    /// While the vehicle rests on the ground, fuse its height and a still body (the model has
+    /// no ground: without it the estimate falls through the ground at a touchdown).
+    pub ground_fusion: bool,
+    /// The noise of those rows: the height, m², and each body velocity, (m/s)², on the
+    /// profile's own scale of noise.
+    pub r_ground: [f64; 2],
 }
 
 /// How a GPS fix is fused.
@@ -151,6 +157,9 @@ impl EkfParams {
             gps_fusion: GpsFusion::Joint,
             r_gps_vel: 0.01,
             drag_per_s: 0.0,
+            // The 2012 flights' filter knew no ground; their replays must stay bit-exact.
+            ground_fusion: false,
+            r_ground: [1e3, 1e-2],
         }
     }
 }
@@ -175,6 +184,9 @@ pub struct StepInput {
     pub dt_us: i64,
     /// A GPS position (local frame, m) to fuse in this step.
     pub gps: Option<GpsSample>,
+    /// The ground's height (m, the estimate's frame) while the vehicle rests on it: with
+    /// `ground_fusion`, the height and a still body are fused as measurements.
+    pub ground_m: Option<f64>,
 }
 
 /// What a step did, for counters and logs.
@@ -638,6 +650,11 @@ impl Ekf {
             // A fix left out is no fix: the drag takes over the velocity as without one.
             self.steps_without_fix = before_fix.saturating_add(1);
         }
+        if let Some(ground_m) = input.ground_m.filter(|_| self.params.ground_fusion)
+            && out.result.is_ok()
+        {
+            self.fuse_ground(ground_m);
+        }
         let report = StepReport {
             dt_used_us,
             dt_clamped,
@@ -899,6 +916,23 @@ fn test_ratios<const M: usize>(
     out
 }
 
+/// The ground's rows: z, then the body velocities.
+const GROUND_OBS: [usize; 4] = [idx::Z, idx::VQX, idx::VQY, idx::VQZ];
+
+impl Ekf {
+    /// The ground as a measurement: the height `ground_m` and a still body, into every state
+    /// (a still body also tells the accelerometer's biases).
+    fn fuse_ground(&mut self, ground_m: f64) {
+        let z = [ground_m, 0.0, 0.0, 0.0];
+        let [rz, rv] = self.params.r_ground;
+        let r = [rz, rv, rv, rv];
+        // Row 5 of `update` is the az row; with four rows there is none.
+        let out = self.update::<4>(&z, &GROUND_OBS, &[Group::Untested; 4], 0.0, &r);
+        // A refused update leaves the estimate as it was: the next step tries again.
+        let _ = out.result;
+    }
+}
+
 /// The vertical process noise per step without a barometer: the height follows its velocity
 /// (a small floor keeps P positive), m²; the velocity wanders by 0.01 m/s a step (the
 /// accelerometer's noise of about 0.5 m/s² over 10 ms, with room for the thrust model's
@@ -1103,6 +1137,7 @@ mod tests {
                 mass_kg: m,
                 dt_us: 20_000,
                 gps: Some(GpsSample::at([1.0, -1.0, 0.0])),
+                ground_m: None,
             },
         );
         res.unwrap();
@@ -1121,6 +1156,7 @@ mod tests {
                 mass_kg: m,
                 dt_us: 10_000,
                 gps: None,
+                ground_m: None,
             },
         );
         assert_eq!(res, Err(EkfError::NonFiniteMeasurement));
@@ -1299,6 +1335,7 @@ mod tests {
             mass_kg: 1.55,
             dt_us: 10_000,
             gps: None,
+            ground_m: None,
         };
         let (rep, res) = ekf.step(&null, &input);
         res.unwrap();
@@ -1335,6 +1372,7 @@ mod tests {
                     mass_kg: 1.55,
                     dt_us: 10_000,
                     gps,
+                    ground_m: None,
                 };
                 ekf.step(&s, &input).1.unwrap();
             }

@@ -191,6 +191,7 @@ mod tests {
             mass_kg: 1.55,
             dt_us: 10_000,
             gps: Some(GpsSample::at([0.0; 3])),
+            ground_m: None,
         };
         ekf.step(&sample, &input).1.unwrap();
         input.gps = None;
@@ -217,6 +218,7 @@ mod tests {
             mass_kg: 1.55,
             dt_us: 10_000,
             gps: None,
+            ground_m: None,
         };
         for _ in 0..100 {
             ekf.step(&pushed, &input).1.unwrap();

@@ -248,6 +248,7 @@ mod tests {
             mass_kg: 1.55,
             dt_us: 10_000,
             gps: None,
+            ground_m: None,
         };
         (ekf, still, input)
     }
@@ -354,9 +355,9 @@ mod tests {
         // A fix left out counts as none: the steps without a fix go on (the drag's hold).
         assert_eq!(ekf.steps_without_fix, 1);
         input.gps = None;
-        ekf.step(&still, &input);
+        ekf.step(&still, &input).1.unwrap();
         input.gps = Some(fix(500.0, 0.0, None));
-        ekf.step(&still, &input);
+        ekf.step(&still, &input).1.unwrap();
         assert_eq!(ekf.steps_without_fix, 3);
         input.gps = Some(fix(0.0, 0.0, None));
         let (rep, _) = ekf.step(&still, &input);

@@ -325,6 +325,8 @@ pub struct Commander {
     /// Since when each measurement group (attitude, altitude, GPS) has been outside its gate.
     ekf_bad_since_us: [Option<i64>; 3],
     touchdown_since_us: Option<i64>,
+    /// The last step's accelerometer felt the ground's push (a landing's touchdown watch).
+    ground_push: bool,
     /// A landing without a vertical reference reached the ground by its estimate: the thrust
     /// is set outright from then.
     blind: Option<Blind>,
@@ -400,6 +402,7 @@ impl Commander {
             gps_lost_us: None,
             ekf_bad_since_us: [None; 3],
             touchdown_since_us: None,
+            ground_push: false,
             blind: None,
             recorded: [false; 4],
             acted: [false; 4],
@@ -866,6 +869,17 @@ impl Commander {
         (self.guidance(), request)
     }
 
+    /// The ground's height in the estimate's frame while a landing vehicle rests on it: the
+    /// touchdown being confirmed and the ground's push felt (a hop in the air feels none).
+    /// `None` otherwise. Not while armed before a takeoff: on this profile's scale of noise
+    /// a ground that exact leaves the takeoff's height to the thrust model, and the
+    /// overshoot grew (0.021 to 0.054 m on seed 1).
+    pub fn ground_contact_m(&self) -> Option<f64> {
+        let resting =
+            self.mode == Mode::Land && self.touchdown_since_us.is_some() && self.ground_push;
+        resting.then(|| self.home_m.map_or(0.0, |h| h[2]))
+    }
+
     pub fn guidance(&self) -> Guidance {
         let p = &self.profile;
         Guidance {
@@ -967,6 +981,7 @@ impl Commander {
         // model has no ground: with the thrust under the weight, its estimate keeps falling
         // after the vehicle has stopped on the ground.
         let ground_push = o.acc_m_s2[2] > (o.thrust_ratio + GROUND_PUSH) * GRAVITY_M_S2;
+        self.ground_push = ground_push;
         let still = o.vz_m_s.abs() < p.touchdown_v_m_s || ground_push;
         let resting = still && o.thrust_ratio < p.touchdown_thrust;
         match (resting, self.touchdown_since_us) {

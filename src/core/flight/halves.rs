@@ -140,8 +140,9 @@ impl EstimatorCore {
         event
     }
 
-    /// One Kalman step on `sample` at `t_us` with input `u_rad_s`, mass `mass_kg` and an
-    /// optional GPS sample. `None` before calibration finished.
+    /// One Kalman step on `sample` at `t_us` with input `u_rad_s`, mass `mass_kg`, an
+    /// optional GPS sample and, while the vehicle rests on it, the ground's height. `None`
+    /// before calibration finished.
     pub fn step(
         &mut self,
         mut sample: ImuSample,
@@ -149,6 +150,7 @@ impl EstimatorCore {
         u_rad_s: Input,
         mass_kg: f64,
         gps: Option<GpsSample>,
+        ground_m: Option<f64>,
     ) -> Option<Estimate> {
         let ekf = self.ekf.as_mut()?;
         let dt_us = self.prev_step_us.map_or(NOMINAL_PERIOD_US, |p| t_us - p);
@@ -160,6 +162,7 @@ impl EstimatorCore {
                 mass_kg,
                 dt_us,
                 gps,
+                ground_m,
             },
         );
         sample.euler_rad[2] = report.theta_unwrapped_rad;

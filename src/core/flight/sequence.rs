@@ -764,6 +764,8 @@ impl EstimatorSide {
                 self.counts.stale_fixes += 1;
             }
         }
+        // The commander's word of the previous step: the vehicle rests on the ground.
+        let ground = self.commander.ground_contact_m();
         let row = self.core.steps() as usize;
         let st = self.clock.times(row, times, self.prev_frame_us);
         let gps = self.gps.for_step(st.t_us);
@@ -777,7 +779,7 @@ impl EstimatorSide {
         self.prev_frame_us = Some(times.t_frame_us);
         let mut est = self
             .core
-            .step(sample, st.t_us, fb.u_next, fb.mass_kg, gps)?;
+            .step(sample, st.t_us, fb.u_next, fb.mass_kg, gps, ground)?;
         est.t_ctrl_us = st.t_ctrl_us;
         est.t_cmd_us = st.t_cmd_us;
         self.count(&est);
