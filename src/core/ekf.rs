@@ -916,20 +916,56 @@ fn test_ratios<const M: usize>(
     out
 }
 
+/// The ground is fused only into an estimate this close to resting on it: height, m, and
+/// speed, m/s (a slow landing's estimate sinks 0.1–0.2 m below the ground and moves at
+/// 0.25 m/s; a lost one is off by metres).
+const GROUND_GATE_M: f64 = 0.3;
+const GROUND_GATE_M_S: f64 = 0.5;
 /// The ground's rows: z, then the body velocities.
 const GROUND_OBS: [usize; 4] = [idx::Z, idx::VQX, idx::VQY, idx::VQZ];
 
 impl Ekf {
-    /// The ground as a measurement: the height `ground_m` and a still body, into every state
-    /// (a still body also tells the accelerometer's biases).
+    /// The ground as a measurement: the height `ground_m` and a still body, into the height
+    /// and the body velocities only (a still body says nothing of the attitude; through the
+    /// correlations a stuck gyro's wrong attitude would be pulled further).
     fn fuse_ground(&mut self, ground_m: f64) {
-        let z = [ground_m, 0.0, 0.0, 0.0];
+        // An estimate far from resting on the ground is not corrected onto it in one step:
+        // the controller would fly the jump (a stuck gyro's estimate a metre up, pulled down,
+        // launched the vehicle at full thrust).
+        let v = [idx::VQX, idx::VQY, idx::VQZ].map(|i| self.x[i]);
+        let speed_m_s = v.iter().map(|c| c * c).sum::<f64>().sqrt();
+        if (self.x[idx::Z] - ground_m).abs() > GROUND_GATE_M || speed_m_s > GROUND_GATE_M_S {
+            return;
+        }
         let [rz, rv] = self.params.r_ground;
         let r = [rz, rv, rv, rv];
-        // Row 5 of `update` is the az row; with four rows there is none.
-        let out = self.update::<4>(&z, &GROUND_OBS, &[Group::Untested; 4], 0.0, &r);
-        // A refused update leaves the estimate as it was: the next step tries again.
-        let _ = out.result;
+        let h = SMatrix::<f64, 4, N_STATES>::from_fn(|i, j| f64::from(GROUND_OBS[i] == j));
+        let y = SVector::<f64, 4>::from_fn(|i, _| {
+            let z = if i == 0 { ground_m } else { 0.0 };
+            z - self.x[GROUND_OBS[i]]
+        });
+        let pht = self.p * h.transpose();
+        let mut s = h * pht;
+        for (i, ri) in r.iter().enumerate() {
+            s[(i, i)] += ri;
+        }
+        // A singular S leaves the estimate as it was: the next step tries again.
+        let Some(s_inv) = s.try_inverse() else {
+            return;
+        };
+        let mut k = pht * s_inv;
+        for st in (0..N_STATES).filter(|st| !GROUND_OBS.contains(st)) {
+            k.row_mut(st).fill(0.0);
+        }
+        self.x += k * y;
+        // Joseph form: right for a gain cut to some states.
+        let i_kh = StateMatrix::identity() - k * h;
+        let mut krk = StateMatrix::zeros();
+        for (c, ri) in r.iter().enumerate() {
+            let col = k.column(c);
+            krk += col * col.transpose() * *ri;
+        }
+        self.p = i_kh * self.p * i_kh.transpose() + krk;
     }
 }
 
@@ -1405,5 +1441,60 @@ mod tests {
         let bad = SVector::<f64, 3>::new(f64::NAN, 0.0, 0.0);
         assert!(group_nis(&bad, &s, [0].into_iter()).is_none());
         assert!(group_nis(&y, &s, [0, 1, 2, 0, 1].into_iter()).is_none());
+    }
+
+    #[test]
+    fn the_ground_holds_a_resting_estimate_and_leaves_a_lost_one() {
+        // Rows far surer than the estimate (P₀ = 1).
+        let params = EkfParams {
+            ground_fusion: true,
+            r_ground: [1e-4, 1e-4],
+            ..EkfParams::flight_2012()
+        };
+        let mut ekf = Ekf::new(params, &ImuSample::default());
+        let mut near = ekf.clone();
+        near.x[idx::Z] = -0.15;
+        near.x[idx::VQZ] = -0.2;
+        near.fuse_ground(0.0);
+        assert!(
+            near.x[idx::Z].abs() < 0.05 && near.x[idx::VQZ].abs() < 0.05,
+            "{:?}",
+            near.x
+        );
+        // Only the height and the body velocity move.
+        assert_eq!(near.x[idx::PSI], 0.0);
+        // A metre off (a lost estimate): left as it is.
+        ekf.x[idx::Z] = 1.0;
+        ekf.fuse_ground(0.0);
+        assert_eq!(ekf.x[idx::Z], 1.0);
+        // Off without ground_fusion: the step ignores the ground.
+        let mut off = Ekf::new(
+            EkfParams {
+                r_ground: [1e-4, 1e-4],
+                ..EkfParams::flight_2012()
+            },
+            &ImuSample::default(),
+        );
+        off.x[idx::Z] = -0.15;
+        let input = StepInput {
+            u_rad_s: [0.0; 4],
+            mass_kg: 1.55,
+            dt_us: 10_000,
+            gps: None,
+            ground_m: Some(0.0),
+        };
+        let mut sample = ImuSample::default();
+        sample.acc_m_s2[2] = GRAVITY_M_S2;
+        sample.alt_m = -0.15;
+        let mut on = off.clone();
+        on.params.ground_fusion = true;
+        off.step(&sample, &input).1.unwrap();
+        on.step(&sample, &input).1.unwrap();
+        assert!(
+            on.x[idx::Z] > off.x[idx::Z] + 0.05,
+            "{} {}",
+            on.x[idx::Z],
+            off.x[idx::Z]
+        );
     }
 }

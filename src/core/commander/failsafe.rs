@@ -179,11 +179,17 @@ impl Commander {
     }
 
     /// The time the GPS's freshness is judged from: the newest fix delivered, or the arming
-    /// when none came since (gpsd); the newest fused fix otherwise.
+    /// when none came since (gpsd), and once one was fused the newest fused if older (a
+    /// receiver whose fixes the filter's gate leaves out is unhealthy: lost, as a silent one);
+    /// the newest fused fix otherwise.
     fn gps_reference_us(&self) -> Option<i64> {
         if self.p.gps_live {
             // The pre-arm check asked for a recent fix; with none since, arming starts the clock.
-            self.fix_rx_us.or(self.armed_us)
+            let delivered = self.fix_rx_us.or(self.armed_us);
+            match (delivered, self.last_fix_us) {
+                (Some(d), Some(fused)) => Some(d.min(fused)),
+                (d, _) => d,
+            }
         } else {
             self.last_fix_us
         }

@@ -306,6 +306,10 @@ const SPOOL_UP_STEPS: u32 = crate::core::motor::FLIGHT_RAMP_STEPS;
 /// A landing is slow over this last height, m.
 const LAST_METRE_M: f64 = 1.0;
 
+/// Steps of the ground's push in a row that make a landing vehicle one resting on the ground
+/// (0.2 s at 100 Hz).
+const GROUND_PUSH_STEPS: u32 = 20;
+
 /// The commander's state.
 #[derive(Debug, Clone)]
 pub struct Commander {
@@ -325,8 +329,9 @@ pub struct Commander {
     /// Since when each measurement group (attitude, altitude, GPS) has been outside its gate.
     ekf_bad_since_us: [Option<i64>; 3],
     touchdown_since_us: Option<i64>,
-    /// The last step's accelerometer felt the ground's push (a landing's touchdown watch).
-    ground_push: bool,
+    /// Steps in a row the accelerometer has felt the ground's push (a landing's touchdown
+    /// watch).
+    ground_push_steps: u32,
     /// A landing without a vertical reference reached the ground by its estimate: the thrust
     /// is set outright from then.
     blind: Option<Blind>,
@@ -402,7 +407,7 @@ impl Commander {
             gps_lost_us: None,
             ekf_bad_since_us: [None; 3],
             touchdown_since_us: None,
-            ground_push: false,
+            ground_push_steps: 0,
             blind: None,
             recorded: [false; 4],
             acted: [false; 4],
@@ -870,13 +875,16 @@ impl Commander {
     }
 
     /// The ground's height in the estimate's frame while a landing vehicle rests on it: the
-    /// touchdown being confirmed and the ground's push felt (a hop in the air feels none).
-    /// `None` otherwise. Not while armed before a takeoff: on this profile's scale of noise
-    /// a ground that exact leaves the takeoff's height to the thrust model, and the
-    /// overshoot grew (0.021 to 0.054 m on seed 1).
+    /// touchdown being confirmed and the ground's push felt for [`GROUND_PUSH_STEPS`] steps
+    /// in a row (a hop's contact lasts one or two: a bouncing vehicle told it was still and on
+    /// the ground fell from its next hop at 4.4 m/s with a stuck gyro). `None` otherwise. Not
+    /// while armed before a takeoff: on the default profile's scale of noise a ground that
+    /// exact leaves the takeoff's height to the thrust model, and the overshoot grew (0.021
+    /// to 0.054 m on seed 1).
     pub fn ground_contact_m(&self) -> Option<f64> {
-        let resting =
-            self.mode == Mode::Land && self.touchdown_since_us.is_some() && self.ground_push;
+        let resting = self.mode == Mode::Land
+            && self.touchdown_since_us.is_some()
+            && self.ground_push_steps >= GROUND_PUSH_STEPS;
         resting.then(|| self.home_m.map_or(0.0, |h| h[2]))
     }
 
@@ -981,7 +989,11 @@ impl Commander {
         // model has no ground: with the thrust under the weight, its estimate keeps falling
         // after the vehicle has stopped on the ground.
         let ground_push = o.acc_m_s2[2] > (o.thrust_ratio + GROUND_PUSH) * GRAVITY_M_S2;
-        self.ground_push = ground_push;
+        self.ground_push_steps = if ground_push {
+            self.ground_push_steps.saturating_add(1)
+        } else {
+            0
+        };
         let still = o.vz_m_s.abs() < p.touchdown_v_m_s || ground_push;
         let resting = still && o.thrust_ratio < p.touchdown_thrust;
         match (resting, self.touchdown_since_us) {

@@ -476,6 +476,35 @@ fn a_lost_gps_holds_attitude_then_lands_after_its_grace_time() {
 }
 
 #[test]
+fn a_receiver_whose_fixes_are_all_gated_is_lost_after_its_timeout() {
+    // Fixes keep arriving once a second, but from 12 s the filter leaves each out (outside
+    // its gate): the receiver is as good as lost, on the gps-loss path.
+    let (mut c, mut ev) = armed_with_receiver();
+    c.link_beat(LinkSource::Gcs, 1_000_000);
+    let o = at(1_000_000, 0.0);
+    c.command(Command::Takeoff(None), 1_000_000, Ok(()), Some(&o), &mut ev);
+    let mut t = 1_000_000;
+    let mut lost_at = None;
+    while t < 20_000_000 {
+        let mut o = at(t, 1.0);
+        if t % 1_000_000 == 0 {
+            c.gps_fix(t);
+            c.link_beat(LinkSource::Gcs, t);
+        }
+        o.gps_fused = t <= 12_000_000 && t % 1_000_000 == 0;
+        c.tick(t, &mut ev);
+        c.on_estimate(&o, &mut ev);
+        if lost_at.is_none() && !failsafes(&ev).is_empty() {
+            lost_at = Some(t);
+        }
+        t += STEP_US;
+    }
+    assert_eq!(failsafes(&ev), [(Failsafe::GpsLoss, Action::Land)]);
+    // The last fused at 12 s, lost 3 s later.
+    assert_eq!(lost_at, Some(15_010_000));
+}
+
+#[test]
 fn without_fixes_the_fence_holds_for_where_the_vehicle_may_be() {
     // Holding 3 m from home inside a 5 m fence; the fixes stop at 12 s and the position's
     // uncertainty grows by 0.5 m a second from then: the fence is judged 2 σ of that growth
