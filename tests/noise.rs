@@ -183,3 +183,26 @@ fn a_missing_calibration_or_a_short_segment_is_named() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && err.contains("at least 100"), "{err}");
 }
+
+#[test]
+fn a_failed_barometer_is_left_out_of_its_spread_and_named() {
+    let (status, report, _logs) = sim_report(&[
+        "--fast",
+        "--script",
+        "arm@1",
+        "--duration",
+        "40",
+        "--set",
+        "commander.disarm_ground_s=600",
+        "--inject",
+        "baro-fail@30",
+    ]);
+    let run = report["run_dir"].as_str().unwrap().to_string();
+    assert!(report["touchdown"].is_null(), "{status}: {report}");
+    let (r, out) = noise(&[&run, "--from", "10"]);
+    assert!(
+        r["baro_alt_m"]["sd"].as_f64().is_some_and(f64::is_finite),
+        "{r}"
+    );
+    assert!(out.contains("gave no barometer altitude"), "{out}");
+}

@@ -84,6 +84,8 @@ struct Series {
     pres_pa: Vec<f64>,
     euler: [Vec<f64>; 3],
     periods_us: Vec<u32>,
+    /// Frames whose barometer gave no altitude (a failed reading): left out of its spread.
+    baro_missing: usize,
     first_s: f64,
     last_s: f64,
 }
@@ -125,13 +127,13 @@ fn read_segment(opts: &NoiseOptions, calib: &Calibration) -> anyhow::Result<Seri
         if t_s < from || t_s > to {
             continue;
         }
-        if s.alt_m.len() >= MAX_FRAMES {
+        if s.periods_us.len() >= MAX_FRAMES {
             bail!(
                 "{}: the segment holds more than {MAX_FRAMES} frames; narrow it with --from and --to",
                 path.display()
             );
         }
-        if s.alt_m.is_empty() {
+        if s.periods_us.is_empty() {
             s.first_s = t_s;
         }
         s.last_s = t_s;
@@ -146,18 +148,22 @@ fn read_segment(opts: &NoiseOptions, calib: &Calibration) -> anyhow::Result<Seri
         let yaw = crate::core::imu::calib::unwrap_theta(x.euler_rad[2], yaw_prev.unwrap_or(0.0));
         yaw_prev = Some(yaw);
         s.euler[2].push(yaw);
-        s.alt_m.push(x.alt_m);
-        s.pres_pa.push(f64::from(r.frame.pres_pa));
+        if x.alt_m.is_finite() {
+            s.alt_m.push(x.alt_m);
+            s.pres_pa.push(f64::from(r.frame.pres_pa));
+        } else {
+            s.baro_missing += 1;
+        }
         s.periods_us.push(r.frame.t_us);
     }
     if let Some(w) = lines.warning() {
         eprintln!("{w}");
     }
-    if s.alt_m.len() < MIN_FRAMES {
+    if s.periods_us.len() < MIN_FRAMES {
         bail!(
             "{}: {} frames between {} and {} s; at least {MIN_FRAMES} are needed",
             path.display(),
-            s.alt_m.len(),
+            s.periods_us.len(),
             fmt_bound(opts.from_s),
             fmt_bound(opts.to_s)
         );
@@ -213,7 +219,7 @@ fn analyse(opts: &NoiseOptions, mut s: Series) -> NoiseReport {
     let q_acc_bias = acc.map(|a| a.random_walk.unwrap_or(0.0).powi(2) * tau0_s);
     let mut report = NoiseReport {
         run_dir: opts.run_dir.clone(),
-        frames: s.alt_m.len(),
+        frames: s.periods_us.len(),
         from_s: s.first_s,
         to_s: s.last_s,
         tau0_s,
@@ -227,6 +233,12 @@ fn analyse(opts: &NoiseOptions, mut s: Series) -> NoiseReport {
         warnings: Vec::new(),
     };
     report.warnings = warnings(&report);
+    if s.baro_missing > 0 {
+        report.warnings.push(format!(
+            "{} frames gave no barometer altitude (a failed reading): left out of its spread",
+            s.baro_missing
+        ));
+    }
     report
 }
 
