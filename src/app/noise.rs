@@ -124,7 +124,11 @@ fn read_segment(opts: &NoiseOptions, calib: &Calibration) -> anyhow::Result<Seri
     let mut yaw_prev: Option<f64> = None;
     while let Some(r) = lines.next(ImuRawRecord::parse_fields)? {
         let t_s = r.t_main_us as f64 / 1e6;
-        if t_s < from || t_s > to {
+        if t_s > to {
+            // A run's frames are in time order (replay refuses a log whose times go back).
+            break;
+        }
+        if t_s < from {
             continue;
         }
         if s.periods_us.len() >= MAX_FRAMES {
@@ -307,6 +311,10 @@ impl NoiseReport {
             "implied ekf.r_imu (psi phi theta, ax ay az, wx wy wz, baro): [{}]\n",
             list(&self.r_imu)
         ));
+        out.push_str(
+            "  (the sensors' own noise at rest: a floor, on their own scale; the profiles' values \
+             are the 2012 flights', on another — do not paste one into the other)\n",
+        );
         out.push_str(&format!(
             "implied ekf.q for bax bay baz (random walk² × frame period): [{}]\n",
             list(&self.q_acc_bias)

@@ -427,11 +427,7 @@ impl<'a> FastSim<'a> {
             return;
         };
         if let Some(ekf) = self.estimator.ekf() {
-            let bias_m = if self.gps_live {
-                self.gps.bias_m()
-            } else {
-                [0.0; 3]
-            };
+            let bias_m = self.gps_live.then(|| self.gps.bias_m());
             let row = self.truth.sample(&est, ekf, &self.plant, bias_m);
             crate::logs::format::write_values_row(&mut self.truth_text, Some(self.t_us), &row);
         }

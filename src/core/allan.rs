@@ -88,7 +88,9 @@ pub fn fit(points: &[AllanPoint], tau0_s: f64) -> Option<NoiseTerms> {
         if coef.iter().any(|&c| c < 0.0) {
             continue;
         }
-        let sse = weighted_sse(points, &coef, &coef);
+        // Every candidate is scored with the same weights (the points' own variances): each
+        // model's own would favour the ones that over-predict.
+        let sse = weighted_sse(points, &coef);
         if best.is_none_or(|(_, b)| sse < b) {
             best = Some((coef, sse));
         }
@@ -128,12 +130,12 @@ fn weight(p: &AllanPoint, by: Option<&[f64; 3]>) -> f64 {
     }
 }
 
-fn weighted_sse(points: &[AllanPoint], coef: &[f64; 3], by: &[f64; 3]) -> f64 {
+fn weighted_sse(points: &[AllanPoint], coef: &[f64; 3]) -> f64 {
     points
         .iter()
         .map(|p| {
             let r = p.adev * p.adev - model_avar(p.tau_s, coef);
-            weight(p, Some(by)) * r * r
+            weight(p, None) * r * r
         })
         .sum()
 }

@@ -635,20 +635,17 @@ impl Ekf {
     ) -> (StepReport, Result<(), EkfError>) {
         let theta_m = unwrap_theta(sample.euler_rad[2], self.x[idx::THETA]);
         let (dt_used_us, dt_clamped) = self.clamp_dt_us(input.dt_us);
-        let before_fix = self.steps_without_fix;
-        self.steps_without_fix = match input.gps {
-            Some(_) => 0,
-            None => self.steps_without_fix.saturating_add(1),
-        };
+        // A fix counts once fused (the gate may leave it out): until then this step is one
+        // more without, so a fix left out never turns the drag's hold off, even for a step.
+        self.steps_without_fix = self.steps_without_fix.saturating_add(1);
         let weight_n = input.mass_kg * crate::core::model::GRAVITY_M_S2;
         self.flying = total_thrust_n(&input.u_rad_s) > FLYING_THRUST_SHARE * weight_n;
         let u = &input.u_rad_s;
         self.predict(u, dt_used_us as f64 / 1e6, input.mass_kg);
         let az_pred = total_thrust_n(u) / input.mass_kg + self.x[idx::BAZ];
         let out = self.correct(sample, theta_m, az_pred, input.gps);
-        if out.gated.gps {
-            // A fix left out is no fix: the drag takes over the velocity as without one.
-            self.steps_without_fix = before_fix.saturating_add(1);
+        if input.gps.is_some() && !out.gated.gps {
+            self.steps_without_fix = 0;
         }
         if let Some(ground_m) = input.ground_m.filter(|_| self.params.ground_fusion)
             && out.result.is_ok()

@@ -362,5 +362,18 @@ mod tests {
         input.gps = Some(fix(0.0, 0.0, None));
         let (rep, _) = ekf.step(&still, &input);
         assert!(!rep.gated.gps && ekf.steps_without_fix == 0);
+        // With the drag holding the velocity (no fix fused for long), a fix left out does not
+        // turn it off for its step: the drag's bias stays tied (no profile noise of 1 added).
+        ekf.params.drag_per_s = 0.065;
+        ekf.steps_without_fix = crate::core::ekf_drag::DRAG_AFTER_STEPS + 5;
+        input.gps = Some(fix(500.0, 0.0, None));
+        let before = ekf.p[(idx::BAX, idx::BAX)];
+        let (rep, _) = ekf.step(&still, &input);
+        assert!(rep.gated.gps && ekf.drag_modelled());
+        assert!(
+            ekf.p[(idx::BAX, idx::BAX)] < before + 0.01,
+            "{before} -> {}",
+            ekf.p[(idx::BAX, idx::BAX)]
+        );
     }
 }

@@ -65,3 +65,9 @@ fn rotation_of(
         [-sph, cph * sps, cph * cps],
     ]
 }
+
+/// `a` wrapped into [-π, π).
+pub fn wrap_pi(a: f64) -> f64 {
+    let two_pi = std::f64::consts::TAU;
+    a - two_pi * ((a + std::f64::consts::PI) / two_pi).floor()
+}

@@ -160,11 +160,7 @@ pub fn sys_status(s: &Snapshot) -> MavMessage {
     })
 }
 
-/// `a` wrapped into [-π, π].
-pub fn wrap_pi(a: f64) -> f64 {
-    let two_pi = std::f64::consts::TAU;
-    a - two_pi * ((a + std::f64::consts::PI) / two_pi).floor()
-}
+pub use crate::core::math::wrap_pi;
 
 pub fn attitude(s: &Snapshot) -> Option<MavMessage> {
     let x = s.state?;

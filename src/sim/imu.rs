@@ -151,16 +151,17 @@ impl SimImu {
     }
 }
 
-/// The per-frame noise this IMU produces, as `uquad noise` should find it: the standard
+/// The per-frame noise this IMU produces, as `uquad noise` should find it (to first order in
+/// the calibration's cross-axis terms, about 1 %): the standard
 /// deviation of each accelerometer and gyro axis of a frame (m/s², rad/s) with the vehicle at
 /// rest reading `acc_m_s2` and `gyro_rad_s` (the bias included), at `temp_c`.
 ///
 /// How: `sim.*_noise_*` is each 5 ms sub-sample's. The sub-sample becomes counts through the
 /// inverted calibration (sd in counts: the noise through K⁻¹), is rounded to a count; the
 /// firmware sums two and halves the sum toward zero ([`frame_counts_sd`]); the frame's counts
-/// go back to units through K. Far from zero counts that is about σ²/2 + (5/48)·Σⱼ Kᵢⱼ²
-/// (rounding 1/24 count², the halving's truncation 1/16); near zero counts the truncation is
-/// a dead zone that makes it narrower.
+/// go back to units through K (each axis of counts on its own). Far from zero counts that is
+/// about σ²/2 + (5/48)·Σⱼ Kᵢⱼ² (rounding 1/24 count², the halving's truncation 1/16); near
+/// zero counts the truncation is a dead zone that makes it narrower.
 pub fn expected_frame_sd(
     calib: &Calibration,
     noise: &ImuNoise,
@@ -203,6 +204,11 @@ pub fn expected_frame_sd(
 pub fn frame_counts_sd(mean: f64, sd: f64) -> f64 {
     if sd <= 0.0 {
         return 0.0;
+    }
+    if sd > 20.0 {
+        // Rounding is then noise of its own, the same anywhere: the closed form (and the sum
+        // below would grow with sd²).
+        return (sd * sd / 2.0 + 5.0 / 48.0).sqrt();
     }
     let lo = (mean - 9.0 * sd).floor() as i64 - 1;
     let hi = (mean + 9.0 * sd).ceil() as i64 + 1;

@@ -15,10 +15,12 @@
 
 use crate::core::ekf::{Ekf, Nis, idx};
 use crate::core::flight::Estimate;
+use crate::core::math::wrap_pi;
 use crate::sim::physics::Plant;
 use serde::Serialize;
 
-/// The file in the run folder: per Kalman step, the time (µs) and the true x y z (m), ψ φ θ
+/// The file in the run folder: per Kalman step, the time (s, as kalman_in.log's) and the true
+/// x y z (m), ψ φ θ
 /// (rad), body velocities (m/s), body rates (rad/s), then the receiver's bias north, west, up
 /// (m) where the estimate has its accelerometer biases.
 pub const FILE: &str = "truth.log";
@@ -40,40 +42,46 @@ pub fn inside_95(value: f64, dof: u8) -> bool {
     value >= lo && value <= hi
 }
 
-/// The mean of a normalised error and the fraction of steps inside its 95 % bounds.
+/// The mean of a normalised error and the fraction of steps inside its 95 % bounds; both
+/// null when no step was judged (no fix fused, say): not a filter failing.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
 pub struct ChiFigure {
-    pub mean: f64,
-    pub in_95: f64,
-    /// Steps judged.
+    /// Over the steps with a finite value.
+    pub mean: Option<f64>,
+    /// Over every step judged; a step whose value is not finite is never inside.
+    pub in_95: Option<f64>,
+    /// Steps judged, and those among them whose value was not finite (a covariance that
+    /// could not be inverted).
     pub steps: u64,
+    pub failed: u64,
 }
 
 #[derive(Debug, Clone, Copy, Default)]
 struct ChiSum {
     sum: f64,
     inside: u64,
-    n: u64,
+    finite: u64,
+    failed: u64,
 }
 
 impl ChiSum {
     fn add(&mut self, value: f64, dof: u8) {
         if !value.is_finite() {
-            // A non-finite value is a failed step: counted, never inside.
-            self.n += 1;
+            self.failed += 1;
             return;
         }
         self.sum += value;
         self.inside += u64::from(inside_95(value, dof));
-        self.n += 1;
+        self.finite += 1;
     }
 
     fn figure(&self) -> ChiFigure {
-        let per = |v: f64| if self.n > 0 { v / self.n as f64 } else { 0.0 };
+        let steps = self.finite + self.failed;
         ChiFigure {
-            mean: per(self.sum),
-            in_95: per(self.inside as f64),
-            steps: self.n,
+            mean: (self.finite > 0).then(|| self.sum / self.finite as f64),
+            in_95: (steps > 0).then(|| self.inside as f64 / steps as f64),
+            steps,
+            failed: self.failed,
         }
     }
 }
@@ -126,16 +134,6 @@ pub struct TruthTrace {
     nis: [ChiSum; 3],
 }
 
-/// The wrapped difference a − b of two angles, in (−π, π].
-fn angle_diff(a: f64, b: f64) -> f64 {
-    let d = (a - b).rem_euclid(std::f64::consts::TAU);
-    if d > std::f64::consts::PI {
-        d - std::f64::consts::TAU
-    } else {
-        d
-    }
-}
-
 /// eᵀ·P⁻¹·e over the three states from `first`; NaN when the block is not invertible.
 fn nees3(ekf: &Ekf, first: usize, e: [f64; 3]) -> f64 {
     let p = ekf.p.fixed_view::<3, 3>(first, first).into_owned();
@@ -148,15 +146,18 @@ fn nees3(ekf: &Ekf, first: usize, e: [f64; 3]) -> f64 {
 
 impl TruthTrace {
     /// One Kalman step: the estimate `est` from filter `ekf`, the vehicle `plant`, and the
-    /// receiver's current bias (north, west, up), m. Returns truth.log's row ([`FILE`]).
+    /// simulated receiver's current bias (north, west, up), m — `None` without one (fake or
+    /// no GPS: the fixes are not the vehicle's, and the position is not judged). Returns
+    /// truth.log's row ([`FILE`]), the bias zero without a receiver.
     pub fn sample(
         &mut self,
         est: &Estimate,
         ekf: &Ekf,
         plant: &Plant,
-        bias_m: [f64; 3],
+        receiver_bias_m: Option<[f64; 3]>,
     ) -> [f64; 15] {
         let x = &plant.x;
+        let bias_m = receiver_bias_m.unwrap_or_default();
         let truth: [f64; 15] = std::array::from_fn(|i| match i {
             0..12 => x[i],
             _ => bias_m[i - 12],
@@ -165,14 +166,14 @@ impl TruthTrace {
         let d = |i: usize| e[i] - x[i];
         let pos = [d(idx::X), d(idx::Y), d(idx::Z)];
         let vel = [d(idx::VQX), d(idx::VQY), d(idx::VQZ)];
-        let att = [idx::PSI, idx::PHI, idx::THETA].map(|i| angle_diff(e[i], x[i]));
+        let att = [idx::PSI, idx::PHI, idx::THETA].map(|i| wrap_pi(e[i] - x[i]));
         let norm_sq = |v: [f64; 3]| v.iter().map(|c| c * c).sum::<f64>();
         self.pos_sq += norm_sq(pos);
         self.pos_max = self.pos_max.max(norm_sq(pos).sqrt());
         self.vel_sq += norm_sq(vel);
         self.att_sq += norm_sq(att);
         self.n += 1;
-        if ekf.fix_seen {
+        if ekf.fix_seen && receiver_bias_m.is_some() {
             let known = [pos[0] - bias_m[0], pos[1] - bias_m[1], pos[2]];
             self.nees[0].add(nees3(ekf, idx::X, known), 3);
         }
@@ -216,23 +217,28 @@ impl TruthTrace {
     }
 }
 
-/// The summary's line: the error, and the fraction of steps inside the 95 % bounds.
+/// The summary's line: the error, and the fraction of steps inside the 95 % bounds ("-" for
+/// a figure with no step judged).
 pub fn text(e: &EstError, c: &Consistency) -> String {
     let (n, s) = (&c.nees, &c.nis);
+    let f = |x: &ChiFigure| {
+        x.in_95
+            .map_or_else(|| "-".to_string(), |v| format!("{v:.2}"))
+    };
     format!(
         "estimate against the truth: position RMS {:.3} m (largest {:.3} m), velocity RMS {:.3} m/s, \
-         attitude RMS {:.4} rad; inside the 95 % bounds: NEES position {:.2}, velocity {:.2}, \
-         attitude {:.2}; NIS attitude {:.2}, altitude {:.2}, gps {:.2}",
+         attitude RMS {:.4} rad; inside the 95 % bounds: NEES position {}, velocity {}, \
+         attitude {}; NIS attitude {}, altitude {}, gps {}",
         e.position_rms_m,
         e.position_max_m,
         e.velocity_rms_m_s,
         e.attitude_rms_rad,
-        n.position.in_95,
-        n.velocity.in_95,
-        n.attitude.in_95,
-        s.attitude.in_95,
-        s.altitude.in_95,
-        s.gps.in_95
+        f(&n.position),
+        f(&n.velocity),
+        f(&n.attitude),
+        f(&s.attitude),
+        f(&s.altitude),
+        f(&s.gps)
     )
 }
 
@@ -250,13 +256,15 @@ mod tests {
         s.add(f64::NAN, 2);
         s.add(100.0, 2);
         let f = s.figure();
-        assert_eq!(f.steps, 3);
-        assert!((f.in_95 - 1.0 / 3.0).abs() < 1e-12 && (f.mean - 34.0).abs() < 1e-12);
+        assert_eq!((f.steps, f.failed), (3, 1));
+        assert_eq!(f.in_95, Some(1.0 / 3.0));
+        assert_eq!(f.mean, Some(51.0));
+        assert_eq!(ChiSum::default().figure().in_95, None);
     }
 
     #[test]
     fn angles_differ_the_short_way() {
-        assert!((angle_diff(3.1, -3.1) - (6.2 - std::f64::consts::TAU)).abs() < 1e-12);
-        assert!((angle_diff(0.2, 0.1) - 0.1).abs() < 1e-12);
+        assert!((wrap_pi(3.1 - -3.1) - (6.2 - std::f64::consts::TAU)).abs() < 1e-12);
+        assert!((wrap_pi(0.2 - 0.1) - 0.1).abs() < 1e-12);
     }
 }

@@ -182,7 +182,7 @@ impl Commander {
     /// when none came since (gpsd), and once one was fused the newest fused if older (a
     /// receiver whose fixes the filter's gate leaves out is unhealthy: lost, as a silent one);
     /// the newest fused fix otherwise.
-    fn gps_reference_us(&self) -> Option<i64> {
+    pub(super) fn gps_reference_us(&self) -> Option<i64> {
         if self.p.gps_live {
             // The pre-arm check asked for a recent fix; with none since, arming starts the clock.
             let delivered = self.fix_rx_us.or(self.armed_us);

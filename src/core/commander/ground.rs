@@ -57,13 +57,15 @@ impl Commander {
         None
     }
 
-    /// A takeoff (or a mission from the ground) with a receiver needs a fix delivered within
-    /// `control.gps_hold_timeout_s`.
+    /// A takeoff (or a mission from the ground) with a receiver needs a fix delivered (and,
+    /// once one was fused, fused) within `control.gps_hold_timeout_s`: the GPS failsafe's own
+    /// freshness.
     pub(super) fn fix_ready(&self, t_us: i64) -> Result<(), String> {
         let p = &self.p;
-        let fresh = self
-            .fix_rx_us
-            .is_some_and(|f| (t_us - f) as f64 / 1e6 <= p.gps_timeout_s);
+        let fresh = self.fix_rx_us.is_some()
+            && self
+                .gps_reference_us()
+                .is_some_and(|f| (t_us - f) as f64 / 1e6 <= p.gps_timeout_s);
         if !p.gps_live || fresh {
             return Ok(());
         }

@@ -752,6 +752,7 @@ impl Commander {
         }
         // A landing left and begun again starts its touchdown watch afresh.
         self.touchdown_since_us = None;
+        self.ground_push_steps = 0;
         self.blind = None;
         self.descent = DescentTrace::default();
         self.set_mode(Mode::Land, t_us, why, out);

@@ -1094,6 +1094,20 @@ fn a_takeoff_with_a_receiver_needs_a_fix_delivered_lately() {
     assert_eq!(c.mode(), Mode::Armed);
     assert!(refusals(&ev)[0].starts_with("gps: no fix within"), "{ev:?}");
     c.gps_fix(5_600_000);
+    // Delivered but not fused (the last fused at 2 s): not yet.
+    c.command(
+        Command::Takeoff(None),
+        5_605_000,
+        Ok(()),
+        Some(&est),
+        &mut ev,
+    );
+    assert_eq!(c.mode(), Mode::Armed);
+    // Fused at the next step: a fix delivered but never fused (left out by the gate) would
+    // not do.
+    let mut fused = at(5_610_000, 0.0);
+    fused.gps_fused = true;
+    c.on_estimate(&fused, &mut ev);
     c.command(
         Command::Takeoff(None),
         5_700_000,
