@@ -941,28 +941,41 @@ impl Ekf {
             let z = if i == 0 { ground_m } else { 0.0 };
             z - self.x[GROUND_OBS[i]]
         });
+        // A singular S leaves the estimate as it was: the next step tries again.
+        self.fuse_masked(&h, &y, &r, &GROUND_OBS);
+    }
+
+    /// x += K·y and P = (I − K·H)·P·(I − K·H)ᵀ + K·R·Kᵀ (Joseph form: right for a gain cut
+    /// to some states) with K = P·Hᵀ·S⁻¹ kept to the states in `keep`. `false`, nothing
+    /// changed, when S cannot be inverted.
+    pub(crate) fn fuse_masked<const M: usize>(
+        &mut self,
+        h: &SMatrix<f64, M, N_STATES>,
+        y: &SVector<f64, M>,
+        r: &[f64; M],
+        keep: &[usize],
+    ) -> bool {
         let pht = self.p * h.transpose();
         let mut s = h * pht;
         for (i, ri) in r.iter().enumerate() {
             s[(i, i)] += ri;
         }
-        // A singular S leaves the estimate as it was: the next step tries again.
         let Some(s_inv) = s.try_inverse() else {
-            return;
+            return false;
         };
-        let mut k = pht * s_inv;
-        for st in (0..N_STATES).filter(|st| !GROUND_OBS.contains(st)) {
-            k.row_mut(st).fill(0.0);
+        let mut gain = pht * s_inv;
+        for st in (0..N_STATES).filter(|st| !keep.contains(st)) {
+            gain.row_mut(st).fill(0.0);
         }
-        self.x += k * y;
-        // Joseph form: right for a gain cut to some states.
-        let i_kh = StateMatrix::identity() - k * h;
+        self.x += gain * y;
+        let i_kh = StateMatrix::identity() - gain * h;
         let mut krk = StateMatrix::zeros();
-        for (c, ri) in r.iter().enumerate() {
-            let col = k.column(c);
-            krk += col * col.transpose() * *ri;
+        for (c, rc) in r.iter().enumerate() {
+            let col = gain.column(c);
+            krk += col * col.transpose() * *rc;
         }
         self.p = i_kh * self.p * i_kh.transpose() + krk;
+        true
     }
 }
 

@@ -11,7 +11,7 @@
 //! acceleration it is while it lasts. Not in the original's spec (its filter, spec 3,
 //! models no drag).
 
-use crate::core::ekf::{Ekf, N_STATES, StateMatrix, idx};
+use crate::core::ekf::{Ekf, N_STATES, idx};
 use nalgebra::{SMatrix, SVector};
 
 /// Steps without a fix after which the drag holds the velocity: 1.5 s at 100 Hz, so one fix
@@ -128,28 +128,9 @@ impl Ekf {
         let z = SVector::<f64, 4>::new(mean_m_s2[0], mean_m_s2[1], 0.0, 0.0);
         let r = [r_mean_m2_s4, r_mean_m2_s4, R_DRAG, R_DRAG];
         let y = z - h * self.x;
-        let pht = self.p * h.transpose();
-        let mut s = h * pht;
-        for (i, ri) in r.iter().enumerate() {
-            s[(i, i)] += ri;
-        }
-        let Some(s_inv) = s.try_inverse() else {
-            return;
-        };
-        let mut gain = pht * s_inv;
         // The 2012 noise values correlate every state: the vertical and the attitude must
-        // not move with what the drag says.
-        for st in (0..N_STATES).filter(|st| !HORIZONTAL.contains(st)) {
-            gain.row_mut(st).fill(0.0);
-        }
-        self.x += gain * y;
-        let i_kh = StateMatrix::identity() - gain * h;
-        let mut krk = StateMatrix::zeros();
-        for (c, rc) in r.iter().enumerate() {
-            let col = gain.column(c);
-            krk += col * col.transpose() * *rc;
-        }
-        self.p = i_kh * self.p * i_kh.transpose() + krk;
+        // not move with what the drag says. A singular S leaves the estimate as it was.
+        self.fuse_masked(&h, &y, &r, &HORIZONTAL);
     }
 
     /// A push, one axis (0: x, 1: y): the model's outside acceleration becomes what the
