@@ -345,7 +345,7 @@ struct NoiseArgs {
     /// The calibration to convert the frames with (default RUN_DIR/imu_calib.txt).
     #[arg(long, value_name = "FILE")]
     calib: Option<PathBuf>,
-    /// Also write the figures as JSON.
+    /// Also write the figures as JSON, each axis with its Allan curve.
     #[arg(long, value_name = "FILE")]
     report: Option<PathBuf>,
 }

@@ -103,6 +103,12 @@ fn recovers_the_simulated_white_noise_and_barometer() {
     // 1 Pa per reading, rounded to a pascal: √(1 + 1/12).
     let baro = r["baro_pa"]["sd"].as_f64().unwrap();
     within(baro, (1.0f64 + 1.0 / 12.0).sqrt(), 0.10, "barometer");
+    // The Allan curve in the report: white noise falls as 1/√τ from the per-frame figure.
+    let curve: Vec<[f64; 2]> = serde_json::from_value(r["gyro"][0]["allan"].clone()).unwrap();
+    assert!(curve.len() > 20, "{curve:?}");
+    within(curve[0][1], gyro[0], 0.10, "the curve's first point");
+    let (a, b) = (curve[0], curve[10]);
+    within(b[1] / a[1], (a[0] / b[0]).sqrt(), 0.15, "the curve's slope");
     // The R it implies has the gyro rows at their white noise squared.
     let r_imu: Vec<f64> = serde_json::from_value(r["r_imu"].clone()).unwrap();
     within(r_imu[6], gyro[0].powi(2), 0.21, "r_imu wx");

@@ -31,7 +31,7 @@ pub const MIN_FRAMES: usize = 100;
 pub const MAX_FRAMES: usize = 1_000_000;
 
 /// One axis of a gyro or accelerometer.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct AxisNoise {
     pub mean: f64,
     /// The samples' standard deviation (white noise and everything slower).
@@ -41,6 +41,9 @@ pub struct AxisNoise {
     pub white_density: Option<f64>,
     pub bias_instability: Option<f64>,
     pub random_walk: Option<f64>,
+    /// The Allan deviation the terms were fitted to: [τ (s), deviation], about ten points a
+    /// decade (for a reader who plots it).
+    pub allan: Vec<[f64; 2]>,
 }
 
 /// A derived signal's spread.
@@ -190,7 +193,8 @@ fn frame_period_s(periods_us: &mut [u32]) -> f64 {
 
 fn axis(samples: &[f64], tau0_s: f64) -> AxisNoise {
     let (mean, sd) = allan::mean_sd(samples).unwrap_or((f64::NAN, f64::NAN));
-    let terms: Option<NoiseTerms> = allan::fit(&allan::allan_deviation(samples, tau0_s), tau0_s);
+    let curve = allan::allan_deviation(samples, tau0_s);
+    let terms: Option<NoiseTerms> = allan::fit(&curve, tau0_s);
     AxisNoise {
         mean,
         sd,
@@ -198,6 +202,7 @@ fn axis(samples: &[f64], tau0_s: f64) -> AxisNoise {
         white_density: terms.map(|t| t.white_density),
         bias_instability: terms.map(|t| t.bias_instability),
         random_walk: terms.map(|t| t.random_walk),
+        allan: curve.iter().map(|p| [p.tau_s, p.adev]).collect(),
     }
 }
 
@@ -220,7 +225,7 @@ fn analyse(opts: &NoiseOptions, mut s: Series) -> NoiseReport {
         r_imu[6 + i] = white(&gyro[i]).powi(2);
     }
     r_imu[9] = baro_alt_m.sd.powi(2);
-    let q_acc_bias = acc.map(|a| a.random_walk.unwrap_or(0.0).powi(2) * tau0_s);
+    let q_acc_bias = std::array::from_fn(|i| acc[i].random_walk.unwrap_or(0.0).powi(2) * tau0_s);
     let mut report = NoiseReport {
         run_dir: opts.run_dir.clone(),
         frames: s.periods_us.len(),
