@@ -147,6 +147,23 @@ fn read_series<T, const N: usize>(
     Ok((keeps, lines.warning()))
 }
 
+/// The pose series of a log whose rows are a time and `N` values, x y z ψ φ θ first
+/// (setpoint.log, truth.log).
+fn timed_poses<const N: usize>(
+    run_dir: &Path,
+    name: &str,
+) -> anyhow::Result<([Keep; 5], Option<String>)> {
+    read_series(
+        run_dir,
+        name,
+        logs::parse_time_and::<N>,
+        |(t, v), _, k: &mut [Keep; 5]| {
+            push_pose(*t as f64 / 1e6, v, k);
+            Ok(())
+        },
+    )
+}
+
 /// Reads the figure of `run_dir`, each log a line at a time (twice: once to count its
 /// records, once to keep every so many): memory does not grow with the run's length. A
 /// log's skipped lines (over-long, cut off, not understood) are told on stderr.
@@ -173,24 +190,8 @@ pub fn figure(run_dir: &Path) -> anyhow::Result<Figure> {
             Ok(())
         },
     )?;
-    let (set, set_warning) = read_series(
-        run_dir,
-        "setpoint.log",
-        logs::parse_time_and::<6>,
-        |(t, v), _, k: &mut [Keep; 5]| {
-            push_pose(*t as f64 / 1e6, v, k);
-            Ok(())
-        },
-    )?;
-    let (truth, truth_warning) = read_series(
-        run_dir,
-        "truth.log",
-        logs::parse_time_and::<15>,
-        |(t, v), _, k: &mut [Keep; 5]| {
-            push_pose(*t as f64 / 1e6, v, k);
-            Ok(())
-        },
-    )?;
+    let (set, set_warning) = timed_poses::<6>(run_dir, "setpoint.log")?;
+    let (truth, truth_warning) = timed_poses::<15>(run_dir, "truth.log")?;
     let (ratios, ratio_warning) = ratio_series(run_dir)?;
     let (w, w_warning) = read_series(
         run_dir,
