@@ -45,18 +45,23 @@ fn every_fault_alone_in_every_phase_holds_the_invariants() {
             "{fault} in the first seven phases: {text}"
         );
     }
-    // The stuck gyro, which the estimator cannot see yet, is listed apart, never silently.
+    // A gyro the filter cannot follow (stuck, or its bias stepped) is listed apart, never
+    // silently.
     for k in r["known_exceptions"].as_array().unwrap() {
-        assert!(k["fault"].as_str().unwrap().contains("gyro-stuck"), "{k}");
+        let fault = k["fault"].as_str().unwrap();
+        assert!(
+            fault.contains("gyro-stuck") || fault.contains("gyro-bias"),
+            "{k}"
+        );
     }
     assert!(text.contains("fault        disarmed"), "the table: {text}");
 }
 
 #[test]
 fn a_broken_invariant_is_named_with_the_run_that_broke_it() {
-    // Without the drag's velocity a GPS lost on the way back (a return) drifts; the fence,
-    // grown by the position's uncertainty, would land it in time, but set to only hold it
-    // lets it drift out: run 86 (seed 87) of the campaign is that one.
+    // Without the drag's velocity a GPS lost on a mission's leg drifts; the fence, grown by
+    // the position's uncertainty, would land it in time, but set to only hold it lets it
+    // drift out: run 74 (seed 75) of the campaign is that one.
     let (ok, r, text) = campaign(&[
         "--runs",
         "87",
@@ -66,11 +71,16 @@ fn a_broken_invariant_is_named_with_the_run_that_broke_it() {
         "fence.action=hold",
     ]);
     assert!(!ok, "a violation exits non-zero: {text}");
-    let v = &r["violations"][0];
-    assert_eq!(v["invariant"], 5, "{text}");
+    // Its fence breach (the run also ends in hold, in the air: invariant 2).
+    let v = r["violations"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|v| v["invariant"] == 5)
+        .unwrap_or_else(|| panic!("no fence breach: {text}"));
     let line = v["run"].as_str().unwrap();
     assert!(
-        line.contains("--seed 87") && line.contains("--inject gps-loss@"),
+        line.contains("--seed 75") && line.contains("--inject gps-loss@"),
         "{line}"
     );
     assert!(line.contains("--set 'ekf.drag_per_s=0'"), "{line}");

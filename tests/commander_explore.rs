@@ -131,6 +131,8 @@ fn observe(c: &Commander, w: &World) -> Observation {
         tilt_rad: if w.flipped { 2.0 } else { 0.0 },
         baro_alt_m: w.z_m,
         gps_fused: !w.fixes_lost && w.t_us % 1_000_000 == 0,
+        gps_velocity_fused: !w.fixes_lost && w.t_us % 1_000_000 == 0,
+        gps_velocity_ratio: None,
         vertical_observed: true,
         ratios: TestRatios {
             attitude: if w.estimator_bad { 10.0 } else { 0.0 },

@@ -140,7 +140,11 @@ fn an_armed_vehicle_that_does_not_take_off_disarms() {
 
 #[test]
 fn a_stuck_gyro_tumbling_the_vehicle_at_the_ground_is_a_crash() {
-    // Before: rolled over at the ground for 190 s, mode takeoff, motors running, exit 0.
+    // Before: rolled over at the ground for 190 s, mode takeoff, motors running, exit 0. The
+    // stuck gyro is not recognised yet; what stops the motors is whichever comes first: the
+    // fixes' velocity contradicting the estimate (the estimator failsafe's landing, then its
+    // touchdown), or a takeoff still on the ground after commander.takeoff_timeout_s (the
+    // crash halt, at 25 s).
     let (r, stderr, _logs) = sim(&[
         "--mission",
         "config/missions/square.toml",
@@ -149,12 +153,18 @@ fn a_stuck_gyro_tumbling_the_vehicle_at_the_ground_is_a_crash() {
         "--duration",
         "240",
     ]);
-    assert_eq!(r["halt"]["reason"], "crash", "{r}\n{stderr}");
-    assert_eq!(r["halt"]["confirmed"], true, "{r}");
-    // The takeoff began at 10 s; commander.takeoff_timeout_s later it has not left the ground.
-    let halt_s = r["halt"]["event_s"].as_f64().unwrap();
-    assert!((25.0..25.1).contains(&halt_s), "{r}");
-    assert_eq!(modes(&r).last().unwrap().0, "kill", "{r}");
+    let end_s = r["simulated_s"].as_f64().unwrap();
+    assert!(end_s < 60.0, "{r}\n{stderr}");
+    let (last, why) = modes(&r).last().unwrap().clone();
+    let crashed = last == "kill" && r["halt"]["reason"] == "crash";
+    let landed = last == "disarmed" && why == "touchdown";
+    assert!(crashed || landed, "{r}\n{stderr}");
+    if crashed {
+        assert_eq!(r["halt"]["confirmed"], true, "{r}");
+    } else {
+        assert_eq!(failsafe_kinds(&r)[0], "estimator", "{r}");
+    }
+    assert_eq!(r["safety"]["ended_in_air"], false, "{r}");
     assert_escs_stopped(&r, &stderr);
 }
 

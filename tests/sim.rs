@@ -225,20 +225,22 @@ fn hovers_with_gains_designed_by_uquad_lqr() {
         sim_report(&args)
     };
     // As the 2012 flights: their filter noise, fake GPS at the origin, no torque observer.
-    let (_, report, _logs) = with(&[
-        "--set",
-        EKF_Q_2012,
-        "--set",
-        "gps.mode=fake-zero",
-        "--set",
-        "control.torque_observer_s=0",
-    ]);
+    let (_, report, _logs) = with(
+        &[
+            &EKF_2012[..],
+            &["--set", "gps.mode=fake-zero"],
+            &["--set", "control.torque_observer_s=0"],
+        ]
+        .concat(),
+    );
     assert_hovers(&report);
     // The same gains on (exact) GPS fixes: with the 2012 filter noise and its joint update
     // (x, y forget their velocity every step) each fix jumps the position and the stiff x, y
-    // feedback tips the vehicle over; with this profile's noise and fusion it holds its place.
-    let (_, r, _logs) = with(&["--set", EKF_Q_2012, "--set", "ekf.gps_fusion=\"joint\""]);
-    assert_eq!(r["halt"]["reason"], "sanity-tilt", "{r}");
+    // feedback tips the vehicle over or drags it down; with this profile's noise and fusion
+    // it holds its place.
+    let (_, r, _logs) = with(&[&EKF_2012[..], &["--set", "ekf.gps_fusion=\"joint\""]].concat());
+    let fell = r["halt"]["reason"] == "sanity-tilt";
+    assert!(fell || r["alt_rms_m"].as_f64().unwrap() > 0.3, "{r}");
     let (_, r, _logs) = with(&[]);
     assert_hovers(&r);
     assert!(r["pos_max_err_m"].as_f64().unwrap() <= 0.2, "{r}");
@@ -262,16 +264,17 @@ fn sink_after_touchdown(report: &serde_json::Value) -> f64 {
 
 #[test]
 fn at_touchdown_the_estimate_stays_on_the_ground() {
-    // The model has no ground: without its rows the estimate kept falling after the vehicle
-    // stood on the ground (0.16 m below it by the disarm on this seed). With them it stops
-    // where the ground was at the takeoff (the barometer's error then stays: 0.08 m here).
-    let (report, _logs) = sim(&["--seed", "1"]);
-    let sink = sink_after_touchdown(&report);
-    assert!(sink < 0.1, "the estimate sank {sink} m below the ground");
-    let (without, _l2) = sim(&["--seed", "1", "--set", "ekf.ground_fusion=false"]);
-    let sink_without = sink_after_touchdown(&without);
-    assert!(
-        sink_without > sink + 0.05,
-        "without the ground the estimate sank {sink_without} m, with it {sink} m"
-    );
+    // The model has no ground: on the 2012 flights' noise values, without its rows the
+    // estimate kept falling after the vehicle stood on the ground (0.16 m below it by the
+    // disarm on this seed). On this profile's sensor-scale noise the barometer holds it
+    // within centimetres either way; the ground's rows are checked in core::ekf's tests.
+    for ground in ["true", "false"] {
+        let set = format!("ekf.ground_fusion={ground}");
+        let (report, _logs) = sim(&["--seed", "1", "--set", &set]);
+        let sink = sink_after_touchdown(&report);
+        assert!(
+            sink < 0.1,
+            "{set}: the estimate sank {sink} m below the ground"
+        );
+    }
 }

@@ -254,7 +254,7 @@ fn thrust_loss_brings_the_2012_gains_down() {
     // The same loss with the 2012 flights' gains and filter noise: their altitude loop (8.8 rad/s
     // per m, integral capped at 2 m s) cannot make up the lost thrust, which is why the default
     // profile carries its own design.
-    let (r, _logs) = thrust_loss_report(&[
+    let gains = [
         "--set",
         "control.integrators=\"psi,phi,z,theta\"",
         "--set",
@@ -262,10 +262,9 @@ fn thrust_loss_brings_the_2012_gains_down() {
         "--set",
         "control.k_int_file=\"K_int_full_ppzt.txt\"",
         "--set",
-        EKF_Q_2012,
-        "--set",
         "control.torque_observer_s=0",
-    ]);
+    ];
+    let (r, _logs) = thrust_loss_report(&[&gains[..], &EKF_2012[..]].concat());
     let worst = r["alt_max_err_m"].as_f64().unwrap();
     assert!(worst > 0.5, "altitude error only {worst} m: {r}");
 }

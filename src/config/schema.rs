@@ -365,6 +365,9 @@ pub struct Imu {
     pub period_max_us: u32,
     /// Frames averaged into the start-up null sample.
     pub calib_frames: u32,
+    /// How their pressures are averaged: "truncated" (the original's integer division) or
+    /// "exact".
+    pub null_pressure: crate::core::imu::calib::NullPressure,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -479,6 +482,7 @@ impl Default for Imu {
             period_min_us: p.period_min_us as u32,
             period_max_us: p.period_max_us as u32,
             calib_frames: p.calib_frames,
+            null_pressure: p.null_pressure,
         }
     }
 }
@@ -537,6 +541,7 @@ impl Imu {
             period_min_us: i64::from(self.period_min_us),
             period_max_us: i64::from(self.period_max_us),
             calib_frames: self.calib_frames,
+            null_pressure: self.null_pressure,
         }
     }
 }

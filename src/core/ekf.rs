@@ -204,6 +204,12 @@ pub struct StepReport {
     pub gated: GatedGroups,
     /// The normalised innovation squared of each group fused or judged in the step.
     pub nis: StepNis,
+    /// A fix's horizontal velocity was fused this step, whether or not its position was.
+    pub fix_velocity_fused: bool,
+    /// The test ratio of a fix's horizontal velocity rows alone, when it had them: a
+    /// position jump with a consistent velocity is the receiver's glitch, a velocity outside
+    /// its gate the estimate's own error.
+    pub fix_velocity_ratio: Option<f64>,
 }
 
 /// A group's normalised innovation squared, yᵀ·S⁻¹·y over its rows with S = H·P·Hᵀ + R taken
@@ -333,6 +339,10 @@ pub(crate) struct UpdateOutcome {
     pub(crate) ratios: TestRatios,
     pub(crate) gated: GatedGroups,
     pub(crate) nis: StepNis,
+    /// A fix's horizontal velocity was fused (its position may have been left out).
+    pub(crate) fix_velocity_fused: bool,
+    /// The test ratio of a fix's horizontal velocity rows, when it had them.
+    pub(crate) fix_velocity_ratio: Option<f64>,
     pub(crate) result: Result<(), EkfError>,
 }
 
@@ -644,7 +654,9 @@ impl Ekf {
         self.predict(u, dt_used_us as f64 / 1e6, input.mass_kg);
         let az_pred = total_thrust_n(u) / input.mass_kg + self.x[idx::BAZ];
         let out = self.correct(sample, theta_m, az_pred, input.gps);
-        if input.gps.is_some() && !out.gated.gps {
+        // A fix's velocity alone (its position left out) observes the velocity as well: the
+        // drag's hold is not needed.
+        if input.gps.is_some() && (!out.gated.gps || out.fix_velocity_fused) {
             self.steps_without_fix = 0;
         }
         if let Some(ground_m) = input.ground_m.filter(|_| self.params.ground_fusion)
@@ -659,6 +671,8 @@ impl Ekf {
             ratios: out.ratios,
             gated: out.gated,
             nis: out.nis,
+            fix_velocity_fused: out.fix_velocity_fused,
+            fix_velocity_ratio: out.fix_velocity_ratio,
         };
         (report, out.result)
     }
@@ -729,6 +743,8 @@ impl Ekf {
                         gps: fix.nis.gps,
                         ..imu.nis
                     },
+                    fix_velocity_fused: fix.fix_velocity_fused,
+                    fix_velocity_ratio: fix.fix_velocity_ratio,
                     result: imu.result.and(fix.result),
                 }
             }
@@ -766,9 +782,9 @@ impl Ekf {
         let mut r = self.params.r_imu_diag;
         if lost {
             // The accelerometer's vertical row then carries the height between fixes: read at
-            // its own noise, it teaches the thrust model's error (baz), so the estimate stands
-            // still when the vehicle does (on the ground, too).
-            r[5] = R_AZ_NO_BARO;
+            // its own noise (or the profile's, if tighter), it teaches the thrust model's error
+            // (baz), so the estimate stands still when the vehicle does (on the ground, too).
+            r[5] = r[5].min(R_AZ_NO_BARO);
         }
         if self.pushed_now() {
             // The IMU's angles take the accelerometer for the gravity's direction: during a
@@ -789,10 +805,12 @@ impl Ekf {
     }
 
     /// The barometer has just gone: the height and vertical speed it held were good to
-    /// centimetres (the profile's P, sized for its 2012 noise values, says metres), so the
+    /// centimetres (a profile with the 2012 noise values has a P that says metres), so the
     /// fixes that take over correct them gently instead of replacing them.
     fn vertical_from_barometer(&mut self) {
         for (i, var) in [(idx::Z, VAR_Z_AT_LOSS_M2), (idx::VQZ, VAR_VZ_AT_LOSS)] {
+            // A profile on its sensors' scale may already know them better.
+            let var = var.min(self.p[(i, i)]);
             self.p.row_mut(i).fill(0.0);
             self.p.column_mut(i).fill(0.0);
             self.p[(i, i)] = var;
@@ -846,6 +864,8 @@ impl Ekf {
                 ratios,
                 gated: GatedGroups::default(),
                 nis,
+                fix_velocity_fused: false,
+                fix_velocity_ratio: None,
                 result: Err(EkfError::NonFiniteMeasurement),
             };
         }
@@ -863,6 +883,8 @@ impl Ekf {
             ratios,
             gated,
             nis,
+            fix_velocity_fused: false,
+            fix_velocity_ratio: None,
             result,
         }
     }

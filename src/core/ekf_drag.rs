@@ -52,6 +52,12 @@ impl Ekf {
         self.drag_modelled() && self.flying
     }
 
+    /// The horizontal velocity is observed: by the drag's hold, or by fixes lately fused (a
+    /// fix's velocity alone counts: a position glitch leaves it good).
+    pub fn horizontal_velocity_observed(&self) -> bool {
+        self.drag_active() || (self.fix_seen && self.steps_without_fix < DRAG_AFTER_STEPS)
+    }
+
     /// The vertical is observed: by the barometer, or without it by the fixes' vertical
     /// velocity (`core::ekf_fix`) while they come.
     pub fn vertical_observed(&self) -> bool {

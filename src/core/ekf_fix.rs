@@ -75,41 +75,67 @@ impl Ekf {
         }
         let (h, mut y, mut pht, mut s) = self.innovation(&z, &r, &used);
         let gate_sq = self.params.gate_sigma * self.params.gate_sigma;
+        let ratio_of = |rows: &[usize],
+                        used: &[bool; ROWS],
+                        y: &SVector<f64, ROWS>,
+                        s: &SMatrix<f64, ROWS, ROWS>| {
+            rows.iter()
+                .filter(|&&i| used[i])
+                .map(|&i| y[i] * y[i] / (gate_sq * s[(i, i)]))
+                .fold(0.0f64, |m, v| if v > m || v.is_nan() { v } else { m })
+        };
+        let outside = |ratio: f64| self.params.gate_fusion && (ratio > 1.0 || ratio.is_nan());
         // The vertical velocity row (a lost barometer's stand-in) is gated on its own: a
         // climb's glitch must not move the only vertical reference left.
-        let vz_ratio = y[5] * y[5] / (gate_sq * s[(5, 5)]);
-        if used[5] && self.params.gate_fusion && (vz_ratio > 1.0 || vz_ratio.is_nan()) {
-            used[5] = false;
-            y[5] = 0.0;
-            pht.column_mut(5).fill(0.0);
-            s.row_mut(5).fill(0.0);
-            s.column_mut(5).fill(0.0);
-            s[(5, 5)] = 1.0;
+        if used[5] && outside(ratio_of(&[5], &used, &y, &s)) {
+            drop_row(5, &mut used, &mut y, &mut pht, &mut s);
         }
-        // The gps group: the horizontal position and velocity rows (a receiver's glitch in
-        // either is left out whole).
-        let ratio = [0, 1, 3, 4]
-            .into_iter()
-            .filter(|&i| used[i])
-            .map(|i| y[i] * y[i] / (gate_sq * s[(i, i)]))
-            .fold(0.0f64, |m, v| if v > m || v.is_nan() { v } else { m });
+        // The gps group: the horizontal position rows and the horizontal velocity rows, each
+        // gated on its own as PX4 EKF2 gates them: a multipath jump moves the position while
+        // the receiver's Doppler velocity stays good, and fusing it holds the vehicle still
+        // through the glitch. The group's ratio is the larger.
+        let pos_ratio = ratio_of(&[0, 1], &used, &y, &s);
+        let vel_ratio = ratio_of(&[3, 4], &used, &y, &s);
+        // Not a number (a covariance gone bad) in either: the group's ratio says so, and
+        // nothing of the fix is fused.
+        let broken = pos_ratio.is_nan() || vel_ratio.is_nan();
+        let ratio = if broken {
+            f64::NAN
+        } else {
+            pos_ratio.max(vel_ratio)
+        };
         let ratios = TestRatios {
             gps: Some(ratio),
             ..TestRatios::default()
         };
         let nis = group_nis(&y, &s, [0, 1, 3, 4].into_iter().filter(|&i| used[i]));
-        let judged = |gated, result| UpdateOutcome {
+        let position_out = outside(pos_ratio);
+        if position_out {
+            for i in 0..3 {
+                drop_row(i, &mut used, &mut y, &mut pht, &mut s);
+            }
+        }
+        let velocity_ratio = used[3].then_some(vel_ratio);
+        if used[3] && (outside(vel_ratio) || (broken && self.params.gate_fusion)) {
+            for i in [3, 4] {
+                drop_row(i, &mut used, &mut y, &mut pht, &mut s);
+            }
+        }
+        let velocity_fused = used[3];
+        let judged = |result| UpdateOutcome {
             nis: StepNis {
                 gps: nis,
                 ..StepNis::default()
             },
-            ..outcome(ratios, gated, result)
+            fix_velocity_fused: velocity_fused && result == Ok(()),
+            fix_velocity_ratio: velocity_ratio,
+            ..outcome(ratios, position_out, result)
         };
-        if self.params.gate_fusion && (ratio > 1.0 || ratio.is_nan()) {
-            return judged(true, Ok(()));
+        if !used.iter().any(|&u| u) {
+            return judged(Ok(()));
         }
         let Some(s_inv) = s.try_inverse() else {
-            return judged(false, Err(EkfError::SingularInnovation));
+            return judged(Err(EkfError::SingularInnovation));
         };
         let mut k = pht * s_inv;
         for st in 0..N_STATES {
@@ -126,7 +152,7 @@ impl Ekf {
         }
         self.x += k * y;
         self.joseph(&k, &h, &r, &used);
-        judged(false, Ok(()))
+        judged(Ok(()))
     }
 
     /// H, the innovation, P·Hᵀ and S = H·P·Hᵀ + R over the rows `used` (the others zero, with
@@ -217,8 +243,26 @@ fn outcome(ratios: TestRatios, gps_gated: bool, result: Result<(), EkfError>) ->
             ..GatedGroups::default()
         },
         nis: StepNis::default(),
+        fix_velocity_fused: false,
+        fix_velocity_ratio: None,
         result,
     }
+}
+
+/// Leaves row `i` out of an update already prepared: no innovation, no gain, a unit S row.
+fn drop_row(
+    i: usize,
+    used: &mut [bool; ROWS],
+    y: &mut SVector<f64, ROWS>,
+    pht: &mut SMatrix<f64, N_STATES, ROWS>,
+    s: &mut SMatrix<f64, ROWS, ROWS>,
+) {
+    used[i] = false;
+    y[i] = 0.0;
+    pht.column_mut(i).fill(0.0);
+    s.row_mut(i).fill(0.0);
+    s.column_mut(i).fill(0.0);
+    s[(i, i)] = 1.0;
 }
 
 #[cfg(test)]
@@ -375,5 +419,30 @@ mod tests {
             "{before} -> {}",
             ekf.p[(idx::BAX, idx::BAX)]
         );
+    }
+
+    #[test]
+    fn a_position_jump_with_a_consistent_velocity_fuses_the_velocity_alone() {
+        let (mut ekf, still, mut input) = filter();
+        ekf.params.gate_fusion = true;
+        ekf.params.r_gps_diag[9] = 1.0;
+        ekf.params.r_gps_diag[10] = 1.0;
+        input.gps = Some(fix(0.0, 0.0, Some([0.0; 3])));
+        ekf.step(&still, &input).1.unwrap();
+        // A multipath jump: the position 500 m off, the velocity still 0.2 m/s north.
+        input.gps = Some(fix(500.0, 0.0, Some([0.2, 0.0, 0.0])));
+        let (rep, _) = ekf.step(&still, &input);
+        assert!(rep.gated.gps && rep.fix_velocity_fused);
+        assert!(rep.fix_velocity_ratio.is_some_and(|r| r < 1.0));
+        assert!(ekf.x[idx::X].abs() < 0.1, "{}", ekf.x[idx::X]);
+        assert!(ekf.x[idx::VQX] > 0.01, "{}", ekf.x[idx::VQX]);
+        // The velocity observed the vehicle: the drag's hold is not needed.
+        assert_eq!(ekf.steps_without_fix, 0);
+        // Both out of their gates: nothing fused, each ratio above 1.
+        input.gps = Some(fix(500.0, 0.0, Some([50.0, 0.0, 0.0])));
+        let (rep, _) = ekf.step(&still, &input);
+        assert!(rep.gated.gps && !rep.fix_velocity_fused);
+        assert!(rep.fix_velocity_ratio.is_some_and(|r| r > 1.0));
+        assert_eq!(ekf.steps_without_fix, 1);
     }
 }

@@ -34,12 +34,36 @@ const CHI2_95: [(f64, f64); 4] = [
     (0.484_4, 11.143),
 ];
 
+/// Where a value lies against the two-sided 95 % bounds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Bounds {
+    /// Under the lower bound: the error is smaller than the covariance says (the filter is
+    /// too cautious).
+    Below,
+    Inside,
+    /// Over the upper bound: the filter is too sure of itself.
+    Above,
+}
+
+/// Where `value` with `dof` degrees of freedom lies; `None` for a dimension without bounds
+/// or a value that is not a number.
+pub fn bounds_95(value: f64, dof: u8) -> Option<Bounds> {
+    let &(lo, hi) = CHI2_95.get(usize::from(dof).wrapping_sub(1))?;
+    if value.is_nan() {
+        return None;
+    }
+    Some(if value < lo {
+        Bounds::Below
+    } else if value > hi {
+        Bounds::Above
+    } else {
+        Bounds::Inside
+    })
+}
+
 /// Whether `value` with `dof` degrees of freedom lies inside the two-sided 95 % bounds.
 pub fn inside_95(value: f64, dof: u8) -> bool {
-    let Some(&(lo, hi)) = CHI2_95.get(usize::from(dof).wrapping_sub(1)) else {
-        return false;
-    };
-    value >= lo && value <= hi
+    bounds_95(value, dof) == Some(Bounds::Inside)
 }
 
 /// The mean of a normalised error and the fraction of steps inside its 95 % bounds; both
@@ -50,6 +74,10 @@ pub struct ChiFigure {
     pub mean: Option<f64>,
     /// Over every step judged; a step whose value is not finite is never inside.
     pub in_95: Option<f64>,
+    /// The fractions under the lower bound (the filter too cautious) and over the upper one
+    /// (too sure), over the same steps: with `in_95`, they say which way a filter fails.
+    pub below_95: Option<f64>,
+    pub above_95: Option<f64>,
     /// Steps judged, and those among them whose value was not finite (a covariance that
     /// could not be inverted).
     pub steps: u64,
@@ -60,6 +88,8 @@ pub struct ChiFigure {
 struct ChiSum {
     sum: f64,
     inside: u64,
+    below: u64,
+    above: u64,
     finite: u64,
     failed: u64,
 }
@@ -71,15 +101,23 @@ impl ChiSum {
             return;
         }
         self.sum += value;
-        self.inside += u64::from(inside_95(value, dof));
+        match bounds_95(value, dof) {
+            Some(Bounds::Inside) => self.inside += 1,
+            Some(Bounds::Below) => self.below += 1,
+            Some(Bounds::Above) => self.above += 1,
+            None => {}
+        }
         self.finite += 1;
     }
 
     fn figure(&self) -> ChiFigure {
         let steps = self.finite + self.failed;
+        let share = |n: u64| (steps > 0).then(|| n as f64 / steps as f64);
         ChiFigure {
             mean: (self.finite > 0).then(|| self.sum / self.finite as f64),
-            in_95: (steps > 0).then(|| self.inside as f64 / steps as f64),
+            in_95: share(self.inside),
+            below_95: share(self.below),
+            above_95: share(self.above),
             steps,
             failed: self.failed,
         }
@@ -250,7 +288,7 @@ mod tests {
     fn the_bounds_hold_the_chi_square_middle() {
         assert!(inside_95(3.0, 3) && !inside_95(0.1, 3) && !inside_95(10.0, 3));
         assert!(inside_95(1.0, 1) && !inside_95(6.0, 1));
-        assert!(!inside_95(1.0, 0) && !inside_95(1.0, 5));
+        assert!(!inside_95(1.0, 0) && !inside_95(1.0, 5) && !inside_95(f64::NAN, 3));
         let mut s = ChiSum::default();
         s.add(2.0, 2);
         s.add(f64::NAN, 2);
@@ -258,7 +296,10 @@ mod tests {
         let f = s.figure();
         assert_eq!((f.steps, f.failed), (3, 1));
         assert_eq!(f.in_95, Some(1.0 / 3.0));
+        assert_eq!((f.below_95, f.above_95), (Some(0.0), Some(1.0 / 3.0)));
         assert_eq!(f.mean, Some(51.0));
+        s.add(0.01, 2);
+        assert_eq!(s.figure().below_95, Some(0.25));
         assert_eq!(ChiSum::default().figure().in_95, None);
     }
 

@@ -175,6 +175,20 @@ pub const EXACT_GPS: [&str; 12] = [
 ];
 
 pub const EKF_Q_2012: &str = "ekf.q=[100.0, 100.0, 100.0, 0.01, 0.01, 1e-5, 100.0, 100.0, 100.0, 0.1, 0.1, 0.1, 1.0, 1.0, 1.0]";
+/// The 2012 flights' measurement noise, with this profile's unused receiver altitude.
+pub const EKF_R_IMU_2012: &str =
+    "ekf.r_imu=[100.0, 100.0, 1e5, 1e4, 1e4, 1e4, 1e-3, 1e-3, 1e-3, 1e5]";
+pub const EKF_R_GPS_2012: &str =
+    "ekf.r_gps=[100.0, 100.0, 1e5, 1e4, 1e4, 1e4, 1e-3, 1e-3, 1e-3, 100.0, 100.0, 1e12]";
+/// `--set` arguments giving the default profile the 2012 flights' filter noise (Q and R).
+pub const EKF_2012: [&str; 6] = [
+    "--set",
+    EKF_Q_2012,
+    "--set",
+    EKF_R_IMU_2012,
+    "--set",
+    EKF_R_GPS_2012,
+];
 
 /// Copies the two 2012 profile files and the data files they name into `dir`.
 pub fn copy_profile(dir: &Path) -> PathBuf {

@@ -178,6 +178,24 @@ impl Commander {
         (link_lost, gps_stale)
     }
 
+    /// A fix this step. Its position fused: the receiver is healthy. Its velocity alone, the
+    /// position left out by the gate (a multipath glitch): still healthy while the positions
+    /// have been left out for less than `failsafe.gps_loss_land_s`, so a glitch is ridden
+    /// through; a receiver whose positions stay inconsistent longer is unhealthy, as a lost
+    /// one (the gps-loss path).
+    pub(super) fn note_fix(&mut self, o: &Observation) {
+        if o.gps_fused {
+            self.position_gated_since_us = None;
+            self.last_fix_us = Some(o.t_us);
+            self.sigma_at_fix_m = o.pos_sigma_m;
+        } else if o.gps_velocity_fused {
+            let since = *self.position_gated_since_us.get_or_insert(o.t_us);
+            if ((o.t_us - since) as f64 / 1e6) < self.p.gps_loss_land_s {
+                self.last_fix_us = Some(o.t_us);
+            }
+        }
+    }
+
     /// The time the GPS's freshness is judged from: the newest fix delivered, or the arming
     /// when none came since (gpsd), and once one was fused the newest fused if older (a
     /// receiver whose fixes the filter's gate leaves out is unhealthy: lost, as a silent one);
@@ -230,11 +248,18 @@ impl Commander {
         None
     }
 
-    /// A measurement group outside its gate for `failsafe.ekf_bad_s`: each group's time is
-    /// kept across the steps that do not measure it (GPS between fixes).
+    /// The attitude, the altitude or the fixes' velocity outside its gate for
+    /// `failsafe.ekf_bad_s`, each timed apart (the velocity across the steps between fixes).
+    /// The positions of fixes with a velocity are not judged here: a position jump with a
+    /// consistent velocity is the receiver's glitch, and positions left out too long make it
+    /// unhealthy, the gps-loss path's ([`Commander::note_fix`]); a velocity outside its gate
+    /// is the estimate's own error (a tilt it does not see).
     fn estimator_bad(&mut self, o: &Observation) -> bool {
         let r = o.ratios;
-        let groups = [Some(r.attitude), Some(r.altitude), r.gps];
+        // A fix without a velocity (a receiver that gives none, the joint fusion): its
+        // position's ratio, as it was judged before the fixes' rows were gated apart.
+        let fixes = o.gps_velocity_ratio.or(r.gps);
+        let groups = [Some(r.attitude), Some(r.altitude), fixes];
         for (since, ratio) in self.ekf_bad_since_us.iter_mut().zip(groups) {
             match ratio {
                 Some(v) if v > 1.0 || v.is_nan() => *since = Some(since.unwrap_or(o.t_us)),

@@ -214,6 +214,11 @@ pub struct Observation {
     pub baro_alt_m: f64,
     /// A GPS fix was fused in this step.
     pub gps_fused: bool,
+    /// A fix's velocity was fused in this step, its position perhaps left out by the gate.
+    pub gps_velocity_fused: bool,
+    /// The test ratio of a fix's velocity rows alone (above 1: outside the gate), when one
+    /// came with a velocity this step.
+    pub gps_velocity_ratio: Option<f64>,
     /// The estimate's vertical is observed (a barometer, or fixes' vertical velocity); false:
     /// the accelerometer alone carries it, and a stop on the ground goes unseen.
     pub vertical_observed: bool,
@@ -323,6 +328,9 @@ pub struct Commander {
     last_t_us: Option<i64>,
     link_seen_us: Option<i64>,
     last_fix_us: Option<i64>,
+    /// Since when the fixes' positions have been left out by the gate while their velocity
+    /// was fused (a glitch being ridden through).
+    position_gated_since_us: Option<i64>,
     /// The position's standard deviation at the last fused fix, m.
     sigma_at_fix_m: f64,
     gps_lost_us: Option<i64>,
@@ -403,6 +411,7 @@ impl Commander {
             last_t_us: None,
             link_seen_us: None,
             last_fix_us: None,
+            position_gated_since_us: None,
             sigma_at_fix_m: 0.0,
             gps_lost_us: None,
             ekf_bad_since_us: [None; 3],
@@ -850,10 +859,7 @@ impl Commander {
         self.observed = Some(*o);
         self.baro_m = smooth_baro(self.baro_m, o.baro_alt_m);
         self.yaw_cal_rad = o.yaw_cal_rad;
-        if o.gps_fused {
-            self.last_fix_us = Some(o.t_us);
-            self.sigma_at_fix_m = o.pos_sigma_m;
-        }
+        self.note_fix(o);
         if self.p.start == Start::Flying && self.mode == Mode::Armed && self.home_m.is_none() {
             let alt = self.p.hover_z_m;
             self.begin_takeoff(o, alt, o.t_us, "commander.start = flying", out);

@@ -68,6 +68,8 @@ fn at(t_us: i64, z_m: f64) -> Observation {
         tilt_rad: 0.0,
         baro_alt_m: z_m,
         gps_fused: t_us % 1_000_000 == 0,
+        gps_velocity_fused: false,
+        gps_velocity_ratio: None,
         vertical_observed: true,
         ratios: TestRatios {
             attitude: 0.0,
@@ -781,18 +783,66 @@ fn a_landing_begun_again_watches_its_touchdown_afresh() {
 }
 
 #[test]
-fn an_estimator_measuring_gps_badly_at_every_fix_lands() {
+fn an_estimate_whose_velocity_the_fixes_contradict_lands() {
     let (mut c, mut ev) = holding();
     let mut t = 10_000_000;
     while t < 14_000_000 {
         let mut o = at(t, 1.0);
-        // The GPS group outside its gate at each fix; nothing measured in between.
-        o.ratios.gps = (t % 1_000_000 == 0).then_some(4.0);
+        // The fixes' velocity outside its gate at each fix; nothing measured in between.
+        let fix = t % 1_000_000 == 0;
+        o.ratios.gps = fix.then_some(4.0);
+        o.gps_velocity_ratio = fix.then_some(4.0);
         c.link_beat(LinkSource::Gcs, t);
         c.on_estimate(&o, &mut ev);
         t += STEP_US;
     }
     assert_eq!(failsafes(&ev), [(Failsafe::Estimator, Action::Land)]);
+}
+
+/// Holds from 10 s to `end_us` with a fix a second whose position the gate leaves out from
+/// 12 s on while its velocity is fused (a receiver's position glitch); the events.
+fn glitch_from_12_s(end_us: i64) -> Vec<Event> {
+    let (mut c, mut ev) = holding();
+    let mut t = 10_000_000;
+    while t < end_us {
+        let mut o = at(t, 1.0);
+        let fix = t % 1_000_000 == 0;
+        o.gps_fused = fix && t <= 12_000_000;
+        o.gps_velocity_fused = fix;
+        o.ratios.gps = fix.then_some(if t <= 12_000_000 { 0.1 } else { 16.0 });
+        o.gps_velocity_ratio = fix.then_some(0.1);
+        c.link_beat(LinkSource::Gcs, t);
+        c.tick(t, &mut ev);
+        c.on_estimate(&o, &mut ev);
+        t += STEP_US;
+    }
+    ev
+}
+
+#[test]
+fn a_position_glitch_with_a_consistent_velocity_is_ridden_through() {
+    // 9 s of positions left out (under failsafe.gps_loss_land_s, 10 s): no failsafe at all.
+    assert!(failsafes(&glitch_from_12_s(22_000_000)).is_empty());
+}
+
+#[test]
+fn a_receiver_whose_positions_stay_inconsistent_is_lost() {
+    // Positions left out from 13 s: healthy until 23 s, then lost as a silent receiver is,
+    // control.gps_hold_timeout_s (3 s) after its last counted fix (22 s).
+    let ev = glitch_from_12_s(40_000_000);
+    assert_eq!(failsafes(&ev)[0], (Failsafe::GpsLoss, Action::Land));
+    let lost_at = ev.iter().find_map(|e| match e {
+        Event::Failsafe {
+            kind: Failsafe::GpsLoss,
+            t_us,
+            ..
+        } => Some(*t_us),
+        _ => None,
+    });
+    assert!(
+        lost_at.is_some_and(|t| (25_000_000..25_100_000).contains(&t)),
+        "{ev:?}"
+    );
 }
 
 #[test]

@@ -46,10 +46,17 @@ pub struct Estimate {
     pub x: State,
     /// Yaw measured at calibration (the hover set point's θ).
     pub theta_cal_rad: f64,
-    /// A fix was fused in this step: offered, and not left out by the innovation gate (a
-    /// receiver whose fixes are all gated is a lost one to the commander and the control).
+    /// A fix was fused in this step: offered, and its position not left out by the innovation
+    /// gate (a receiver whose fixes are all gated is a lost one to the commander and the
+    /// control).
     pub gps_used: bool,
-    /// The filter observes the horizontal velocity without fixes (the drag).
+    /// A fix's horizontal velocity was fused in this step, its position perhaps left out (a
+    /// position glitch): the velocity, and the position dead-reckoned on it, stay observed.
+    pub gps_velocity_used: bool,
+    /// The test ratio of a fix's velocity rows alone, when one came with a velocity.
+    pub gps_velocity_ratio: Option<f64>,
+    /// The filter observes the horizontal velocity: fixes lately fused (a fix's velocity
+    /// alone counts), or without them the drag.
     pub velocity_observed: bool,
     /// The filter observes the vertical (a barometer, or fixes' vertical velocity).
     pub vertical_observed: bool,
@@ -176,7 +183,9 @@ impl EstimatorCore {
             x: ekf.x,
             theta_cal_rad: self.theta_cal_rad,
             gps_used: gps.is_some() && !report.gated.gps,
-            velocity_observed: ekf.drag_active(),
+            gps_velocity_used: report.fix_velocity_fused,
+            gps_velocity_ratio: report.fix_velocity_ratio,
+            velocity_observed: ekf.horizontal_velocity_observed(),
             vertical_observed: ekf.vertical_observed(),
             pos_sigma_m: ekf.horizontal_sigma_m(),
             acc_rest_m_s2: self.acc_rest_m_s2,
@@ -488,10 +497,11 @@ impl ControllerCore {
         }
     }
 
-    /// The horizontal position is held while a fix was fused lately and the commander has
-    /// not let it go (a lost GPS); else the velocity, while the filter observes it.
+    /// The horizontal position is held while a fix was fused lately (its velocity alone
+    /// counts: the position is dead-reckoned on it) and the commander has not let it go (a
+    /// lost GPS); else the velocity, while the filter observes it.
     fn horizontal_hold(&mut self, est: &Estimate) -> Horizontal {
-        if est.gps_used {
+        if est.gps_used || est.gps_velocity_used {
             self.last_gps_us = Some(est.t_us);
         }
         let fixes = self

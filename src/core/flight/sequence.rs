@@ -824,6 +824,8 @@ impl EstimatorSide {
                 .acos(),
             baro_alt_m: est.sample.alt_m,
             gps_fused: est.gps_used,
+            gps_velocity_fused: est.gps_velocity_used,
+            gps_velocity_ratio: est.gps_velocity_ratio,
             vertical_observed: est.vertical_observed,
             ratios: est.ratios,
             yaw_cal_rad: est.theta_cal_rad,

@@ -4,7 +4,7 @@
 //! Spec section 8.3 steps 3–6 and 2.4. Time enters only as the frame stamps the caller passes
 //! (µs, monotonic), so the same sequence gives the same result in flight, simulation and replay.
 
-use super::calib::{Calibration, ImuSample, NullAccumulator, NullEstimate};
+use super::calib::{Calibration, ImuSample, NullAccumulator, NullEstimate, NullPressure};
 use super::filter::Fir;
 use super::frame::RawFrame;
 
@@ -22,6 +22,8 @@ pub struct StartupParams {
     pub period_max_us: i64,
     /// Frames averaged into the null sample (the original: 512).
     pub calib_frames: u32,
+    /// How their pressures are averaged (the original: truncated).
+    pub null_pressure: NullPressure,
 }
 
 impl StartupParams {
@@ -33,6 +35,7 @@ impl StartupParams {
         period_min_us: 8_000,
         period_max_us: 12_000,
         calib_frames: 512,
+        null_pressure: NullPressure::Truncated,
     };
 }
 
@@ -191,7 +194,7 @@ impl ImuFrontEnd {
                 acc.push(frame);
                 let frames = acc.frames();
                 if frames >= p.calib_frames {
-                    match acc.finish(&self.calib) {
+                    match acc.finish(&self.calib, p.null_pressure) {
                         Some(null) => (Phase::Running(null), FrontEndEvent::Calibrated(null)),
                         // Unreachable with calib_frames ≥ 1 (validated at load); stay safe anyway.
                         None => (
