@@ -445,4 +445,44 @@ mod tests {
         assert!(rep.fix_velocity_ratio.is_some_and(|r| r > 1.0));
         assert_eq!(ekf.steps_without_fix, 1);
     }
+
+    #[test]
+    fn with_gating_off_a_jumped_fix_is_fused_whole_and_its_height_with_it() {
+        let (mut ekf, still, mut input) = filter();
+        ekf.params.gate_fusion = false;
+        ekf.params.r_gps_diag[9] = 1.0;
+        ekf.params.r_gps_diag[10] = 1.0;
+        ekf.params.r_gps_diag[11] = 1.0;
+        input.gps = Some(fix(0.0, 0.0, Some([0.0; 3])));
+        ekf.step(&still, &input).1.unwrap();
+        let z_before = ekf.x[idx::Z];
+        input.gps = Some(fix(500.0, 0.0, Some([0.2, 0.0, 0.0])));
+        let (rep, _) = ekf.step(&still, &input);
+        assert!(!rep.gated.gps && rep.fix_velocity_fused);
+        assert!(rep.ratios.gps.is_some_and(|r| r > 1.0));
+        assert!(ekf.x[idx::X] > 100.0, "{}", ekf.x[idx::X]);
+        // The fix's height (5 m) pulled the height too: its row was not left out.
+        assert!(
+            ekf.x[idx::Z] > z_before + 0.1,
+            "{z_before} -> {}",
+            ekf.x[idx::Z]
+        );
+        // Gated, the same jump leaves the height alone with the position.
+        let (mut gated, still, mut input) = filter();
+        gated.params.gate_fusion = true;
+        gated.params.r_gps_diag[9] = 1.0;
+        gated.params.r_gps_diag[10] = 1.0;
+        gated.params.r_gps_diag[11] = 1.0;
+        input.gps = Some(fix(0.0, 0.0, Some([0.0; 3])));
+        gated.step(&still, &input).1.unwrap();
+        let z_before = gated.x[idx::Z];
+        input.gps = Some(fix(500.0, 0.0, Some([0.2, 0.0, 0.0])));
+        let (rep, _) = gated.step(&still, &input);
+        assert!(rep.gated.gps && rep.fix_velocity_fused);
+        assert!(
+            (gated.x[idx::Z] - z_before).abs() < 0.05,
+            "{}",
+            gated.x[idx::Z]
+        );
+    }
 }
