@@ -200,7 +200,8 @@ pub struct StepReport {
     pub theta_unwrapped_rad: f64,
     /// The innovation test ratios of the step's measurement groups.
     pub ratios: TestRatios,
-    /// The groups left out of the update (only with `gate_fusion`).
+    /// The groups left out of the update (only with `gate_fusion`); `gps` is the fix's
+    /// position (its velocity is gated apart: `fix_velocity_fused`).
     pub gated: GatedGroups,
     /// The normalised innovation squared of each group fused or judged in the step.
     pub nis: StepNis,

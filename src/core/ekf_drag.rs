@@ -1,7 +1,8 @@
 //! Without fixes, the horizontal velocity from the air's drag. A multirotor's accelerometer
 //! reads, across its thrust axis, only the drag: about −k·v of the body velocity through the
 //! air (PX4's EKF2_MCOEF, `ekf.drag_per_s`). The filter's model carries that acceleration in
-//! its bias states (bax, bay); once no fix has come for [`DRAG_AFTER_STEPS`], the
+//! its bias states (bax, bay); once no fix has been fused for [`DRAG_AFTER_STEPS`] (a fix's
+//! velocity alone counts), the
 //! accelerometer's x and y are read as −k times the velocity, and bax + k·vqx = 0,
 //! bay + k·vqy = 0 keep the model's drag with it: the velocity stays observed, so the
 //! controller can damp it, instead of drifting as the integral of every tilt error. A push

@@ -7,7 +7,10 @@
 //! error partly as tilt and accelerometer bias, and the tilt it then reports is flown; and a
 //! velocity learnt only from 1 Hz positions lags by half a second, which the position loop
 //! cannot fly on. The gain is kept to the position and velocity states, the covariance
-//! updated in Joseph form (right for any gain); the first fix places the position.
+//! updated in Joseph form (right for any gain); the first fix places the position. Its
+//! position rows and its horizontal velocity rows are gated apart (PX4 EKF2's separate
+//! gates): a position outside its gate with a velocity inside is a multipath glitch, and the
+//! velocity alone is fused; the vertical velocity row is gated on its own.
 
 use crate::core::ekf::{
     Ekf, EkfError, GPS_ROWS, GatedGroups, N_STATES, StateMatrix, StepNis, TestRatios,
@@ -97,7 +100,7 @@ impl Ekf {
         let pos_ratio = ratio_of(&[0, 1], &used, &y, &s);
         let vel_ratio = ratio_of(&[3, 4], &used, &y, &s);
         // Not a number (a covariance gone bad) in either: the group's ratio says so, and
-        // nothing of the fix is fused.
+        // with the gate on nothing of the fix is fused.
         let broken = pos_ratio.is_nan() || vel_ratio.is_nan();
         let ratio = if broken {
             f64::NAN

@@ -198,8 +198,9 @@ impl Commander {
 
     /// The time the GPS's freshness is judged from: the newest fix delivered, or the arming
     /// when none came since (gpsd), and once one was fused the newest fused if older (a
-    /// receiver whose fixes the filter's gate leaves out is unhealthy: lost, as a silent one);
-    /// the newest fused fix otherwise.
+    /// receiver whose positions the filter's gate leaves out past `gps_loss_land_s` is
+    /// unhealthy: lost, as a silent one; see [`Commander::note_fix`]); the newest fused fix
+    /// otherwise.
     pub(super) fn gps_reference_us(&self) -> Option<i64> {
         if self.p.gps_live {
             // The pre-arm check asked for a recent fix; with none since, arming starts the clock.

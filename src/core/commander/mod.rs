@@ -334,7 +334,8 @@ pub struct Commander {
     /// The position's standard deviation at the last fused fix, m.
     sigma_at_fix_m: f64,
     gps_lost_us: Option<i64>,
-    /// Since when each measurement group (attitude, altitude, GPS) has been outside its gate.
+    /// Since when each measurement group (attitude, altitude, the fixes' velocity or, without
+    /// one, their position) has been outside its gate.
     ekf_bad_since_us: [Option<i64>; 3],
     touchdown_since_us: Option<i64>,
     /// Steps in a row the accelerometer has felt the ground's push (a landing's touchdown
@@ -885,9 +886,9 @@ impl Commander {
     /// touchdown being confirmed and the ground's push felt for [`GROUND_PUSH_STEPS`] steps
     /// in a row (a hop's contact lasts one or two: a bouncing vehicle told it was still and on
     /// the ground fell from its next hop at 4.4 m/s with a stuck gyro). `None` otherwise. Not
-    /// while armed before a takeoff: on the default profile's scale of noise a ground that
-    /// exact leaves the takeoff's height to the thrust model, and the overshoot grew (0.021
-    /// to 0.054 m on seed 1).
+    /// while armed before a takeoff: with the 2012 flights' noise values a ground that exact
+    /// left the takeoff's height to the thrust model, and the overshoot grew (0.021 to
+    /// 0.054 m on seed 1).
     pub fn ground_contact_m(&self) -> Option<f64> {
         let resting = self.mode == Mode::Land
             && self.touchdown_since_us.is_some()

@@ -47,8 +47,8 @@ pub struct Estimate {
     /// Yaw measured at calibration (the hover set point's θ).
     pub theta_cal_rad: f64,
     /// A fix was fused in this step: offered, and its position not left out by the innovation
-    /// gate (a receiver whose fixes are all gated is a lost one to the commander and the
-    /// control).
+    /// gate (a receiver whose positions stay gated is, past `failsafe.gps_loss_land_s`, a
+    /// lost one to the commander).
     pub gps_used: bool,
     /// A fix's horizontal velocity was fused in this step, its position perhaps left out (a
     /// position glitch): the velocity, and the position dead-reckoned on it, stay observed.
