@@ -308,6 +308,18 @@ mod tests {
         }
     }
 
+    /// [`filter`] with the gate `gate` and a 1 m² receiver (x, y), its first fix `first`
+    /// fused (which places the position).
+    fn placed(gate: bool, first: GpsSample) -> (Ekf, ImuSample, StepInput) {
+        let (mut ekf, still, mut input) = filter();
+        ekf.params.gate_fusion = gate;
+        ekf.params.r_gps_diag[9] = 1.0;
+        ekf.params.r_gps_diag[10] = 1.0;
+        input.gps = Some(first);
+        ekf.step(&still, &input).1.unwrap();
+        (ekf, still, input)
+    }
+
     #[test]
     fn without_the_barometer_the_fixes_hold_the_vertical_and_nothing_is_refused() {
         let (mut ekf, still, mut input) = filter();
@@ -389,12 +401,7 @@ mod tests {
 
     #[test]
     fn a_fix_far_outside_the_gate_is_left_out() {
-        let (mut ekf, still, mut input) = filter();
-        ekf.params.gate_fusion = true;
-        ekf.params.r_gps_diag[9] = 1.0;
-        ekf.params.r_gps_diag[10] = 1.0;
-        input.gps = Some(fix(0.0, 0.0, None));
-        ekf.step(&still, &input).1.unwrap();
+        let (mut ekf, still, mut input) = placed(true, fix(0.0, 0.0, None));
         input.gps = Some(fix(500.0, 0.0, None));
         let (rep, _) = ekf.step(&still, &input);
         assert!(rep.gated.gps && rep.ratios.gps.is_some_and(|r| r > 1.0));
@@ -426,12 +433,7 @@ mod tests {
 
     #[test]
     fn a_position_jump_with_a_consistent_velocity_fuses_the_velocity_alone() {
-        let (mut ekf, still, mut input) = filter();
-        ekf.params.gate_fusion = true;
-        ekf.params.r_gps_diag[9] = 1.0;
-        ekf.params.r_gps_diag[10] = 1.0;
-        input.gps = Some(fix(0.0, 0.0, Some([0.0; 3])));
-        ekf.step(&still, &input).1.unwrap();
+        let (mut ekf, still, mut input) = placed(true, fix(0.0, 0.0, Some([0.0; 3])));
         // A multipath jump: the position 500 m off, the velocity still 0.2 m/s north.
         input.gps = Some(fix(500.0, 0.0, Some([0.2, 0.0, 0.0])));
         let (rep, _) = ekf.step(&still, &input);
@@ -451,13 +453,8 @@ mod tests {
 
     #[test]
     fn with_gating_off_a_jumped_fix_is_fused_whole_and_its_height_with_it() {
-        let (mut ekf, still, mut input) = filter();
-        ekf.params.gate_fusion = false;
-        ekf.params.r_gps_diag[9] = 1.0;
-        ekf.params.r_gps_diag[10] = 1.0;
+        let (mut ekf, still, mut input) = placed(false, fix(0.0, 0.0, Some([0.0; 3])));
         ekf.params.r_gps_diag[11] = 1.0;
-        input.gps = Some(fix(0.0, 0.0, Some([0.0; 3])));
-        ekf.step(&still, &input).1.unwrap();
         let z_before = ekf.x[idx::Z];
         input.gps = Some(fix(500.0, 0.0, Some([0.2, 0.0, 0.0])));
         let (rep, _) = ekf.step(&still, &input);
@@ -471,13 +468,8 @@ mod tests {
             ekf.x[idx::Z]
         );
         // Gated, the same jump leaves the height alone with the position.
-        let (mut gated, still, mut input) = filter();
-        gated.params.gate_fusion = true;
-        gated.params.r_gps_diag[9] = 1.0;
-        gated.params.r_gps_diag[10] = 1.0;
+        let (mut gated, still, mut input) = placed(true, fix(0.0, 0.0, Some([0.0; 3])));
         gated.params.r_gps_diag[11] = 1.0;
-        input.gps = Some(fix(0.0, 0.0, Some([0.0; 3])));
-        gated.step(&still, &input).1.unwrap();
         let z_before = gated.x[idx::Z];
         input.gps = Some(fix(500.0, 0.0, Some([0.2, 0.0, 0.0])));
         let (rep, _) = gated.step(&still, &input);
