@@ -93,7 +93,7 @@ failsafe.gps_loss_land_s; (7) the report's modes, failsafes, halt and \
 refusal count are mode.log's.\n\n\
 Prints a table of outcomes (a row per fault, a column per phase, the most common outcome), \
 each violation with the `uquad sim` command line that reruns it, and the known exceptions \
-apart (a stuck gyro, which the estimator cannot see yet, breaking 3 or 5). Exits 1 when an \
+apart (a gyro the filter cannot follow: stuck, its landing flown on the model's attitude, or its bias stepped; breaking 3 or 5). Exits 1 when an \
 invariant was violated."
     )]
     Campaign(CampaignArgs),

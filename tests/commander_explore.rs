@@ -130,6 +130,7 @@ fn observe(c: &Commander, w: &World) -> Observation {
         acc_m_s2: [0.0, 0.0, GRAVITY_M_S2],
         tilt_rad: if w.flipped { 2.0 } else { 0.0 },
         baro_alt_m: w.z_m,
+        gyro_lost: false,
         gps_fused: !w.fixes_lost && w.t_us % 1_000_000 == 0,
         gps_velocity_fused: !w.fixes_lost && w.t_us % 1_000_000 == 0,
         gps_velocity_ratio: None,
@@ -180,11 +181,16 @@ fn transition(c: &mut Commander, w: &mut World, input: Input) -> Seen {
                 log_error: None,
                 realtime: true,
                 esc_silent: vec![],
+                estimator: None,
             };
             if !w.link_silent {
                 c.link_beat(LinkSource::Gcs, w.t_us);
                 let o = observe(c, w);
                 let r = c.command(cmd, w.t_us, facts.verdict(), Some(&o), &mut ev);
+                if r == Some(EscRequest::Start) {
+                    // The ESCs' ramp, done within the second that follows.
+                    c.escs_running();
+                }
                 request(r, w, &mut seen, "command");
             }
         }

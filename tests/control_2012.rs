@@ -149,3 +149,28 @@ fn reduced_8_state_variant_runs() {
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("control.integrators"));
 }
+
+#[test]
+fn the_real_gyro_is_never_taken_for_a_stuck_one() {
+    // The stuck-gyro rule must not fire on a real sensor's noise: the 2012 flight's 1631
+    // frames (motors idling, then flying) through the same watch the flight step uses.
+    use uquad::core::imu::{frame::RawFrame, health::GyroWatch};
+    let text = std::fs::read_to_string(flight_dir().join("imu_raw.log")).unwrap();
+    let mut watch = GyroWatch::default();
+    let mut frames = 0;
+    for line in text.lines().filter(|l| !l.trim().is_empty()) {
+        let g: Vec<i16> = line
+            .split_whitespace()
+            .skip(6)
+            .take(3)
+            .map(|v| v.parse().unwrap())
+            .collect();
+        let frame = RawFrame {
+            gyro: [g[0], g[1], g[2]],
+            ..RawFrame::default()
+        };
+        assert!(!watch.on_frame(&frame), "stuck at {line}");
+        frames += 1;
+    }
+    assert_eq!(frames, 1631);
+}

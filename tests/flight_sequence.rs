@@ -62,11 +62,18 @@ impl Bench {
     fn new(ramp_frames: u32) -> Self {
         // Armed at start: these tests are about the sequence's order, not the commander's (and
         // without a receiver, whose silence from arming would disarm on the ground).
-        let flying = [
-            uquad::config::parse_set("commander.start=flying").unwrap(),
-            uquad::config::parse_set("gps.mode=\"fake-zero\"").unwrap(),
-        ];
-        let profile = uquad::config::load(&root().join("config/uquad.toml"), &flying).unwrap();
+        Bench::with(
+            ramp_frames,
+            &["commander.start=flying", "gps.mode=\"fake-zero\""],
+        )
+    }
+
+    fn with(ramp_frames: u32, sets: &[&str]) -> Self {
+        let sets: Vec<_> = sets
+            .iter()
+            .map(|s| uquad::config::parse_set(s).unwrap())
+            .collect();
+        let profile = uquad::config::load(&root().join("config/uquad.toml"), &sets).unwrap();
         let (plant, imu) = uquad::sim::vehicle(&profile, 7);
         let (estimator, controller) = uquad::app::flight::live_sides(&profile);
         Bench {
@@ -322,4 +329,65 @@ fn the_quit_key_ends_the_run_in_any_mode_and_keys_wait_for_their_planner() {
             .any(|r| matches!(r, FlightRecord::Operator { input, .. } if *input == arm)),
         "the input is recorded"
     );
+}
+
+#[test]
+fn calibrated_before_arming_the_estimate_runs_and_an_arm_starts_the_escs_under_it() {
+    use uquad::core::commander::{ArmFacts, Command, LinkSource, Mode, OperatorInput};
+    use uquad::core::flight::{ArmCheck, OperatorAction};
+    let mut b = Bench::with(
+        30,
+        &["imu.calibrate=\"before-arm\"", "gps.mode=\"fake-zero\""],
+    );
+    let facts = ArmFacts {
+        imu_stable: true,
+        realtime: true,
+        ..ArmFacts::default()
+    };
+    let arm = |b: &mut Bench| {
+        let input = OperatorInput::Command(Command::Arm, LinkSource::Console);
+        let f = facts.clone();
+        let action = b
+            .estimator
+            .operator(input, b.t_us, ArmCheck::Facts(&f), &mut b.out);
+        (action, b.estimator.last_refusal().map(str::to_string))
+    };
+    b.until(Phase::Calibration, 200);
+    let (action, why) = arm(&mut b);
+    assert_eq!(action, OperatorAction::Nothing);
+    assert_eq!(why.as_deref(), Some("estimator: IMU calibrating at rest"));
+    // Calibrated at rest: the estimate runs while disarmed, nothing asks for the ESCs, and
+    // no estimate reaches the watchdog's sanity rules as one of a flight.
+    b.until(Phase::Estimating, 600);
+    let mut steps = 0;
+    while !b.estimator.ready_to_arm(b.t_us) {
+        assert!(matches!(b.frame(), FrameAction::Step(_)));
+        steps += 1;
+        if steps == 500 {
+            panic!("the estimator check never passed: {:?}", arm(&mut b).1);
+        }
+    }
+    assert_eq!(b.start_requests, 0);
+    assert_eq!(b.estimator.mode(), Mode::Disarmed);
+    let (action, why) = arm(&mut b);
+    assert_eq!((action, why), (OperatorAction::StartEscs, None));
+    assert_eq!(b.estimator.phase(), Phase::EscStart);
+    b.esc = EscPhase::Ramping;
+    // Every frame of the ramp is still a Kalman step; its end is told and recorded.
+    for _ in 0..40 {
+        assert!(matches!(b.frame(), FrameAction::Step(_)));
+    }
+    assert_eq!(b.estimator.phase(), Phase::Flight);
+    let told = b.out.records.iter().any(|r| {
+        matches!(
+            r,
+            FlightRecord::Operator {
+                input: OperatorInput::EscsRunning,
+                ..
+            }
+        )
+    });
+    assert!(told, "{:?}", b.out.notes());
+    assert!(b.out.notes().contains(&"ESC ramp done; idling"));
+    assert_eq!(b.estimator.mode(), Mode::Armed);
 }

@@ -398,3 +398,33 @@ fn a_ground_station_uploads_a_mission_and_the_vehicle_flies_it() {
     );
     assert_replays_same(run, &["mode.log", "w.log", "x_hat.log"]);
 }
+
+#[test]
+fn calibrated_before_arming_a_ground_station_sees_the_estimate_and_the_check_that_waits() {
+    let flown = fly_with_client(&["before-arm"], &["--set", "imu.calibrate=\"before-arm\""]);
+    let (measured, r, run) = (&flown.measured, &flown.report, &flown.run);
+    let refusal = measured["refusal"].as_str().unwrap();
+    assert!(
+        refusal.starts_with("arm refused: estimator: IMU calibrating at rest"),
+        "{measured}"
+    );
+    // The first Kalman step is the calibration's end (the run's clock, as time_boot_ms).
+    let kalman = read_table(&run.join("kalman_in.log"));
+    let calibrated_s: f64 = kalman[0][0].parse().unwrap();
+    for what in ["attitude", "position"] {
+        let at_s = u(&measured[format!("{what}_boot_ms")]) as f64 / 1e3;
+        assert!(
+            at_s - calibrated_s <= 1.0,
+            "{what} at {at_s} s, calibrated at {calibrated_s} s: {measured}"
+        );
+        assert_eq!(measured[format!("{what}_disarmed")], true, "{measured}");
+    }
+    assert_eq!(
+        report_modes(r),
+        ["disarmed", "armed", "takeoff", "hold", "land", "disarmed"],
+        "{r}"
+    );
+    let mode_log = std::fs::read_to_string(run.join("mode.log")).unwrap();
+    assert!(mode_log.contains(" escs running\n"), "{mode_log}");
+    assert_replays_same(run, &["mode.log", "w.log", "x_hat.log"]);
+}

@@ -120,31 +120,100 @@ def mode_is(custom):
 DISARMED, HOLD = 0, 3
 
 
+def send_arm(s):
+    """Asks to arm once; its COMMAND_ACK."""
+    s.conn.mav.command_long_send(1, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+    return s.wait(
+        "COMMAND_ACK of arm",
+        lambda m: m.get_type() == "COMMAND_ACK"
+        and m.command == mav.MAV_CMD_COMPONENT_ARM_DISARM,
+    )
+
+
 def arm(s):
     """Arms, trying again while the IMU has not settled (as an operator would)."""
     end = time.time() + LONG
     while time.time() < end:
-        s.conn.mav.command_long_send(1, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
-        ack = s.wait(
-            "COMMAND_ACK of arm",
-            lambda m: m.get_type() == "COMMAND_ACK"
-            and m.command == mav.MAV_CMD_COMPONENT_ARM_DISARM,
-        )
+        ack = send_arm(s)
         if ack.result == mav.MAV_RESULT_ACCEPTED:
             return
         refusals = [t for t in s.texts if t.startswith("arm refused")]
-        if not refusals or not refusals[-1].startswith("arm refused: imu:"):
+        # Settling, or (calibrated before arming) the estimate not ready yet.
+        waiting = ("arm refused: imu:", "arm refused: estimator:")
+        if not refusals or not refusals[-1].startswith(waiting):
             fail(f"arm refused: {s.texts}")
         time.sleep(0.5)
     fail("never armed")
 
 
+def take_off(s, height_m):
+    """Takes off, trying again while the ESCs' start-up ramp runs (armed under an estimate
+    that ran before arming, the ramp follows the arm)."""
+    end = time.time() + LONG
+    while time.time() < end:
+        s.conn.mav.command_long_send(
+            1, 1, mav.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 0, height_m
+        )
+        ack = s.wait(
+            "COMMAND_ACK of takeoff",
+            lambda m: m.get_type() == "COMMAND_ACK" and m.command == mav.MAV_CMD_NAV_TAKEOFF,
+        )
+        if ack.result == mav.MAV_RESULT_ACCEPTED:
+            return
+        if not any("start-up ramp is not done" in t for t in s.texts[-3:]):
+            fail(f"takeoff refused: {s.texts}")
+        time.sleep(0.3)
+    fail("never took off")
+
+
 def arm_and_take_off(s, height_m):
     arm(s)
-    # The estimate exists once the IMU calibration after arming is done.
+    # The estimate exists once the IMU calibration is done (after arming, in the original's
+    # order).
     s.wait("ATTITUDE", lambda m: m.get_type() == "ATTITUDE")
-    s.command(mav.MAV_CMD_NAV_TAKEOFF, [0, 0, 0, 0, 0, 0, height_m])
+    take_off(s, height_m)
     s.wait("hold after the takeoff", mode_is(HOLD))
+
+
+def before_arm(s):
+    """imu.calibrate = "before-arm": an arm during the calibration is refused naming the
+    estimator; attitude and position arrive while disarmed; the arm is taken once the estimate
+    is ready; the flight goes on as usual."""
+    s.wait("a heartbeat", lambda m: m.get_type() == "HEARTBEAT", 5.0)
+    refusal, end = None, time.time() + LONG
+    while refusal is None and time.time() < end:
+        ack = send_arm(s)
+        if ack.result == mav.MAV_RESULT_ACCEPTED:
+            fail(f"armed during the calibration: {s.texts}")
+        refusals = [t for t in s.texts if t.startswith("arm refused")]
+        if refusals and refusals[-1].startswith("arm refused: estimator:"):
+            refusal = refusals[-1]
+        elif not refusals or not refusals[-1].startswith("arm refused: imu:"):
+            fail(f"arm refused: {s.texts}")
+        time.sleep(0.2)
+    if refusal is None:
+        fail(f"no refusal naming the estimator: {s.texts}")
+
+    def disarmed():
+        hb = s.last.get("HEARTBEAT")
+        return hb is not None and not hb.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED
+
+    att = s.wait("ATTITUDE", lambda m: m.get_type() == "ATTITUDE")
+    att_disarmed = disarmed()
+    pos = s.wait(
+        "GLOBAL_POSITION_INT",
+        lambda m: m.get_type() == "GLOBAL_POSITION_INT" and m.lat != 0,
+    )
+    pos_disarmed = disarmed()
+    arm_and_take_off(s, 1.0)
+    land(s)
+    return {
+        "refusal": refusal,
+        "attitude_boot_ms": att.time_boot_ms,
+        "attitude_disarmed": att_disarmed,
+        "position_boot_ms": pos.time_boot_ms,
+        "position_disarmed": pos_disarmed,
+    }
 
 
 def altitude_errors(s, height_m, seconds):
@@ -579,6 +648,8 @@ def main():
         out = stalled(s, started)
     elif sys.argv[1] == "mission":
         out = mission(s)
+    elif sys.argv[1] == "before-arm":
+        out = before_arm(s)
     else:
         out = link_loss(s, started)
     print(json.dumps(out), flush=True)

@@ -1,9 +1,11 @@
 //! The flight sequence's two sides as a profile builds them for a live run (`fly` and both
-//! ways of simulating): settle, then hold for the ESC start-up ramp before calibrating; the
-//! GPS feed the profile's `gps.mode` asks for.
+//! ways of simulating): settle, then calibrate at once (`imu.calibrate = "before-arm"`) or
+//! hold for the arm and the ESC start-up ramp first; the GPS feed the profile's `gps.mode`
+//! asks for.
 
 use crate::config::{GpsMode, Profile};
 use crate::core::flight::{ControllerSide, EstimatorSide, GpsFeed};
+use crate::core::imu::startup::CalibrateWhen;
 
 /// The GPS feed of a live run: gpsd's (or the simulator's) fixes, the fake-GPS rule, or none.
 pub fn live_gps_feed(profile: &Profile) -> GpsFeed {
@@ -16,11 +18,19 @@ pub fn live_gps_feed(profile: &Profile) -> GpsFeed {
 
 /// The estimator and controller sides of a live run.
 pub fn live_sides(profile: &Profile) -> (EstimatorSide, ControllerSide) {
-    let estimator = EstimatorSide::new(
-        profile.estimator_core(false).hold_after_settle(),
-        live_gps_feed(profile),
-        profile.commander(),
-    )
-    .with_imu_timeout(i64::from(profile.config.watchdog.imu_timeout_ms) * 1000);
+    let core = profile.estimator_core(false);
+    let before_arm = profile.config.imu.calibrate == CalibrateWhen::BeforeArm;
+    let core = if before_arm {
+        core
+    } else {
+        core.hold_after_settle()
+    };
+    let estimator = EstimatorSide::new(core, live_gps_feed(profile), profile.commander())
+        .with_imu_timeout(i64::from(profile.config.watchdog.imu_timeout_ms) * 1000);
+    let estimator = if before_arm {
+        estimator.calibrating_before_arm()
+    } else {
+        estimator
+    };
     (estimator, ControllerSide::new(profile.controller_core()))
 }

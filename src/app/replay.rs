@@ -292,6 +292,11 @@ fn closed_loop(
     // The original's imu_raw.log holds no settling frames (spec 1.6): start with calibration.
     let mut estimator = EstimatorSide::new(profile.estimator_core(true), gps, profile.commander())
         .with_clock(logs.clock);
+    if profile.config.imu.calibrate == crate::core::imu::startup::CalibrateWhen::BeforeArm {
+        // A refused calibration is taken again as the run did; the ESCs' ramp end is read
+        // from mode.log.
+        estimator = estimator.calibrating_before_arm().escs_from_records();
+    }
     let mut controller = ControllerSide::new(profile.controller_core());
     let raw = logs.raw;
     let mut feedback = controller.first_feedback();
@@ -352,7 +357,12 @@ fn summarize(
     controller: &ControllerSide,
 ) -> anyhow::Result<ReplaySummary> {
     let (e, c) = (estimator.counts(), controller.counts());
-    if e.steps == 0 {
+    // Calibrated before arming, a run whose every calibration was refused (taken again at
+    // rest) has its refusals to replay, and no step.
+    let refused_at_rest = profile.config.imu.calibrate
+        == crate::core::imu::startup::CalibrateWhen::BeforeArm
+        && raw_frames >= profile.config.imu.calib_frames as usize;
+    if e.steps == 0 && !refused_at_rest {
         bail!(
             "{}: {} frames are not enough to finish the {}-frame calibration",
             run_dir.join("imu_raw.log").display(),

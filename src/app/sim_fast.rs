@@ -350,6 +350,10 @@ impl<'a> FastSim<'a> {
                     self.quit = true;
                     self.driver.stop("shutdown", t, &mut self.cycles);
                 }
+                OperatorAction::StartEscs => {
+                    self.armed_once = true;
+                    self.driver.start(t);
+                }
                 OperatorAction::Nothing => {}
             }
         }

@@ -368,6 +368,9 @@ pub struct Imu {
     /// How their pressures are averaged: "truncated" (the original's integer division) or
     /// "exact".
     pub null_pressure: crate::core::imu::calib::NullPressure,
+    /// When the null sample is taken: "before-arm" (at rest, the estimator running from then
+    /// on) or "after-arm" (motors idling, the original's order).
+    pub calibrate: crate::core::imu::startup::CalibrateWhen,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -483,6 +486,7 @@ impl Default for Imu {
             period_max_us: p.period_max_us as u32,
             calib_frames: p.calib_frames,
             null_pressure: p.null_pressure,
+            calibrate: crate::core::imu::startup::CalibrateWhen::AfterArm,
         }
     }
 }

@@ -189,6 +189,20 @@ pub struct StepInput {
     pub ground_m: Option<f64>,
 }
 
+#[cfg(test)]
+impl StepInput {
+    /// A 10 ms step of the 1.55 kg airframe at hover thrust, without a fix or the ground.
+    pub(crate) fn hover_10ms() -> StepInput {
+        StepInput {
+            u_rad_s: [crate::core::model::w_hover_rad_s(1.55); 4],
+            mass_kg: 1.55,
+            dt_us: 10_000,
+            gps: None,
+            ground_m: None,
+        }
+    }
+}
+
 /// What a step did, for counters and logs.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StepReport {
@@ -360,6 +374,9 @@ pub struct Ekf {
     /// [`GpsFusion::PositionVelocity`] the altitude is then left out, not refused, and the
     /// fixes' vertical velocity holds the vertical until it returns.
     pub baro_lost: bool,
+    /// The last update had no gyro rates (a stuck gyro, `core::imu::health`): its rows are
+    /// left out and the rates follow the model's torques, the attitude the IMU's angles.
+    pub gyro_lost: bool,
     /// Steps since the last fix (saturating); the drag holds the velocity past a threshold.
     pub steps_without_fix: u32,
     /// The last step's thrust carried most of the weight (`core::ekf_drag`).
@@ -613,6 +630,7 @@ impl Ekf {
             p,
             fix_seen: false,
             baro_lost: false,
+            gyro_lost: false,
             steps_without_fix: 0,
             flying: false,
             drag_sum_m_s2: [0.0; 2],
@@ -706,6 +724,13 @@ impl Ekf {
                 self.p[(i, i)] += Q_ANGLES_PUSHED_RAD2 - self.params.q_diag[i];
             }
         }
+        if self.gyro_lost {
+            // The profile's rate noise lets the gyro's rows pull the rates within a few
+            // steps; without them the torques the model knows carry the rates.
+            for i in [idx::WQX, idx::WQY, idx::WQZ] {
+                self.p[(i, i)] += Q_W_NO_GYRO - self.params.q_diag[i];
+            }
+        }
         if self.baro_lost {
             // The profile's vertical process noise is sized against the barometer's row, which
             // is fused every step; without it the height is the integral of the vertical
@@ -726,6 +751,14 @@ impl Ekf {
         gps: Option<GpsSample>,
     ) -> UpdateOutcome {
         let (a, w, e) = (sample.acc_m_s2, sample.gyro_rad_s, sample.euler_rad);
+        self.gyro_lost = !w.iter().all(|v| v.is_finite());
+        // Without the gyro its rows read the predicted rates (no innovation) at a noise that
+        // gives them no weight: the update keeps its shape and the other rows fuse.
+        let w = if self.gyro_lost {
+            [idx::WQX, idx::WQY, idx::WQZ].map(|i| self.x[i])
+        } else {
+            w
+        };
         let imu9 = [e[0], e[1], theta_m, a[0], a[1], a[2], w[0], w[1], w[2]];
         match gps {
             Some(g) if self.params.gps_fusion == GpsFusion::PositionVelocity => {
@@ -759,6 +792,7 @@ impl Ekf {
                     }
                 });
                 let mut r = self.params.r_gps_diag;
+                self.without_gyro(&mut r);
                 if g.z_m.is_none() {
                     // A fix without altitude: the barometer's row, with its noise, stands in.
                     r[GPS_ROWS - 1] = self.params.r_imu_diag[IMU_ROWS - 1];
@@ -781,6 +815,7 @@ impl Ekf {
         let z: [f64; IMU_ROWS] =
             std::array::from_fn(|i| if i < 9 { imu9[i] } else { sample.alt_m });
         let mut r = self.params.r_imu_diag;
+        self.without_gyro(&mut r);
         if lost {
             // The accelerometer's vertical row then carries the height between fixes: read at
             // its own noise (or the profile's, if tighter), it teaches the thrust model's error
@@ -803,6 +838,13 @@ impl Ekf {
             }
         }
         out
+    }
+
+    /// A lost gyro's rows (6 to 8 in both updates) at a noise that leaves them out.
+    fn without_gyro<const M: usize>(&self, r: &mut [f64; M]) {
+        if self.gyro_lost {
+            r[6..9].fill(R_GYRO_LOST);
+        }
     }
 
     /// The barometer has just gone: the height and vertical speed it held were good to
@@ -1021,6 +1063,11 @@ const R_ANGLES_PUSHED_RAD2: f64 = 1e6;
 /// Roll's and pitch's process noise per step meanwhile, rad²: a gyro's drift, 0.01 rad in a
 /// second.
 const Q_ANGLES_PUSHED_RAD2: f64 = 1e-6;
+
+/// The rates' process noise per step without the gyro, (rad/s)².
+const Q_W_NO_GYRO: f64 = 1e-5;
+/// A lost gyro's rows, (rad/s)²: a rate known to a thousand rad/s is no measurement.
+const R_GYRO_LOST: f64 = 1e6;
 
 /// The accelerometer's vertical row without a barometer, (m/s²)²: a frame's noise on the
 /// airframe, vibration included (about 1 m/s²).
@@ -1399,13 +1446,7 @@ mod tests {
             ..ImuSample::default()
         };
         let mut ekf = Ekf::new(EkfParams::flight_2012(), &null);
-        let mut input = StepInput {
-            u_rad_s: [w_hover_rad_s(1.55); 4],
-            mass_kg: 1.55,
-            dt_us: 10_000,
-            gps: None,
-            ground_m: None,
-        };
+        let mut input = StepInput::hover_10ms();
         let (rep, res) = ekf.step(&null, &input);
         res.unwrap();
         assert!(rep.ratios.attitude < 1e-3 && rep.ratios.altitude < 1e-3);
@@ -1421,6 +1462,37 @@ mod tests {
         assert_eq!(res, Err(EkfError::NonFiniteMeasurement));
         assert!(rep.ratios.altitude.is_nan() && rep.ratios.attitude < 1e-3);
         assert_eq!(rep.gated, GatedGroups::default());
+    }
+
+    #[test]
+    fn a_lost_gyro_is_left_out_and_the_rates_follow_the_model() {
+        let null = ImuSample {
+            acc_m_s2: [0.0, 0.0, GRAVITY_M_S2],
+            ..ImuSample::default()
+        };
+        let input = StepInput::hover_10ms();
+        for fusion in [GpsFusion::Joint, GpsFusion::PositionVelocity] {
+            let params = EkfParams {
+                gps_fusion: fusion,
+                ..EkfParams::flight_2012()
+            };
+            let (mut live, mut lost) = (Ekf::new(params.clone(), &null), Ekf::new(params, &null));
+            let mut spinning = null;
+            spinning.gyro_rad_s = [0.5, 0.0, 0.0];
+            let mut stuck = null;
+            stuck.gyro_rad_s = [f64::NAN; 3];
+            for _ in 0..20 {
+                live.step(&spinning, &input).1.unwrap();
+                lost.step(&stuck, &input).1.unwrap();
+            }
+            assert!(live.x[idx::WQX] > 0.4 && !live.gyro_lost, "{fusion:?}");
+            // Level and balanced motors: the model's rates stay at rest.
+            assert!(
+                lost.x[idx::WQX].abs() < 1e-9 && lost.gyro_lost,
+                "{fusion:?}"
+            );
+            assert!(lost.x.iter().all(|v| v.is_finite()), "{fusion:?}");
+        }
     }
 
     #[test]

@@ -97,7 +97,8 @@ impl Ekf {
     /// A push is being read, for at most [`PUSH_MAX_WINDOWS`]: the accelerometer does not
     /// hold the gravity's direction then, and the IMU's angles are left to the gyros.
     pub(crate) fn pushed_now(&self) -> bool {
-        self.drag_active() && (1..=PUSH_MAX_WINDOWS).contains(&self.push_windows)
+        // Without the gyro the IMU's angles are all the attitude has: never set aside.
+        !self.gyro_lost && self.drag_active() && (1..=PUSH_MAX_WINDOWS).contains(&self.push_windows)
     }
 
     /// This window reads a push: the accelerometer's mean lies further from the drag of the
@@ -201,13 +202,7 @@ mod tests {
             acc_m_s2: [-0.065 * 2.0 + 2.0, 0.0, GRAVITY_M_S2],
             ..ImuSample::default()
         };
-        let input = StepInput {
-            u_rad_s: [w_hover_rad_s(1.55); 4],
-            mass_kg: 1.55,
-            dt_us: 10_000,
-            gps: None,
-            ground_m: None,
-        };
+        let input = StepInput::hover_10ms();
         for _ in 0..100 {
             ekf.step(&pushed, &input).1.unwrap();
         }

@@ -273,7 +273,7 @@ mod tests {
     use crate::core::ekf::{Ekf, EkfParams, GpsFusion, StepInput, idx};
     use crate::core::gps::GpsSample;
     use crate::core::imu::calib::ImuSample;
-    use crate::core::model::{GRAVITY_M_S2, w_hover_rad_s};
+    use crate::core::model::GRAVITY_M_S2;
 
     /// A level filter at rest, fusing fixes into position and velocity.
     fn filter() -> (Ekf, ImuSample, StepInput) {
@@ -290,13 +290,7 @@ mod tests {
             ..ImuSample::default()
         };
         let ekf = Ekf::new(p, &still);
-        let input = StepInput {
-            u_rad_s: [w_hover_rad_s(1.55); 4],
-            mass_kg: 1.55,
-            dt_us: 10_000,
-            gps: None,
-            ground_m: None,
-        };
+        let input = StepInput::hover_10ms();
         (ekf, still, input)
     }
 

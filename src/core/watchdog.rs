@@ -200,6 +200,9 @@ pub struct Watchdog {
     disarmed: bool,
     /// When the ESCs were enabled (the IMU timeout applies from then on).
     motors_on_us: Option<i64>,
+    /// The motors were enabled (or commanded) once: estimates before that (calibrated at
+    /// rest, disarmed) are the pre-arm check's, not the sanity rules'.
+    motors_ever_on: bool,
     sanity_counter: u32,
     /// Consecutive refused measurement updates.
     refused_updates: u32,
@@ -216,6 +219,7 @@ impl Watchdog {
             flying: false,
             disarmed: false,
             motors_on_us: None,
+            motors_ever_on: false,
             sanity_counter: 0,
             refused_updates: 0,
             deadline_misses: 0,
@@ -258,6 +262,7 @@ impl Watchdog {
         self.flying = !self.disarmed;
         // A flight command spins the motors, whether or not their enable was reported.
         self.motors_on_us.get_or_insert(frame_us);
+        self.motors_ever_on = true;
         while self.uncommanded_us.front().is_some_and(|&f| f <= frame_us) {
             self.uncommanded_us.pop_front();
         }
@@ -334,6 +339,7 @@ impl Watchdog {
             }
             Event::MotorsEnabled(at) => {
                 self.motors_on_us.get_or_insert(at);
+                self.motors_ever_on = true;
                 None
             }
             Event::Kill(at) => self.decide(TripReason::Kill, at, now_us),
@@ -354,6 +360,10 @@ impl Watchdog {
                 frame_us,
                 written_us,
             } => self.on_command(frame_us, written_us),
+            // An estimate before the motors were ever enabled (calibrated at rest, disarmed)
+            // is the pre-arm check's: a vehicle carried tilted spins nothing to halt. After
+            // they were, the rules judge every estimate as they always did.
+            Event::Estimate { .. } if !self.motors_ever_on => None,
             Event::Estimate {
                 step_us,
                 temp_c,
@@ -564,6 +574,12 @@ mod tests {
             refused,
         };
         let mut w = wd();
+        // Before the motors were ever enabled (estimating at rest, disarmed) nothing spins:
+        // the estimate is the pre-arm check's.
+        for _ in 0..20 {
+            assert_eq!(w.on_event(est(true), 0), None);
+        }
+        assert_eq!(w.on_event(Event::MotorsEnabled(0), 0), None);
         // Nine refusals, then a fused update: the run starts again.
         for _ in 0..9 {
             assert_eq!(w.on_event(est(true), 0), None);

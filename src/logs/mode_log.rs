@@ -15,6 +15,7 @@
 //! 2000000 beat gcs
 //! 2100000 key 101
 //! 2200000 fix
+//! 2300000 escs running
 //! 2500000 mission mission-1.toml gains caeb2603ff2b78ed
 //! ```
 //!
@@ -98,6 +99,7 @@ pub fn write_input(
     let _ = match input {
         OperatorInput::Beat(src) => writeln!(out, "{t_us} beat {}", src.name()),
         OperatorInput::GpsFix => writeln!(out, "{t_us} fix"),
+        OperatorInput::EscsRunning => writeln!(out, "{t_us} escs running"),
         OperatorInput::Key(k) => writeln!(out, "{t_us} key {}", k.key()),
         OperatorInput::Mission(plan) => writeln!(
             out,
@@ -211,6 +213,7 @@ fn parse_input(
     let input = match kind {
         "beat" => OperatorInput::Beat(source(rest)?),
         "fix" if rest.is_empty() => OperatorInput::GpsFix,
+        "escs" if rest == "running" => OperatorInput::EscsRunning,
         "key" => {
             let k = rest.parse::<u8>().ok().and_then(ManualCommand::from_key);
             OperatorInput::Key(k.ok_or_else(|| format!("unknown key {}", quote(rest)))?)

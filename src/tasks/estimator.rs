@@ -18,7 +18,7 @@ use crate::core::commander::{ArmFacts, Command, LinkSource, OperatorInput, expir
 use crate::core::esc::EscPhase;
 use crate::core::flight::{
     ArmCheck, EscState, Estimate, EstimatorSide, Feedback, FrameAction, FrameTimes, GatedCounts,
-    OperatorAction, Phase,
+    OperatorAction,
 };
 use crate::core::gps::LiveFix;
 use crate::tasks::TaskOutputs;
@@ -282,7 +282,7 @@ impl EstimatorTask {
     fn operate(&mut self, t_us: i64) {
         // Once the IMU has settled and its frames vouch for it (a gap at the start would
         // refuse an arm made at once).
-        if self.auto_arm && self.side.phase() == Phase::EscStart && self.side.imu_trusted(t_us) {
+        if self.auto_arm && self.side.ready_to_arm(t_us) {
             self.auto_arm = false;
             self.apply(
                 OperatorInput::Command(Command::Arm, LinkSource::Terminal),
@@ -330,6 +330,7 @@ impl EstimatorTask {
         match action {
             OperatorAction::StopEscs => self.esc.halt("disarmed"),
             OperatorAction::Quit => self.cancel.cancel(),
+            OperatorAction::StartEscs => self.esc.start(),
             OperatorAction::Nothing => {}
         }
     }

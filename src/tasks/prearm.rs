@@ -36,6 +36,8 @@ impl PreArm {
             log_error: self.log_problem.borrow().clone(),
             realtime: self.realtime_waived || holds_fifo(),
             esc_silent,
+            // The flight sequence's own, like the IMU's settling.
+            estimator: None,
         }
     }
 }

@@ -50,8 +50,8 @@ pub struct CampaignReport {
     pub seed: u64,
     pub jobs: usize,
     pub violations: Vec<Violation>,
-    /// Violations a fault the estimator cannot see yet is known to cause (a stuck gyro
-    /// breaking invariant 3 or 5), listed apart.
+    /// Violations a gyro the filter cannot follow is known to cause (stuck or its bias
+    /// stepped, breaking invariant 3 or 5), listed apart.
     pub known_exceptions: Vec<Violation>,
     /// Runs by fault (`a+b` for a pair), phase and outcome.
     pub outcomes: BTreeMap<String, BTreeMap<String, BTreeMap<String, u64>>>,
@@ -69,7 +69,8 @@ struct Judged {
     fall_m_s: Option<f64>,
 }
 
-/// A known exception: a gyro the filter cannot follow - stuck (no rule sees it yet), or its
+/// A known exception: a gyro the filter cannot follow - stuck (seen within 0.1 s, but the
+/// landing then flies the model's attitude, which drifts within a second), or its
 /// bias stepped (no state holds it: the fixes' contradicted velocity lands the vehicle, but
 /// on an attitude still drifting at the bias's rate) - breaking the touchdown speed (3) or
 /// the fence (5).

@@ -10,6 +10,10 @@ use super::{Commander, EscRequest, Event, Mode, Observation};
 /// where the vehicle may be.
 const FENCE_SIGMAS: f64 = 2.0;
 
+/// A barometer without an altitude for this long is lost, s: a sensor loss, acted on at once
+/// (a single bad reading is left out of its step and ridden through).
+pub const BARO_LOST_S: f64 = 0.5;
+
 /// What a failsafe does.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -97,9 +101,15 @@ impl Commander {
             // original's profiles always were.
             request = self.gps_failsafe(o.t_us, Some(o), out);
         }
+        // Without the gyro the attitude is the model's guess for seconds: no hold or return
+        // flies on it.
+        let ekf_action = match p.ekf_action {
+            Action::Hold | Action::Return if o.gyro_lost => Action::Land,
+            a => a,
+        };
         let checks = [
             (Failsafe::Geofence, fence, fence, p.fence_action),
-            (Failsafe::Estimator, ekf_bad, ekf_bad, p.ekf_action),
+            (Failsafe::Estimator, ekf_bad, ekf_bad, ekf_action),
         ];
         for (kind, on, act_now, action) in checks {
             request = request.or(self.edge(kind, on, act_now, action, o.t_us, Some(o), out));
@@ -249,13 +259,34 @@ impl Commander {
         None
     }
 
+    /// The estimate's failsafe condition: a group outside its gate too long, or a sensor lost.
+    fn estimator_bad(&mut self, o: &Observation) -> bool {
+        // Both judged every step: each keeps its own clock.
+        let timed_out = self.gates_timed_out(o);
+        let lost = self.sensor_lost(o);
+        timed_out || lost
+    }
+
+    /// A sensor the estimate has lost: the gyro stuck, or the barometer silent for
+    /// [`BARO_LOST_S`]. Not waited on for `failsafe.ekf_bad_s`: nothing will bring it back.
+    fn sensor_lost(&mut self, o: &Observation) -> bool {
+        let since = if o.baro_alt_m.is_finite() {
+            None
+        } else {
+            Some(self.baro_out_since_us.unwrap_or(o.t_us))
+        };
+        self.baro_out_since_us = since;
+        let baro_lost = since.is_some_and(|s| (o.t_us - s) as f64 / 1e6 >= BARO_LOST_S);
+        o.gyro_lost || baro_lost
+    }
+
     /// The attitude, the altitude or the fixes' velocity outside its gate for
     /// `failsafe.ekf_bad_s`, each timed apart (the velocity across the steps between fixes).
     /// The positions of fixes with a velocity are not judged here: a position jump with a
     /// consistent velocity is the receiver's glitch, and positions left out too long make it
     /// unhealthy, the gps-loss path's ([`Commander::note_fix`]); a velocity outside its gate
     /// is the estimate's own error (a tilt it does not see).
-    fn estimator_bad(&mut self, o: &Observation) -> bool {
+    fn gates_timed_out(&mut self, o: &Observation) -> bool {
         let r = o.ratios;
         // A fix without a velocity (a receiver that gives none, the joint fusion): its
         // position's ratio, as it was judged before the fixes' rows were gated apart.

@@ -30,6 +30,14 @@ impl Commander {
         self.fix_rx_us = Some(t_us);
     }
 
+    /// The ESCs run (their start-up ramp done) since an arm: the start-up is over once a
+    /// Kalman step follows, and a takeoff may be asked for.
+    pub fn escs_running(&mut self) {
+        if self.mode == super::Mode::Armed {
+            self.escs_running = true;
+        }
+    }
+
     /// Armed on the ground: a failsafe's condition (during the start-up too) or no takeoff
     /// within `disarm_ground_s` of the start-up's end disarms.
     fn on_the_ground(&mut self, t_us: i64, out: &mut Vec<Event>) -> Option<EscRequest> {

@@ -152,6 +152,10 @@ pub enum OperatorInput {
     /// The GPS receiver delivered a fix (gps.mode = "gpsd"): not the operator's, but an input
     /// of the commander's like a link's beat, recorded so that a replay judges the same.
     GpsFix,
+    /// The ESCs finished the start-up ramp an `arm` began, under a running estimate
+    /// (`imu.calibrate = "before-arm"`): the motors idle, a takeoff may follow. The
+    /// actuator's, recorded so that a replay (which has no ESCs) sees it at the same step.
+    EscsRunning,
     /// An input that waited `waited_us` for the flight, longer than
     /// `commander.input_expiry_s` (the IMU silent, the flight stalled): refused, never
     /// applied, and recorded so that a replay refuses it too.
@@ -179,6 +183,7 @@ impl OperatorInput {
             OperatorInput::Mission(plan) => format!("mission {}", plan.name),
             OperatorInput::Beat(src) => format!("beat {}", src.name()),
             OperatorInput::GpsFix => "fix".into(),
+            OperatorInput::EscsRunning => "escs running".into(),
             OperatorInput::Expired { input, .. } => input.what(),
         }
     }

@@ -22,7 +22,7 @@ mod mission_mode;
 mod profile;
 
 use blind::Blind;
-pub use checks::{ArmFacts, calibration_problem};
+pub use checks::{ArmFacts, EstimatorHealth, calibration_problem, estimator_problem};
 pub use failsafe::{Action, Failsafe};
 pub use figures::{ClimbTrace, DescentTrace, Figures, Takeoff, Touchdown};
 pub use input::{Command, KeyOutcome, LinkSource, OperatorInput};
@@ -212,6 +212,8 @@ pub struct Observation {
     pub tilt_rad: f64,
     /// The barometer's altitude this step, m (not a number when it failed).
     pub baro_alt_m: f64,
+    /// The gyro is lost (stuck): the estimate's rates are the model's.
+    pub gyro_lost: bool,
     /// A GPS fix was fused in this step.
     pub gps_fused: bool,
     /// A fix's velocity was fused in this step, its position perhaps left out by the gate.
@@ -310,6 +312,9 @@ const SPOOL_UP_STEPS: u32 = crate::core::motor::FLIGHT_RAMP_STEPS;
 
 /// A landing is slow over this last height, m.
 const LAST_METRE_M: f64 = 1.0;
+/// A landing without the gyro: its speed, m/s, reached within half a second, m/s².
+const GYRO_LOST_LAND_M_S: f64 = 0.8;
+const GYRO_LOST_LAND_ACC_M_S2: f64 = 2.0;
 
 /// Steps of the ground's push in a row that make a landing vehicle one resting on the ground
 /// (0.2 s at 100 Hz).
@@ -337,6 +342,9 @@ pub struct Commander {
     /// Since when each measurement group (attitude, altitude, the fixes' velocity or, without
     /// one, their position) has been outside its gate.
     ekf_bad_since_us: [Option<i64>; 3],
+    /// Since when the barometer has given no altitude (a sensor loss past
+    /// [`failsafe::BARO_LOST_S`]).
+    baro_out_since_us: Option<i64>,
     touchdown_since_us: Option<i64>,
     /// Steps in a row the accelerometer has felt the ground's push (a landing's touchdown
     /// watch).
@@ -353,7 +361,10 @@ pub struct Commander {
     armed_us: Option<i64>,
     /// The newest fix the receiver delivered (gps.mode = "gpsd").
     fix_rx_us: Option<i64>,
-    /// Armed on the ground with the start-up over (the first Kalman step), since.
+    /// Armed, the ESCs have finished their start-up ramp ([`Commander::escs_running`]).
+    escs_running: bool,
+    /// Armed on the ground with the start-up over (the first Kalman step with the ESCs
+    /// running), since.
     ground_since_us: Option<i64>,
     /// In the air by its mode but on the ground by its estimate, since.
     low_since_us: Option<i64>,
@@ -416,6 +427,7 @@ impl Commander {
             sigma_at_fix_m: 0.0,
             gps_lost_us: None,
             ekf_bad_since_us: [None; 3],
+            baro_out_since_us: None,
             touchdown_since_us: None,
             ground_push_steps: 0,
             blind: None,
@@ -423,6 +435,7 @@ impl Commander {
             acted: [false; 4],
             armed_us: None,
             fix_rx_us: None,
+            escs_running: false,
             ground_since_us: None,
             low_since_us: None,
             tilt_since_us: None,
@@ -648,6 +661,13 @@ impl Commander {
             Command::Takeoff(_) if m != Mode::Armed => {
                 Err(format!("{}: takeoff needs armed", m.name()))
             }
+            // Without an estimate the estimator's refusal says more (after arming, the
+            // calibration follows the ramp).
+            Command::Takeoff(_) | Command::Start
+                if m == Mode::Armed && !self.escs_running && est.is_some() =>
+            {
+                Err("armed: the ESCs' start-up ramp is not done yet".into())
+            }
             Command::Takeoff(_) => self.estimator_ready(est).and(self.fix_ready(t_us)),
             Command::Start if m == Mode::Armed => self.check_start(est).and(self.fix_ready(t_us)),
             Command::Start => self.check_start(est),
@@ -680,6 +700,7 @@ impl Commander {
     fn estimator_ready(&self, est: Option<&Observation>) -> Result<(), String> {
         match est {
             None => Err("estimator: not running yet (the IMU calibration is not done)".into()),
+            Some(o) if o.gyro_lost => Err("estimator: gyro stuck (its counts repeat)".into()),
             Some(o) if outside_gate(&o.ratios) => Err(format!(
                 "estimator: innovation test ratios outside the gate (attitude {:.2}, altitude \
                  {:.2}, gps {:?})",
@@ -771,6 +792,7 @@ impl Commander {
     fn disarm(&mut self, t_us: i64, why: &str, out: &mut Vec<Event>) {
         self.spent = true;
         self.armed_us = None;
+        self.escs_running = false;
         self.ground_since_us = None;
         self.tilt_since_us = None;
         self.takeoff_us = None;
@@ -865,8 +887,9 @@ impl Commander {
             let alt = self.p.hover_z_m;
             self.begin_takeoff(o, alt, o.t_us, "commander.start = flying", out);
         }
-        if self.mode == Mode::Armed {
-            // The first Kalman step: the start-up (ESC ramp, calibration) is over.
+        if self.mode == Mode::Armed && self.escs_running {
+            // The first Kalman step with the ESCs running: the start-up (ESC ramp,
+            // calibration) is over.
             self.ground_since_us.get_or_insert(o.t_us);
         }
         let request = self.crashed(o);
@@ -885,14 +908,18 @@ impl Commander {
     /// The ground's height in the estimate's frame while a landing vehicle rests on it: the
     /// touchdown being confirmed and the ground's push felt for [`GROUND_PUSH_STEPS`] steps
     /// in a row (a hop's contact lasts one or two: a bouncing vehicle told it was still and on
-    /// the ground fell from its next hop at 4.4 m/s with a stuck gyro). `None` otherwise. Not
+    /// the ground fell from its next hop at 4.4 m/s with a stuck gyro); or disarmed (an estimate
+    /// running before arming, or after a landing). `None` otherwise. Not
     /// while armed before a takeoff: with the 2012 flights' noise values a ground that exact
     /// left the takeoff's height to the thrust model, and the overshoot grew (0.021 to
     /// 0.054 m on seed 1).
     pub fn ground_contact_m(&self) -> Option<f64> {
-        let resting = self.mode == Mode::Land
+        let landed = self.mode == Mode::Land
             && self.touchdown_since_us.is_some()
             && self.ground_push_steps >= GROUND_PUSH_STEPS;
+        // Disarmed, the motors are off: it rests where it was started or landed (an estimate
+        // far from that, carried about, is left alone by the filter's own gates).
+        let resting = landed || self.mode == Mode::Disarmed;
         resting.then(|| self.home_m.map_or(0.0, |h| h[2]))
     }
 
@@ -975,16 +1002,24 @@ impl Commander {
             (false, true, None) => Some(Blind::new(o.thrust_ratio)),
             (false, _, b) => b.map(|b| b.step(o.acc_m_s2, o.acc_rest_m_s2, p.land_slow_m_s, dt_s)),
         };
-        let v = if height > LAST_METRE_M + brake_m {
-            p.land_m_s
+        // Without the gyro the attitude is the model's guess, good for a few seconds: the
+        // landing goes down at its full speed and eases in at once, not slowed for the last
+        // metre (a contact at land_m_s is a firm landing; a tumble is a crash).
+        let (v, acc_m_s2) = if o.gyro_lost {
+            (
+                p.land_m_s.max(GYRO_LOST_LAND_M_S),
+                p.climb_acc_m_s2.max(GYRO_LOST_LAND_ACC_M_S2),
+            )
+        } else if height > LAST_METRE_M + brake_m {
+            (p.land_m_s, p.climb_acc_m_s2)
         } else {
-            p.land_slow_m_s
+            (p.land_slow_m_s, p.climb_acc_m_s2)
         };
         // Aim below the ground, and below the estimate, so the set point keeps pressing down
         // until touchdown: an estimate without a barometer may sink below the ground while
         // the vehicle stands on it, and a floor above it would lift the vehicle again.
         let floor = ground.min(o.pos_m[2]) - 2.0;
-        self.profile.advance(floor, v, p.climb_acc_m_s2, dt_s);
+        self.profile.advance(floor, v, acc_m_s2, dt_s);
         self.touchdown_watch(o, out)
     }
 

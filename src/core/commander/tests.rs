@@ -54,6 +54,7 @@ fn good_facts() -> ArmFacts {
         log_error: None,
         realtime: true,
         esc_silent: vec![],
+        estimator: None,
     }
 }
 
@@ -67,6 +68,7 @@ fn at(t_us: i64, z_m: f64) -> Observation {
         acc_m_s2: [0.0, 0.0, GRAVITY_M_S2],
         tilt_rad: 0.0,
         baro_alt_m: z_m,
+        gyro_lost: false,
         gps_fused: t_us % 1_000_000 == 0,
         gps_velocity_fused: false,
         gps_velocity_ratio: None,
@@ -90,6 +92,7 @@ fn armed() -> (Commander, Vec<Event>) {
     let mut ev = Vec::new();
     c.start(0, &mut ev);
     let r = c.command(Command::Arm, 0, good_facts().verdict(), None, &mut ev);
+    c.escs_running();
     assert_eq!(r, Some(EscRequest::Start));
     c.on_estimate(&at(0, 0.0), &mut ev);
     (c, ev)
@@ -226,15 +229,20 @@ fn takeoff_needs_an_armed_vehicle_and_a_running_estimator() {
         &mut ev,
     );
     c.command(Command::Arm, 0, good_facts().verdict(), None, &mut ev);
+    // Under a running estimate (calibrated before arming) the ESCs still ramp.
+    let o = at(1, 0.0);
+    c.command(Command::Takeoff(None), 1, Ok(()), Some(&o), &mut ev);
+    c.escs_running();
     c.command(Command::Takeoff(None), 1, Ok(()), None, &mut ev);
     let mut bad = at(2, 0.0);
     bad.ratios.altitude = 3.0;
     c.command(Command::Takeoff(None), 2, Ok(()), Some(&bad), &mut ev);
     let why = refusals(&ev);
     assert!(why[0].contains("takeoff needs armed"), "{why:?}");
-    assert!(why[1].starts_with("estimator: not running"), "{why:?}");
+    assert!(why[1].contains("start-up ramp is not done"), "{why:?}");
+    assert!(why[2].starts_with("estimator: not running"), "{why:?}");
     assert!(
-        why[2].starts_with(
+        why[3].starts_with(
             "estimator: innovation test ratios outside the gate (attitude 0.00, altitude 3.00"
         ),
         "{why:?}"
@@ -247,6 +255,7 @@ fn taking_off(p: Params) -> (Commander, Vec<Event>) {
     let mut c = Commander::new(p);
     let mut ev = Vec::new();
     c.command(Command::Arm, 0, good_facts().verdict(), None, &mut ev);
+    c.escs_running();
     let o = at(0, 0.0);
     c.command(Command::Takeoff(None), 0, Ok(()), Some(&o), &mut ev);
     (c, ev)
@@ -568,6 +577,7 @@ fn the_fence_lands_only_while_the_position_is_observed() {
     let mut c = Commander::new(params());
     let mut ev = Vec::new();
     c.command(Command::Arm, 0, good_facts().verdict(), None, &mut ev);
+    c.escs_running();
     let mut o = at(1, 0.0);
     o.gps_fused = false;
     c.command(Command::Takeoff(None), 1, Ok(()), Some(&o), &mut ev);
@@ -601,6 +611,78 @@ fn an_estimator_outside_its_gate_for_long_lands() {
         _ => None,
     });
     assert_eq!(at_us, Some(13_000_000));
+}
+
+/// The first failsafe's time when `sense` shapes each hover step from 10 s to 14 s.
+fn first_failsafe_us(sense: impl Fn(&mut Observation)) -> Option<(i64, Failsafe, Action)> {
+    let (mut c, mut ev) = holding();
+    let mut t = 10_000_000;
+    while t < 14_000_000 {
+        let mut o = at(t, 1.0);
+        sense(&mut o);
+        c.link_beat(LinkSource::Gcs, t);
+        c.on_estimate(&o, &mut ev);
+        t += STEP_US;
+    }
+    ev.iter().find_map(|e| match e {
+        Event::Failsafe { t_us, kind, action } => Some((*t_us, *kind, *action)),
+        _ => None,
+    })
+}
+
+#[test]
+fn a_lost_gyro_lands_where_the_estimator_failsafe_would_hold_and_refuses_a_takeoff() {
+    let (mut c, mut ev) = armed();
+    let mut stuck = at(STEP_US, 0.0);
+    stuck.gyro_lost = true;
+    c.on_estimate(&stuck, &mut ev);
+    c.command(
+        Command::Takeoff(None),
+        STEP_US,
+        Ok(()),
+        Some(&stuck),
+        &mut ev,
+    );
+    assert_eq!(refusals(&ev), ["estimator: gyro stuck (its counts repeat)"]);
+    assert_eq!(c.mode(), Mode::Armed);
+    // In the air, an ekf_action of hold does not fly on the model's attitude.
+    let mut p = params();
+    p.ekf_action = Action::Hold;
+    let (mut c, mut ev) = taking_off(p);
+    let t = 2 * STEP_US;
+    c.link_beat(LinkSource::Gcs, t);
+    c.on_estimate(&stuck_at(t), &mut ev);
+    assert_eq!(failsafes(&ev), [(Failsafe::Estimator, Action::Land)]);
+    assert_eq!(c.mode(), Mode::Land);
+}
+
+fn stuck_at(t_us: i64) -> Observation {
+    let mut o = at(t_us, 0.5);
+    o.gyro_lost = true;
+    o
+}
+
+#[test]
+fn a_lost_sensor_lands_at_once_and_a_missed_reading_does_not() {
+    let land = |t_us| Some((t_us, Failsafe::Estimator, Action::Land));
+    // The gyro lost at 11 s: that step.
+    let gyro = first_failsafe_us(|o| o.gyro_lost = o.t_us >= 11_000_000);
+    assert_eq!(gyro, land(11_000_000));
+    // The barometer silent from 11 s: lost half a second later, not ekf_bad_s (2 s).
+    let baro = first_failsafe_us(|o| {
+        if o.t_us >= 11_000_000 {
+            o.baro_alt_m = f64::NAN;
+        }
+    });
+    assert_eq!(baro, land(11_500_000));
+    // Silent for 0.49 s, twice: ridden through.
+    let gaps = first_failsafe_us(|o| {
+        let gap = |t0: i64| (t0..t0 + 490_000).contains(&o.t_us);
+        if gap(11_000_000) || gap(12_000_000) {
+            o.baro_alt_m = f64::NAN;
+        }
+    });
+    assert_eq!(gaps, None);
 }
 
 #[test]
@@ -1052,6 +1134,7 @@ fn a_return_failsafe_flies_home_then_lands() {
     let mut ev = Vec::new();
     c.start(0, &mut ev);
     c.command(Command::Arm, 0, good_facts().verdict(), None, &mut ev);
+    c.escs_running();
     c.on_estimate(&at(0, 0.0), &mut ev);
     c.command(
         Command::Takeoff(Some(1.5)),
@@ -1107,6 +1190,7 @@ fn armed_with_receiver() -> (Commander, Vec<Event>) {
     c.start(0, &mut ev);
     c.gps_fix(500_000);
     c.command(Command::Arm, 1_000_000, Ok(()), None, &mut ev);
+    c.escs_running();
     (c, ev)
 }
 

@@ -20,6 +20,7 @@ use crate::core::ekf::{
 use crate::core::gps::GpsSample;
 use crate::core::imu::calib::{Calibration, ImuSample};
 use crate::core::imu::frame::RawFrame;
+use crate::core::imu::health::GyroWatch;
 use crate::core::imu::startup::{FrontEndEvent, ImuFrontEnd, StartupParams};
 use crate::core::mission::{GainKey, GainTable};
 use crate::core::model::MotorLimits;
@@ -60,6 +61,8 @@ pub struct Estimate {
     pub velocity_observed: bool,
     /// The filter observes the vertical (a barometer, or fixes' vertical velocity).
     pub vertical_observed: bool,
+    /// The gyro is lost (stuck): the filter's rates are the model's.
+    pub gyro_lost: bool,
     /// The horizontal position's standard deviation (the larger axis's), m.
     pub pos_sigma_m: f64,
     /// The accelerometer's size at rest, by the calibration, m/s².
@@ -93,6 +96,9 @@ pub struct EstimatorCore {
     acc_rest_m_s2: f64,
     steps: u32,
     prev_step_us: Option<i64>,
+    /// The raw gyro's health: once stuck, the samples carry no rates (not a number) and the
+    /// filter leaves the gyro's rows out.
+    gyro: GyroWatch,
 }
 
 impl EstimatorCore {
@@ -110,6 +116,7 @@ impl EstimatorCore {
             acc_rest_m_s2: crate::core::model::GRAVITY_M_S2,
             steps: 0,
             prev_step_us: None,
+            gyro: GyroWatch::default(),
         }
     }
 
@@ -122,6 +129,13 @@ impl EstimatorCore {
 
     pub fn begin_calibration(&mut self) {
         self.front.begin_calibration();
+    }
+
+    /// Drops the estimate and takes the null sample again (a calibration at rest that was
+    /// not plausible).
+    pub fn recalibrate(&mut self) {
+        self.front.restart_calibration();
+        self.ekf = None;
     }
 
     /// Kalman steps done so far.
@@ -137,7 +151,31 @@ impl EstimatorCore {
     /// for the next Kalman step ([`EstimatorCore::step`]); on `Calibrated` the filter has just
     /// been initialised from the null sample.
     pub fn on_frame(&mut self, frame: &RawFrame, stamp_us: i64) -> FrontEndEvent {
-        let event = self.front.on_frame(frame, stamp_us);
+        let mut event = self.front.on_frame(frame, stamp_us);
+        // Watched from each calibration's first frame (where a replay's log starts too): a
+        // sensor still starting up while the period settles is not held against it.
+        let gyro_lost = match event {
+            FrontEndEvent::Calibrating { frames: 1 } => {
+                self.gyro = GyroWatch::default();
+                self.gyro.on_frame(frame)
+            }
+            FrontEndEvent::Calibrating { .. }
+            | FrontEndEvent::Calibrated(_)
+            | FrontEndEvent::Sample(_) => self.gyro.on_frame(frame),
+            _ => self.gyro.lost(),
+        };
+        if gyro_lost {
+            // A stuck gyro reads a still vehicle: its rates are not a measurement (the
+            // calibration's check refuses a null sample without them).
+            match &mut event {
+                FrontEndEvent::Sample(s) => s.gyro_rad_s = [f64::NAN; 3],
+                FrontEndEvent::Calibrated(null) => {
+                    null.sample.gyro_rad_s = [f64::NAN; 3];
+                    null.reference.gyro_null_rad_s = [f64::NAN; 3];
+                }
+                _ => {}
+            }
+        }
         if let FrontEndEvent::Calibrated(null) = &event {
             self.ekf = Some(Ekf::new(self.params.clone(), &null.sample));
             self.theta_cal_rad = null.sample.euler_rad[2];
@@ -187,6 +225,7 @@ impl EstimatorCore {
             gps_velocity_ratio: report.fix_velocity_ratio,
             velocity_observed: ekf.horizontal_velocity_observed(),
             vertical_observed: ekf.vertical_observed(),
+            gyro_lost: ekf.gyro_lost,
             pos_sigma_m: ekf.horizontal_sigma_m(),
             acc_rest_m_s2: self.acc_rest_m_s2,
             dt_clamped: report.dt_clamped,

@@ -134,8 +134,13 @@ pub enum Phase {
     Settle,
     /// The ESCs' enable and start-up ramp.
     EscStart,
-    /// Averaging the null sample with the motors idling.
+    /// Averaging the null sample: with the motors idling (`imu.calibrate = "after-arm"`), or
+    /// at rest before arming.
     Calibration,
+    /// Calibrated at rest (`imu.calibrate = "before-arm"`): the estimator runs, the motors are
+    /// off until an `arm` (then [`Phase::EscStart`] under the running estimate, then
+    /// [`Phase::Flight`]).
+    Estimating,
     /// The first [`FLIGHT_RAMP_STEPS`] control steps ramp the motors up.
     FlightRamp,
     Flight,
@@ -287,6 +292,19 @@ pub struct EstimatorSide {
     imu: ImuWatch,
     /// An `arm` came (taken, refused or expired).
     arm_asked: bool,
+    /// The gyro's loss has been noted.
+    gyro_lost_noted: bool,
+    /// The IMU calibrates at rest before arming and the estimator runs from then on
+    /// (`imu.calibrate = "before-arm"`); an arm then starts the ESCs at once.
+    at_rest: bool,
+    /// The ESCs' ramp end has been given to the commander ([`OperatorInput::EscsRunning`]).
+    escs_running_told: bool,
+    /// Why the last calibration at rest was refused (it is being taken again).
+    calibration_refused: Option<String>,
+    /// The ESCs' ramp end comes from the run's records (a replay has no ESCs to watch).
+    escs_from_records: bool,
+    /// The newest fix's test ratio (most steps carry none): the pre-arm check's.
+    last_fix_ratio: Option<f64>,
 }
 
 /// An `arm`, applied or expired.
@@ -327,7 +345,28 @@ impl EstimatorSide {
             stop_pending: false,
             imu: ImuWatch::LENIENT,
             arm_asked: false,
+            gyro_lost_noted: false,
+            at_rest: false,
+            escs_running_told: false,
+            calibration_refused: None,
+            escs_from_records: false,
+            last_fix_ratio: None,
         }
+    }
+
+    /// Calibrates at rest as soon as the IMU has settled and estimates from then on; an `arm`
+    /// needs the `estimator` check and starts the ESCs at once (`imu.calibrate =
+    /// "before-arm"`; the core must not hold after settling).
+    pub fn calibrating_before_arm(mut self) -> Self {
+        self.at_rest = true;
+        self
+    }
+
+    /// A replay of a run calibrated before arming: the ESCs' ramp end is the recorded
+    /// `escs running` input, not watched.
+    pub fn escs_from_records(mut self) -> Self {
+        self.escs_from_records = true;
+        self
     }
 
     /// An `arm` trusts the IMU only with no frame gap over `imu_timeout_us` (the watchdog's)
@@ -476,6 +515,11 @@ impl EstimatorSide {
                 self.commander.gps_fix(t_us);
                 None
             }
+            OperatorInput::EscsRunning => {
+                self.escs_running_told = true;
+                self.commander.escs_running();
+                None
+            }
             OperatorInput::Command(cmd, src) => {
                 // A link that gives a command is an operator link from then on: its silence
                 // is a link-loss, whether or not it ever sent a heartbeat.
@@ -500,6 +544,15 @@ impl EstimatorSide {
             _ => None,
         });
         self.record_events(out);
+        if request == Some(EscRequest::Start) && self.at_rest && !self.esc_start_asked {
+            // Under a running estimate the ESCs start with the arm, not at the next settle.
+            self.esc_start_asked = true;
+            self.phase = Phase::EscStart;
+            out.record(FlightRecord::Note(
+                "armed: ESC start-up ramp under the running estimate".into(),
+            ));
+            return OperatorAction::StartEscs;
+        }
         if self.esc_request(request, t_us, out) {
             OperatorAction::StopEscs
         } else {
@@ -542,7 +595,12 @@ impl EstimatorSide {
             ArmCheck::Recorded(v) => v.clone(),
             ArmCheck::Facts(f) => {
                 let mut f = f.clone();
-                f.imu_stable = self.phase == Phase::EscStart;
+                if self.at_rest {
+                    f.imu_stable = self.phase != Phase::Settle;
+                    f.estimator = self.estimator_problem();
+                } else {
+                    f.imu_stable = self.phase == Phase::EscStart;
+                }
                 match self.imu.stale(t_us) {
                     Some(why) if f.imu_stable => Err(why),
                     _ => f.verdict(),
@@ -660,6 +718,11 @@ impl EstimatorSide {
                 self.esc_start(esc, times.t_frame_us, out)
             }
             FrontEndEvent::Calibrating { .. } => {
+                if self.at_rest && self.phase == Phase::Settle {
+                    out.record(FlightRecord::Note(
+                        "IMU sampling period stable; calibrating at rest, motors off".into(),
+                    ));
+                }
                 self.phase = Phase::Calibration;
                 out.record(record);
                 FrameAction::Wait
@@ -671,7 +734,10 @@ impl EstimatorSide {
             }
             FrontEndEvent::Sample(s) => {
                 out.record(record);
-                FrameAction::Step(s)
+                match self.escs_ramping(esc, times.t_frame_us, out) {
+                    Some(action) => action,
+                    None => FrameAction::Step(s),
+                }
             }
         }
     }
@@ -698,13 +764,108 @@ impl EstimatorSide {
             n.acc_m_s2, n.euler_rad, n.temp_c
         )));
         if let Some(why) = commander::calibration_problem(&n.acc_m_s2, &gyro_null) {
+            if self.at_rest {
+                // Disarmed, nothing spins: taken again (the vehicle may have been moved).
+                out.record(FlightRecord::Note(format!(
+                    "IMU calibration not plausible ({why}): calibrating again"
+                )));
+                self.calibration_refused = Some(why);
+                self.core.recalibrate();
+                return FrameAction::Wait;
+            }
             self.commander
                 .on_calibration_refused(t_us, &why, &mut self.events);
             self.record_events(out);
             return self.abort(Abort::Calibration(why));
         }
-        self.phase = Phase::FlightRamp;
+        self.calibration_refused = None;
+        // After an arm (the original's order) the ESCs have run their ramp already.
+        self.commander.escs_running();
+        self.phase = if self.at_rest {
+            Phase::Estimating
+        } else {
+            Phase::FlightRamp
+        };
         FrameAction::Step(null.sample)
+    }
+
+    /// Armed under a running estimate: the ESCs' ramp watched until they run (the commander
+    /// told, and recorded for a replay) or stop (the run aborts, as in the original's order).
+    /// `None`: the step goes on.
+    fn escs_ramping(
+        &mut self,
+        esc: EscState<'_>,
+        t_us: i64,
+        out: &mut impl Outputs,
+    ) -> Option<FrameAction> {
+        let watching = self.at_rest
+            && !self.escs_from_records
+            && self.esc_start_asked
+            && !self.escs_running_told;
+        if !watching || self.commander.mode() != Mode::Armed {
+            return None;
+        }
+        match esc.phase {
+            EscPhase::Running => {
+                out.record(FlightRecord::Note("ESC ramp done; idling".into()));
+                self.operator(
+                    OperatorInput::EscsRunning,
+                    t_us,
+                    ArmCheck::Recorded(&Ok(())),
+                    out,
+                );
+                self.phase = Phase::Flight;
+                None
+            }
+            EscPhase::Stopped => {
+                let why = esc.stop_reason.unwrap_or("no reason given").to_string();
+                self.commander.on_esc_stopped(t_us, &why, &mut self.events);
+                self.record_events(out);
+                Some(self.abort(Abort::EscStopped(why)))
+            }
+            EscPhase::Disabled | EscPhase::Ramping => None,
+        }
+    }
+
+    /// Why the estimate running before arming cannot be flown yet (the `estimator` pre-arm
+    /// check), if it cannot.
+    fn estimator_problem(&self) -> Option<String> {
+        let Some(ekf) = self.core.ekf() else {
+            return Some(match (&self.calibration_refused, self.phase) {
+                (Some(why), _) => {
+                    format!("IMU calibration not plausible ({why}): calibrating again")
+                }
+                (None, Phase::Settle) => "IMU settling".into(),
+                (None, _) => "IMU calibrating at rest".into(),
+            });
+        };
+        let sigma = |i: usize| ekf.p[(i, i)].max(0.0).sqrt();
+        let fixes = !matches!(self.gps, GpsFeed::Off);
+        let ratios = self.observed.map_or(TestRatios::default(), |o| o.ratios);
+        commander::estimator_problem(&commander::EstimatorHealth {
+            not_running: None,
+            gyro_lost: ekf.gyro_lost,
+            tilt_sigma_rad: sigma(idx::PSI).max(sigma(idx::PHI)),
+            velocity_sigma_m_s: sigma(idx::VQX).max(sigma(idx::VQY)).max(sigma(idx::VQZ)),
+            position_sigma_m: fixes.then(|| ekf.horizontal_sigma_m()),
+            fix_fused: ekf.fix_seen,
+            ratios: TestRatios {
+                gps: self.last_fix_ratio,
+                ..ratios
+            },
+        })
+    }
+
+    /// Whether an `arm` now would pass this side's own checks (`fly --arm` waits for it):
+    /// settled (after-arm), or calibrated with the estimate converged (before-arm); the IMU's
+    /// frames vouching for it either way.
+    pub fn ready_to_arm(&self, t_us: i64) -> bool {
+        let ready = if self.at_rest {
+            self.phase == Phase::Estimating && self.estimator_problem().is_none()
+        } else {
+            self.phase == Phase::EscStart
+        };
+        ready && self.imu_trusted(t_us)
     }
 
     /// Settled: start the ESCs once, calibrate when their ramp is done, abort if they stopped.
@@ -783,6 +944,13 @@ impl EstimatorSide {
         est.t_ctrl_us = st.t_ctrl_us;
         est.t_cmd_us = st.t_cmd_us;
         self.count(&est);
+        if est.gyro_lost && !self.gyro_lost_noted {
+            self.gyro_lost_noted = true;
+            out.record(FlightRecord::Note(format!(
+                "gyro stuck: its counts repeated for {} frames; left out of the filter (the rates are the model's)",
+                crate::core::imu::health::STUCK_FRAMES
+            )));
+        }
         self.guide(&mut est, fb, out);
         out.watchdog(Event::Estimate {
             step_us: est.t_us,
@@ -823,6 +991,7 @@ impl EstimatorSide {
                 .clamp(-1.0, 1.0)
                 .acos(),
             baro_alt_m: est.sample.alt_m,
+            gyro_lost: est.gyro_lost,
             gps_fused: est.gps_used,
             gps_velocity_fused: est.gps_velocity_used,
             gps_velocity_ratio: est.gps_velocity_ratio,
@@ -833,6 +1002,7 @@ impl EstimatorSide {
             acc_rest_m_s2: est.acc_rest_m_s2,
         };
         self.observed = Some(o);
+        self.last_fix_ratio = o.ratios.gps.or(self.last_fix_ratio);
         let (guidance, request) = self.commander.on_estimate(&o, &mut self.events);
         self.record_events(out);
         est.guidance = guidance;
@@ -848,11 +1018,15 @@ impl EstimatorSide {
         self.counts.ekf_errors += u64::from(est.ekf_error.is_some());
         self.counts.dt_clamped += u64::from(est.dt_clamped);
         self.counts.gated.add(est.gated);
-        self.phase = if est.step < FLIGHT_RAMP_STEPS {
-            Phase::FlightRamp
-        } else {
-            Phase::Flight
-        };
+        // Under an estimate that ran before arming the ramp's steps are the controller's own
+        // (counted from the takeoff): the phase is the ESCs'.
+        if !self.at_rest && matches!(self.phase, Phase::FlightRamp | Phase::Flight) {
+            self.phase = if est.step < FLIGHT_RAMP_STEPS {
+                Phase::FlightRamp
+            } else {
+                Phase::Flight
+            };
+        }
     }
 
     /// The watchdog halted the motors: record it once; nothing more is stepped.
@@ -880,6 +1054,9 @@ pub enum OperatorAction {
     StopEscs,
     /// The manual quit key (the original's Esc): end the run, the motors stopped first.
     Quit,
+    /// An `arm` taken under a running estimate (`imu.calibrate = "before-arm"`): enable the
+    /// ESCs and run their start-up ramp now.
+    StartEscs,
 }
 
 /// How an `arm` is checked.

@@ -4,4 +4,5 @@
 pub mod calib;
 pub mod filter;
 pub mod frame;
+pub mod health;
 pub mod startup;

@@ -39,6 +39,30 @@ impl StartupParams {
     };
 }
 
+/// When the IMU's null sample is taken (`imu.calibrate`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CalibrateWhen {
+    /// At rest, motors off, as soon as the sampling period is stable: the estimator runs from
+    /// then on, disarmed (telemetry, the `estimator` pre-arm check), and arming starts the
+    /// ESCs under a running estimate.
+    BeforeArm,
+    /// After `arm` and the ESCs' start-up ramp, with the motors idling (the original's order:
+    /// the null sample then holds the motors' vibration and magnetic field).
+    #[default]
+    AfterArm,
+}
+
+impl CalibrateWhen {
+    /// The configuration's word for it.
+    pub fn name(self) -> &'static str {
+        match self {
+            CalibrateWhen::BeforeArm => "before-arm",
+            CalibrateWhen::AfterArm => "after-arm",
+        }
+    }
+}
+
 /// Why start-up failed.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum StartupError {
@@ -121,6 +145,14 @@ impl ImuFrontEnd {
     pub fn begin_calibration(&mut self) {
         self.hold_after_settle = false;
         if matches!(self.phase, Some(Phase::Holding)) {
+            self.phase = Some(Phase::Calibrating(NullAccumulator::default()));
+        }
+    }
+
+    /// Takes the null sample again from the next frame (the FIR window stays full).
+    pub fn restart_calibration(&mut self) {
+        self.hold_after_settle = false;
+        if !matches!(self.phase, Some(Phase::Failed(_))) {
             self.phase = Some(Phase::Calibrating(NullAccumulator::default()));
         }
     }
