@@ -388,3 +388,29 @@ fn a_gyro_stuck_at_rest_keeps_the_calibration_refused_and_the_replay_takes_it_ag
     assert_eq!(report_modes(&r), ["disarmed"], "{r}");
     assert_replays_same(run, &["mode.log", "kalman_in.log"]);
 }
+
+#[test]
+fn calibrated_before_arming_the_ground_timer_starts_once_the_escs_run() {
+    // The barometer dies during the ESCs' ramp (armed at 7 s under a running estimate): the
+    // takeoff is refused, and the motors idle on the ground for commander.disarm_ground_s from
+    // the ramp's end (9.4 s), not from the first Kalman step (5.7 s, disarmed).
+    let (status, r, _logs) = common::sim_report(&[
+        "--fast",
+        "--set",
+        "imu.calibrate=\"before-arm\"",
+        "--script",
+        "arm@7,takeoff@10",
+        "--duration",
+        "25",
+        "--inject",
+        "baro-fail@8",
+    ]);
+    assert!(status.success(), "{r}");
+    assert_eq!(report_modes(&r), ["disarmed", "armed", "disarmed"], "{r}");
+    let why = r["refusals"][0]["why"].as_str().unwrap();
+    assert!(why.starts_with("estimator: innovation test ratios"), "{r}");
+    let disarmed_s = r["modes"][2]["t_s"].as_f64().unwrap();
+    assert!((19.3..=19.5).contains(&disarmed_s), "{r}");
+    let idle_s = r["safety"]["ground_run_max_s"].as_f64().unwrap();
+    assert!((9.9..=10.1).contains(&idle_s), "{r}");
+}

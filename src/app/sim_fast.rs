@@ -537,7 +537,12 @@ impl<'a> FastSim<'a> {
             .ekf()
             .map_or([f64::NAN; 3], |e| [e.x[0], e.x[1], e.x[2]]);
         self.track.sample(&guidance, self.plant.position_m(), est_m);
-        let started_up = self.estimator.counts().steps > 0;
+        // The start-up (the ESCs' ramp, a calibration after it) is over once the flight's
+        // phases begin: under an estimate that ran before arming, steps come earlier.
+        let started_up = matches!(
+            self.estimator.phase(),
+            crate::core::flight::Phase::FlightRamp | crate::core::flight::Phase::Flight
+        );
         self.safety
             .sample(self.t_us, &mut self.plant, mode, started_up);
     }
