@@ -79,8 +79,14 @@ impl Keep {
         }
     }
 
+    /// Every `stride`-th drawable point: the stride counts only points that have a value, so
+    /// a sparse series (the fixes' ratios, one step in a hundred) is not skipped whole when
+    /// its steps fall between the stride's.
     fn push(&mut self, p: (f64, f64)) {
-        if self.seen.is_multiple_of(self.stride) && p.0.is_finite() && p.1.is_finite() {
+        if !(p.0.is_finite() && p.1.is_finite()) {
+            return;
+        }
+        if self.seen.is_multiple_of(self.stride) {
             self.points.push(p);
         }
         self.seen += 1;
