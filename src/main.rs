@@ -76,9 +76,10 @@ UDP 127.0.0.1:14550, where QGroundControl and MAVProxy listen."
         long_about = "The safety campaign: `sim --fast` runs of every simulated fault struck in \
 every phase of a flight, alone and in pairs, each with its own seed, on every core.\n\n\
 The phases are windows of simulated time in three scripted flights, fitted to the default \
-profile's start-up: disarmed, esc-ramp, calibration, armed-ground, takeoff, hold and landing \
-(\"arm@2,takeoff@10,land@45\"), mission-leg (--mission, \"arm@2,start@10\") and return \
-(\"arm@2,takeoff@10,hold 6 0 1@14,return@24\"); each run draws its strike times within the \
+profile's start-up: calibration (at rest), disarmed, esc-ramp, armed-ground, takeoff, hold and \
+landing \
+(\"arm@7,takeoff@10,land@45\"), mission-leg (--mission, \"arm@7,start@10\") and return \
+(\"arm@7,takeoff@10,hold 6 0 1@14,return@24\"); each run draws its strike times within the \
 phase from its seed. The runs take the cases in turn (9 phases x (10 faults + 45 pairs) = 495), \
 so --runs 1000 flies each about twice.\n\n\
 Each run is judged against seven invariants: (1) every ESC's last writes are zero then \
@@ -224,9 +225,10 @@ struct FlyArgs {
     /// the 10 ms frame period and the 12 ms IMU timeout can be lost to any other process.
     #[arg(long)]
     allow_no_rt: bool,
-    /// Arm once the IMU has settled, as if `arm` were typed (the pre-arm checks still apply;
-    /// a refusal is logged and the vehicle stays disarmed). Then `takeoff` from stdin or a
-    /// console. Profiles with commander.start = "flying" arm and take off by themselves.
+    /// Arm once it can - the IMU settled and, calibrated at rest (imu.calibrate =
+    /// "before-arm"), the estimator check passing - as if `arm` were typed (the pre-arm checks
+    /// still apply; a refusal is logged and the vehicle stays disarmed). Then `takeoff` from
+    /// stdin or a console. Profiles with commander.start = "flying" arm and take off by themselves.
     #[arg(long)]
     arm: bool,
     /// Load the mission in FILE (e.g. config/missions/square.toml); `start` flies it (from
@@ -281,15 +283,16 @@ struct SimArgs {
     /// stop), gust (a push north of sim.gust_n for sim.gust_s).
     #[arg(long, value_name = "FAULT@T", value_parser = parse_injection)]
     inject: Vec<(Fault, f64)>,
-    /// The simulated operator's commands at simulated seconds, e.g. "arm@2,takeoff 1.5@10,
+    /// The simulated operator's commands at simulated seconds, e.g. "arm@7,takeoff 1.5@10,
     /// land@45" (arm, takeoff [ALT_M], hold [X Y Z], land, disarm, kill); the run ends once
     /// the vehicle is disarmed after them. "none": no operator (use the console). The
     /// operator also sends a ground station's link heartbeats each second. Default: the whole
-    /// cycle, "arm@2,takeoff@10,land@45" (none when commander.start = "flying").
+    /// cycle, "arm@7,takeoff@10,land@45" (none when commander.start = "flying"): the default
+    /// profile calibrates at rest and its estimator check passes by 6.2 s.
     #[arg(long, value_name = "SCRIPT", value_parser = uquad::sim::operator::Script::parse)]
     script: Option<uquad::sim::operator::Script>,
     /// Fly the mission in FILE (e.g. config/missions/square.toml): the default script becomes
-    /// "arm@2,start@10" and the run ends at the mission's touchdown; the report gains
+    /// "arm@7,start@10" and the run ends at the mission's touchdown; the report gains
     /// track_rms_m, track_max_m, mission_s and mission_ideal_s.
     #[arg(long, value_name = "FILE")]
     mission: Option<PathBuf>,

@@ -54,7 +54,10 @@ fn every_fault_alone_in_every_phase_holds_the_invariants() {
             "{k}"
         );
     }
-    assert!(text.contains("fault        disarmed"), "the table: {text}");
+    assert!(
+        text.contains("fault        calibration"),
+        "the table: {text}"
+    );
 }
 
 #[test]

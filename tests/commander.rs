@@ -219,8 +219,20 @@ fn an_arm_on_a_stale_imu_verdict_is_refused() {
 #[test]
 fn an_implausible_calibration_refuses_the_arming_after_all() {
     // A gyro offset of 0.5 rad/s (a broken gyro, or a vehicle turning while calibrated).
+    // Calibrated after the arm (the original's order); at rest, before it, the calibration
+    // is taken again instead and every arm refused (tests/sim_faults.rs).
     let bias = "sim.gyro_bias_rad_s=[0.5, 0.0, 0.0]";
-    let (ok, r, _logs) = fast(&["--duration", "15", "--set", bias]);
+    let after = "imu.calibrate=\"after-arm\"";
+    let (ok, r, _logs) = fast(&[
+        "--duration",
+        "15",
+        "--set",
+        bias,
+        "--set",
+        after,
+        "--script",
+        "arm@2",
+    ]);
     assert!(!ok, "a failed start-up fails the run: {r}");
     assert!(
         refusal(&r, "arm").starts_with("calibration: gyro offset 0.49"),
@@ -233,7 +245,7 @@ fn an_implausible_calibration_refuses_the_arming_after_all() {
 
 #[test]
 fn disarm_in_the_air_is_refused_and_kill_halts() {
-    let script = "arm@2,takeoff@10,disarm@20,kill@25";
+    let script = "arm@7,takeoff@10,disarm@20,kill@25";
     let (ok, r, _logs) = fast(&["--script", script]);
     assert!(!ok, "a halt fails the run: {r}");
     assert!(
@@ -296,7 +308,7 @@ fn a_console_arms_takes_off_and_lands_after_a_refusal() {
     let t0 = Instant::now();
     while !std::fs::read_to_string(run.join("err.log"))
         .unwrap_or_default()
-        .contains("disarmed, waiting for arm")
+        .contains("calibrating at rest, motors off")
     {
         assert!(t0.elapsed() < long, "never settled:\n{}", child.stderr());
         std::thread::sleep(Duration::from_millis(50));
@@ -313,9 +325,20 @@ fn a_console_arms_takes_off_and_lands_after_a_refusal() {
     std::fs::remove_file(&run).unwrap();
     std::fs::rename(&moved, &run).unwrap();
     std::thread::sleep(Duration::from_millis(2500));
-    send.write_all(b"arm\n").unwrap();
-    wait_for(&lines, "mode armed: command arm", long);
-    wait_for(&lines, "IMU calibration completed", long);
+    // Arming waits for the estimate calibrated at rest (the pre-arm check `estimator`): asked
+    // again, as an operator would, until it is taken.
+    let t0 = Instant::now();
+    while !lines
+        .lock()
+        .unwrap()
+        .iter()
+        .any(|l| l.contains("mode armed: command arm"))
+    {
+        assert!(t0.elapsed() < long, "never armed:\n{}", child.stderr());
+        send.write_all(b"arm\n").unwrap();
+        std::thread::sleep(Duration::from_millis(500));
+    }
+    wait_for(&lines, "ESC ramp done; idling", long);
     send.write_all(b"takeoff 1.5\n").unwrap();
     wait_for(&lines, "mode hold: takeoff height reached", long);
     send.write_all(b"disarm\n").unwrap();
@@ -364,7 +387,7 @@ fn a_lost_link_lands_on_the_wall_clock_too() {
         "--set",
         "commander.start=disarmed",
         "--script",
-        "arm@2,takeoff@10,land@60",
+        "arm@7,takeoff@10,land@60",
         "--inject",
         "link-loss@17",
         "--duration",
@@ -444,7 +467,7 @@ fn repeated_commands_are_summarised_and_the_landing_after_them_listed() {
         // From 16 s: the takeoff reaches its height (hold) at 15.6 s.
         .map(|i| format!("hold@{:.1}", 16.0 + 0.1 * f64::from(i)))
         .collect();
-    let script = format!("arm@2,takeoff@10,{},land@45", holds.join(","));
+    let script = format!("arm@7,takeoff@10,{},land@45", holds.join(","));
     let (ok, r, _logs) = fast(&["--script", &script]);
     assert!(ok, "{r}");
     assert_eq!(r["mode_reentries_total"], 150, "{r}");

@@ -272,20 +272,6 @@ fn wrong_type_and_bad_enum() {
 }
 
 #[test]
-fn a_flying_start_cannot_calibrate_before_arming() {
-    // It arms at once: there is no disarmed time to calibrate in.
-    refused(
-        &profile_2012(),
-        &["--set", "imu.calibrate=\"before-arm\""],
-        &[
-            "imu.calibrate",
-            "\"before-arm\"",
-            "commander.start = \"flying\"",
-        ],
-    );
-}
-
-#[test]
 fn missing_calibration_file() {
     let dir = tempfile::tempdir().unwrap();
     let cfg = copy_profile(dir.path());

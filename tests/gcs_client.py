@@ -146,24 +146,26 @@ def arm(s):
     fail("never armed")
 
 
-def take_off(s, height_m):
-    """Takes off, trying again while the ESCs' start-up ramp runs (armed under an estimate
-    that ran before arming, the ramp follows the arm)."""
+def after_ramp(s, cmd, p):
+    """Sends `cmd`, again while the ESCs' start-up ramp runs (armed under an estimate that ran
+    before arming, the ramp follows the arm), until it is accepted."""
     end = time.time() + LONG
     while time.time() < end:
-        s.conn.mav.command_long_send(
-            1, 1, mav.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 0, height_m
-        )
+        s.conn.mav.command_long_send(1, 1, cmd, 0, *p)
         ack = s.wait(
-            "COMMAND_ACK of takeoff",
-            lambda m: m.get_type() == "COMMAND_ACK" and m.command == mav.MAV_CMD_NAV_TAKEOFF,
+            f"COMMAND_ACK of {cmd}",
+            lambda m: m.get_type() == "COMMAND_ACK" and m.command == cmd,
         )
         if ack.result == mav.MAV_RESULT_ACCEPTED:
             return
         if not any("start-up ramp is not done" in t for t in s.texts[-3:]):
-            fail(f"takeoff refused: {s.texts}")
+            fail(f"command {cmd} refused: {s.texts}")
         time.sleep(0.3)
-    fail("never took off")
+    fail(f"command {cmd} never taken")
+
+
+def take_off(s, height_m):
+    after_ramp(s, mav.MAV_CMD_NAV_TAKEOFF, [0, 0, 0, 0, 0, 0, height_m])
 
 
 def arm_and_take_off(s, height_m):
@@ -605,7 +607,7 @@ def mission(s):
         fail(f"missing items told {len(told)} times: {told}")
     arm(s)
     s.wait("ATTITUDE", lambda m: m.get_type() == "ATTITUDE")
-    s.command(mav.MAV_CMD_MISSION_START, [0] * 7)
+    after_ramp(s, mav.MAV_CMD_MISSION_START, [0] * 7)
     reached, current, states = [], [], set()
     end = time.time() + 120
     while time.time() < end:

@@ -70,9 +70,13 @@ fn assert_escs_stopped(r: &serde_json::Value, stderr: &str) {
 
 #[test]
 fn gps_lost_before_its_first_fix_was_fused_is_a_failsafe_on_the_ground() {
-    // Armed at 2 s; the fixes stop at 3 s, during the ESC ramp, long before the first Kalman
-    // step (about 8.5 s) could fuse one. Before, the takeoff at 10 s flew dead-reckoned.
+    // Calibrated after the arm (the original's order): armed at 2 s; the fixes stop at 3 s,
+    // during the ESC ramp, long before the first Kalman step (about 8.5 s) could fuse one.
+    // Before, the takeoff at 10 s flew dead-reckoned. (Calibrated at rest, the estimator
+    // pre-arm check refuses the arm instead: no fix fused.)
     let (r, stderr, _logs) = sim(&[
+        "--set",
+        "imu.calibrate=\"after-arm\"",
         "--script",
         "arm@2,takeoff@10",
         "--inject",
@@ -102,7 +106,7 @@ fn gps_lost_before_its_first_fix_was_fused_is_a_failsafe_on_the_ground() {
 fn a_link_lost_while_armed_on_the_ground_disarms() {
     let (r, stderr, _logs) = sim(&[
         "--script",
-        "arm@2",
+        "arm@7",
         "--inject",
         "link-loss@12",
         "--duration",
@@ -125,8 +129,8 @@ fn a_link_lost_while_armed_on_the_ground_disarms() {
 #[test]
 fn an_armed_vehicle_that_does_not_take_off_disarms() {
     // The takeoff comes at 40 s: long after commander.disarm_ground_s (10 s) from the end of
-    // the start-up (about 8.5 s).
-    let (r, stderr, _logs) = sim(&["--script", "arm@2,takeoff@40", "--duration", "60"]);
+    // the start-up (the ESCs' ramp after the arm at 7 s, 9.4 s).
+    let (r, stderr, _logs) = sim(&["--script", "arm@7,takeoff@40", "--duration", "60"]);
     let m = modes(&r);
     let (mode, why) = &m[2];
     assert_eq!(mode, "disarmed", "{m:?}\n{stderr}");
@@ -217,7 +221,7 @@ fn without_gps_a_push_is_flown_as_a_push() {
         "--seed",
         "924",
         "--script",
-        "arm@2,takeoff@10,hold 6 0 1@14,return@24",
+        "arm@7,takeoff@10,hold 6 0 1@14,return@24",
         "--inject",
         "gps-loss@27.067",
         "--inject",
@@ -254,7 +258,7 @@ fn a_blind_landing_from_6_m_ends_on_the_ground() {
         "--set",
         "control.manual.z_max_m=16",
         "--script",
-        "arm@2,takeoff 6@10,land@200",
+        "arm@7,takeoff 6@10,land@200",
         "--inject",
         "gps-loss@40",
         "--inject",
@@ -276,7 +280,7 @@ fn a_blind_landing_metres_above_the_ground_sinks_slowly() {
         "--seed",
         "380",
         "--script",
-        "arm@2,start@10",
+        "arm@7,start@10",
         "--mission",
         "config/missions/square.toml",
         "--inject",

@@ -5,7 +5,6 @@
 
 use crate::config::{GpsMode, Profile};
 use crate::core::flight::{ControllerSide, EstimatorSide, GpsFeed};
-use crate::core::imu::startup::CalibrateWhen;
 
 /// The GPS feed of a live run: gpsd's (or the simulator's) fixes, the fake-GPS rule, or none.
 pub fn live_gps_feed(profile: &Profile) -> GpsFeed {
@@ -19,7 +18,7 @@ pub fn live_gps_feed(profile: &Profile) -> GpsFeed {
 /// The estimator and controller sides of a live run.
 pub fn live_sides(profile: &Profile) -> (EstimatorSide, ControllerSide) {
     let core = profile.estimator_core(false);
-    let before_arm = profile.config.imu.calibrate == CalibrateWhen::BeforeArm;
+    let before_arm = profile.config.calibrates_before_arm();
     let core = if before_arm {
         core
     } else {

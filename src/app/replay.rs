@@ -292,7 +292,7 @@ fn closed_loop(
     // The original's imu_raw.log holds no settling frames (spec 1.6): start with calibration.
     let mut estimator = EstimatorSide::new(profile.estimator_core(true), gps, profile.commander())
         .with_clock(logs.clock);
-    if profile.config.imu.calibrate == crate::core::imu::startup::CalibrateWhen::BeforeArm {
+    if profile.config.calibrates_before_arm() {
         // A refused calibration is taken again as the run did; the ESCs' ramp end is read
         // from mode.log.
         estimator = estimator.calibrating_before_arm().escs_from_records();
@@ -359,8 +359,7 @@ fn summarize(
     let (e, c) = (estimator.counts(), controller.counts());
     // Calibrated before arming, a run whose every calibration was refused (taken again at
     // rest) has its refusals to replay, and no step.
-    let refused_at_rest = profile.config.imu.calibrate
-        == crate::core::imu::startup::CalibrateWhen::BeforeArm
+    let refused_at_rest = profile.config.calibrates_before_arm()
         && raw_frames >= profile.config.imu.calib_frames as usize;
     if e.steps == 0 && !refused_at_rest {
         bail!(

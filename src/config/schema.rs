@@ -199,6 +199,14 @@ impl WatchdogConfig {
 }
 
 impl Config {
+    /// The IMU calibrates at rest before arming (`imu.calibrate = "before-arm"`), unless the
+    /// start is flying: that one arms at once, and calibrates after its ESC ramp whatever
+    /// the key says.
+    pub fn calibrates_before_arm(&self) -> bool {
+        self.imu.calibrate == crate::core::imu::startup::CalibrateWhen::BeforeArm
+            && self.commander.start != crate::core::commander::Start::Flying
+    }
+
     /// The ESC driver's timing: its re-send period, its stale-command timeout and how long a
     /// stop is retried.
     pub fn esc_timing(&self) -> crate::core::esc::EscTiming {

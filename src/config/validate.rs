@@ -668,21 +668,8 @@ fn commander_rules(c: &Config) -> Vec<Check> {
         takeoff_timeout_rule(c),
         touchdown_thrust_rule(c),
         flight_time_rule(c),
-        calibrate_rule(c),
     ]);
     checks
-}
-
-/// A flying start arms at once: there is no disarmed time to calibrate in.
-fn calibrate_rule(c: &Config) -> Check {
-    use crate::core::imu::startup::CalibrateWhen;
-    let flying = c.commander.start == crate::core::commander::Start::Flying;
-    Check::new(
-        "imu.calibrate",
-        !(flying && c.imu.calibrate == CalibrateWhen::BeforeArm),
-        format!("\"{}\"", c.imu.calibrate.name()),
-        "\"after-arm\" with commander.start = \"flying\" (it arms at once)",
-    )
 }
 
 /// A landing or a takeoff must end within this, s: a ground station may set speeds and

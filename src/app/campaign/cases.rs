@@ -21,9 +21,9 @@ pub enum Flight {
 impl Flight {
     pub fn script(self) -> &'static str {
         match self {
-            Flight::Hover => "arm@2,takeoff@10,land@45",
-            Flight::Mission => "arm@2,start@10",
-            Flight::Return => "arm@2,takeoff@10,hold 6 0 1@14,return@24",
+            Flight::Hover => "arm@7,takeoff@10,land@45",
+            Flight::Mission => "arm@7,start@10",
+            Flight::Return => "arm@7,takeoff@10,hold 6 0 1@14,return@24",
         }
     }
 }
@@ -34,17 +34,18 @@ pub struct Phase {
     pub name: &'static str,
     pub flight: Flight,
     /// The window of simulated time, s, the strike is drawn from (the default profile's
-    /// start-up: ESC ramp about 2.0–4.4 s, calibration until about 9.5 s).
+    /// start-up: settled at 0.5 s, calibrated at rest by 5.7 s, armed at 7 s, the ESCs'
+    /// ramp until 9.4 s).
     pub from_s: f64,
     pub to_s: f64,
 }
 
 /// Every phase, in flight order.
 pub const PHASES: [Phase; 9] = [
-    phase("disarmed", Flight::Hover, 0.5, 1.9),
-    phase("esc-ramp", Flight::Hover, 2.1, 4.2),
-    phase("calibration", Flight::Hover, 4.6, 9.3),
-    phase("armed-ground", Flight::Hover, 9.55, 9.95),
+    phase("calibration", Flight::Hover, 0.6, 5.6),
+    phase("disarmed", Flight::Hover, 5.8, 6.9),
+    phase("esc-ramp", Flight::Hover, 7.1, 9.2),
+    phase("armed-ground", Flight::Hover, 9.5, 9.95),
     phase("takeoff", Flight::Hover, 10.05, 13.9),
     phase("hold", Flight::Hover, 14.5, 44.5),
     phase("mission-leg", Flight::Mission, 17.0, 75.0),

@@ -80,7 +80,8 @@ pub struct FlyOptions {
     pub control_delay: Option<(u32, Duration)>,
     /// Fault injection (tests): the control step of this number panics.
     pub control_panic_at: Option<u32>,
-    /// `fly --arm`: arm once the IMU has settled.
+    /// `fly --arm`: arm once the flight side is ready (settled; calibrated at rest with its
+    /// estimate converged).
     pub arm_at_start: bool,
     /// Arming does not require SCHED_FIFO (`--allow-no-rt`, the simulator).
     pub realtime_waived: bool,
