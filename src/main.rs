@@ -40,8 +40,11 @@ Exits 0 when everything is valid. Otherwise prints one line per problem, naming 
     /// Fly: the flight program (serial IMU, EKF, controller, ESCs over I2C, loggers).
     #[command(long_about = "Fly: the flight program the BeagleBoard runs.\n\n\
 Opens the IMU on imu.device (115200 8N1 raw) and the ESCs on esc.bus (Linux I2C). Start-up: \
-wait for a stable IMU sampling period (motors off), run the ESC start-up ramp, calibrate the IMU \
-(512 frames, motors idling), ramp the motors up over 100 steps, then hover at control.hover_z_m. \
+wait for a stable IMU sampling period (motors off), calibrate the IMU at rest (512 frames) and \
+run the estimator, disarmed; on `arm` (once the estimator check passes) run the ESC start-up \
+ramp; on `takeoff` ramp the motors up over 100 steps, then hover at control.hover_z_m \
+(imu.calibrate = \"after-arm\", or commander.start = \"flying\": the ESC ramp, then the \
+calibration with the motors idling, as the original did). \
 Logs go to <log dir>/<run-id>/ (imu_raw, kalman_in, x_hat, innov, w, int, setpoint, gps, err, \
 mode, and the resolved \
 config.toml with copies of its data files, so `uquad replay <run folder>` reruns it).\n\n\
@@ -55,7 +58,8 @@ altitude, i/k mass, 0 reset mass, ESC quit).")]
         long_about = "Simulate: fly the real code against a physics model of the uQuad.\n\n\
 The simulated IMU sends real 30-byte frames (raw counts from the true state through the \
 inverted calibration, with noise), the simulated ESCs take the real I2C register writes, and \
-the flight goes through settle, ESC start-up ramp, IMU calibration, flight ramp and hover, as \
+the flight goes through settle, IMU calibration at rest, arm, ESC start-up ramp, flight ramp \
+and hover, as \
 `fly` does. With gps.mode = \"gpsd\" (the default profile) a fix of the true position reaches \
 the filter each simulated second, where `fly` would read gpsd. The run folder logs/<run-id>/ is written as `fly` writes it, so \
 `uquad replay <run folder> --out DIR` reruns it to identical bytes.\n\n\
@@ -64,8 +68,8 @@ physics on a simulated clock: 40 simulated seconds take well under a second. --m
 (also --realtime) runs fly's own tasks and threads against the simulated edges, paced by the \
 wall clock. Both follow the same flight sequence and report the hover window the same way: \
 from sim.settle_s after the flight ramp, against the set point.\n\n\
-With no arguments: config/uquad.toml and its operator's cycle (--script: arm at 2 s, take off \
-at 10 s to 1 m, land at 45 s); the run ends once the vehicle has landed and disarmed, at most \
+With no arguments: config/uquad.toml and its operator's cycle (--script: arm at 7 s, once the \
+estimator check passes, take off at 10 s to 1 m, land at 45 s); the run ends once the vehicle has landed and disarmed, at most \
 sim.duration_s; a summary at the end.\n\n\
 In --realtime a ground station can watch and fly it over MAVLink 2 (gcs.*): telemetry goes to \
 UDP 127.0.0.1:14550, where QGroundControl and MAVProxy listen."

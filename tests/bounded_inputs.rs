@@ -225,7 +225,7 @@ fn a_replay_refuses_a_tampered_mode_log_naming_the_line() {
         std::fs::read_to_string(out.path().join("mode.log")).unwrap(),
         text
     );
-    // The arm at 2 s is line 3 (after the run line and the start).
+    // The arm is line 3 (after the run line and the start).
     let arm = text
         .lines()
         .position(|l| l.contains(" in gcs arm"))

@@ -200,7 +200,7 @@ fn a_failed_barometer_is_left_out_of_its_spread_and_named() {
     let (status, report, _logs) = sim_report(&[
         "--fast",
         "--script",
-        "arm@1",
+        "arm@7",
         "--duration",
         "40",
         "--set",

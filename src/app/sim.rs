@@ -24,10 +24,15 @@ pub struct SimOptions {
 /// that starts disarmed (arm, then `start` with a mission) and none for one that starts flying
 /// (the original's way).
 pub fn script(opts: &SimOptions, profile: &crate::config::Profile) -> crate::sim::operator::Script {
-    use crate::sim::operator::{DEFAULT_SCRIPT, MISSION_SCRIPT, Script};
-    let default = match profile.mission {
-        Some(_) => MISSION_SCRIPT,
-        None => DEFAULT_SCRIPT,
+    use crate::sim::operator::{
+        DEFAULT_SCRIPT, DEFAULT_SCRIPT_AFTER_ARM, MISSION_SCRIPT, MISSION_SCRIPT_AFTER_ARM, Script,
+    };
+    let at_rest = profile.config.calibrates_before_arm();
+    let default = match (profile.mission.is_some(), at_rest) {
+        (true, true) => MISSION_SCRIPT,
+        (true, false) => MISSION_SCRIPT_AFTER_ARM,
+        (false, true) => DEFAULT_SCRIPT,
+        (false, false) => DEFAULT_SCRIPT_AFTER_ARM,
     };
     match (&opts.script, profile.config.commander.start) {
         (Some(s), _) => s.clone(),

@@ -14,6 +14,11 @@ pub const DEFAULT_SCRIPT: &str = "arm@7,takeoff@10,land@45";
 /// With a mission: arm, then `start` (its takeoff, its items, its landing).
 pub const MISSION_SCRIPT: &str = "arm@7,start@10";
 
+/// Both for a profile that calibrates after the arm (`imu.calibrate = "after-arm"`): arm once
+/// settled, take off or start once the ESCs' ramp and the calibration are done (about 8.5 s).
+pub const DEFAULT_SCRIPT_AFTER_ARM: &str = "arm@2,takeoff@10,land@45";
+pub const MISSION_SCRIPT_AFTER_ARM: &str = "arm@2,start@10";
+
 /// Heartbeat period of the simulated ground station, µs.
 pub const BEAT_PERIOD_US: i64 = 1_000_000;
 
@@ -31,7 +36,7 @@ impl Script {
         let mut items = Vec::new();
         for item in text.split(',') {
             let (cmd, at) = item.rsplit_once('@').ok_or_else(|| {
-                format!("{item:?}: expected COMMAND@T, e.g. arm@2,takeoff@10,land@45, or none")
+                format!("{item:?}: expected COMMAND@T, e.g. arm@7,takeoff@10,land@45, or none")
             })?;
             let cmd = Command::parse(cmd).map_err(|e| format!("{item:?}: {e}"))?;
             let t_s = crate::config::parse_fault_time_s(at)

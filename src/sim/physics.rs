@@ -132,28 +132,27 @@ impl Plant {
         let lift = thrust / p.mass_kg > GRAVITY_M_S2;
         let pinned = (self.on_ground && !lift) || (!self.on_ground && next[idx::Z] < 0.0);
         if pinned {
-            for i in [idx::Z, idx::VQX, idx::VQY, idx::VQZ, idx::WQZ] {
+            for i in [idx::Z, idx::VQX, idx::VQY, idx::VQZ] {
                 next[i] = 0.0;
             }
             // Roll and pitch settle onto the legs at a rate the gyros feel (a vehicle that
             // tipped on a weak motor's side and came down was levelled within one step, unseen
             // by the gyros: its estimate stayed tilted by the tip, 0.12 rad). A vehicle further
             // over, on its side, is beyond this ground's model: set upright at once, as before.
-            let settling = [idx::PSI, idx::PHI]
-                .iter()
-                .all(|&i| self.x[i].abs() <= GROUND_LEVEL_MAX_RAD);
-            for (angle, rate) in [(idx::PSI, idx::WQX), (idx::PHI, idx::WQY)] {
-                next[rate] = if settling {
-                    -self.x[angle] / GROUND_LEVEL_TAU_S
-                } else {
-                    0.0
-                };
-                next[angle] = if settling {
-                    self.x[angle] + next[rate] * dt
-                } else {
-                    0.0
-                };
-            }
+            let (psi, phi) = (self.x[idx::PSI], self.x[idx::PHI]);
+            let settling = psi.abs() <= GROUND_LEVEL_MAX_RAD && phi.abs() <= GROUND_LEVEL_MAX_RAD;
+            let (psi_dot, phi_dot) = if settling {
+                (-psi / GROUND_LEVEL_TAU_S, -phi / GROUND_LEVEL_TAU_S)
+            } else {
+                (0.0, 0.0)
+            };
+            // The body rates whose Euler rates these are, the yaw held (the model's
+            // kinematics: ψ' = wx + tan φ (wz cos ψ + wy sin ψ), φ' = wy cos ψ − wz sin ψ).
+            next[idx::WQX] = psi_dot;
+            next[idx::WQY] = phi_dot * psi.cos();
+            next[idx::WQZ] = -phi_dot * psi.sin();
+            next[idx::PSI] = if settling { psi + psi_dot * dt } else { 0.0 };
+            next[idx::PHI] = if settling { phi + phi_dot * dt } else { 0.0 };
             next[idx::X] = self.x[idx::X];
             next[idx::Y] = self.x[idx::Y];
             next[idx::THETA] = self.x[idx::THETA];
@@ -168,6 +167,12 @@ impl Plant {
             }
             self.on_ground = true;
         } else {
+            if self.on_ground {
+                // Lifting off the legs: their settling's rate stays on the ground.
+                next[idx::WQX] = 0.0;
+                next[idx::WQY] = 0.0;
+                next[idx::WQZ] = 0.0;
+            }
             self.on_ground = false;
         }
         // Specific force: thrust and drag; on the ground the ground's push instead.

@@ -22,7 +22,7 @@ pub struct Contact {
 pub struct SafetyFigures {
     pub contacts: Vec<Contact>,
     /// The longest stretch with the motors turning on the ground, outside a takeoff, once the
-    /// first Kalman step was done (the start-up over), s.
+    /// start-up was over (the ESCs' ramp, and a calibration after it), s.
     pub ground_run_max_s: f64,
     /// The farthest horizontal distance from the starting point, m.
     pub max_from_start_m: f64,

@@ -90,7 +90,8 @@ pub struct EstimatorTask {
     /// The operator's commands, link beats and keys (stdin, consoles, a ground station).
     pub operator: mpsc::Receiver<OperatorInput>,
     pub prearm: PreArm,
-    /// `fly --arm`: arm once the IMU has settled.
+    /// `fly --arm`: arm once the flight side is ready (settled; calibrated at rest with the
+    /// estimate converged).
     pub auto_arm: bool,
     /// The watchdog's state: a halt ends the run, and the commander records its `kill`.
     pub watchdog: Arc<WatchdogStatus>,
@@ -278,7 +279,7 @@ impl EstimatorTask {
     }
 
     /// The operator's inputs that arrived since the previous frame, never waited for; `fly
-    /// --arm` arms once the IMU has settled.
+    /// --arm` arms once the flight side is ready.
     fn operate(&mut self, t_us: i64) {
         // Once the IMU has settled and its frames vouch for it (a gap at the start would
         // refuse an arm made at once).

@@ -4,7 +4,8 @@
 //! the guidance for the controller (set point, motors idle or flying) come out. Not in the
 //! original, except its link rule (spec 8.2, `check_net`), which here lands instead of cutting.
 //!
-//! Modes: `disarmed` → `arm` → `armed` (ESC start-up ramp, IMU calibration, motors idling) →
+//! Modes: `disarmed` (calibrated at rest, estimating) → `arm` → `armed` (ESC start-up ramp,
+//! motors idling; or the ramp, then the IMU calibration, in the original's order) →
 //! `takeoff` → `hold` → `land` → touchdown → `disarmed`; `kill` (the watchdog's halt) from any
 //! mode. Heights are above the point where the takeoff started (the ground).
 //!
