@@ -57,6 +57,15 @@ impl Blind {
         }
     }
 
+    /// The ground's push felt for [`GROUND_PUSH_STEPS`](super::GROUND_PUSH_STEPS) steps in a
+    /// row (the accelerometer reading more than the thrust gives) is a touchdown as much as a
+    /// shock: a soft one (0.15 m/s) has none, and the air's ramp (0.03 of the weight a second)
+    /// took 7 s to bring the thrust down to the touchdown watch's limit.
+    pub(super) fn grounded(mut self, pushed: bool) -> Self {
+        self.shock |= pushed;
+        self
+    }
+
     /// One step, with the accelerometer `acc_m_s2` (body axes) and what it read at rest,
     /// `rest_m_s2` (the calibration's: the gravity as this accelerometer reads it, so its
     /// scale error does not integrate into a sink): the ramp falls while the vehicle sinks

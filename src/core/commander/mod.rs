@@ -1001,7 +1001,10 @@ impl Commander {
         self.blind = match (o.vertical_observed, height <= 0.0, self.blind) {
             (true, _, _) => None,
             (false, true, None) => Some(Blind::new(o.thrust_ratio)),
-            (false, _, b) => b.map(|b| b.step(o.acc_m_s2, o.acc_rest_m_s2, p.land_slow_m_s, dt_s)),
+            (false, _, b) => b.map(|b| {
+                b.step(o.acc_m_s2, o.acc_rest_m_s2, p.land_slow_m_s, dt_s)
+                    .grounded(self.ground_push_steps >= GROUND_PUSH_STEPS)
+            }),
         };
         // Without the gyro the attitude is the model's guess, good for a few seconds: the
         // landing goes down at its full speed and eases in at once, not slowed for the last
