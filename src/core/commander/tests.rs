@@ -422,6 +422,14 @@ fn failsafes(ev: &[Event]) -> Vec<(Failsafe, Action)> {
         .collect()
 }
 
+/// When the first failsafe of `kind` struck, µs.
+fn failsafe_us(ev: &[Event], kind: Failsafe) -> Option<i64> {
+    ev.iter().find_map(|e| match e {
+        Event::Failsafe { t_us, kind: k, .. } if *k == kind => Some(*t_us),
+        _ => None,
+    })
+}
+
 #[test]
 fn a_silent_link_lands_once_and_the_operator_may_then_choose() {
     let (mut c, mut ev) = holding();
@@ -539,14 +547,7 @@ fn without_fixes_the_fence_holds_for_where_the_vehicle_may_be() {
         ev
     };
     let ev = run(true);
-    let at_us = ev.iter().find_map(|e| match e {
-        Event::Failsafe {
-            kind: Failsafe::Geofence,
-            t_us,
-            ..
-        } => Some(*t_us),
-        _ => None,
-    });
+    let at_us = failsafe_us(&ev, Failsafe::Geofence);
     assert!(
         at_us.is_some_and(|t| (15_000_000..15_100_000).contains(&t)),
         "{ev:?}"
@@ -606,11 +607,7 @@ fn an_estimator_outside_its_gate_for_long_lands() {
         t += STEP_US;
     }
     assert_eq!(failsafes(&ev), [(Failsafe::Estimator, Action::Land)]);
-    let at_us = ev.iter().find_map(|e| match e {
-        Event::Failsafe { t_us, .. } => Some(*t_us),
-        _ => None,
-    });
-    assert_eq!(at_us, Some(13_000_000));
+    assert_eq!(failsafe_us(&ev, Failsafe::Estimator), Some(13_000_000));
 }
 
 /// The first failsafe's time when `sense` shapes each hover step from 10 s to 14 s.
@@ -913,14 +910,7 @@ fn a_receiver_whose_positions_stay_inconsistent_is_lost() {
     // control.gps_hold_timeout_s (3 s) after its last counted fix (22 s).
     let ev = glitch_from_12_s(40_000_000);
     assert_eq!(failsafes(&ev)[0], (Failsafe::GpsLoss, Action::Land));
-    let lost_at = ev.iter().find_map(|e| match e {
-        Event::Failsafe {
-            kind: Failsafe::GpsLoss,
-            t_us,
-            ..
-        } => Some(*t_us),
-        _ => None,
-    });
+    let lost_at = failsafe_us(&ev, Failsafe::GpsLoss);
     assert!(
         lost_at.is_some_and(|t| (25_000_000..25_100_000).contains(&t)),
         "{ev:?}"
