@@ -1,4 +1,4 @@
-//! A GPS fix fused into position and velocity only (`ekf.gps_fusion = "position-velocity"`),
+//! A GPS fix fused into position, velocity and tilt (`ekf.gps_fusion = "position-velocity"`),
 //! after the step's IMU rows: its x, y, z (z left out without an altitude) and, when the
 //! receiver gives one, its horizontal velocity (the body velocity turned by the estimated
 //! attitude), and its vertical velocity while the barometer is lost. Not in the original's
@@ -6,8 +6,12 @@
 //! every state): with a real receiver's metre-level errors that joint update explains a fix's
 //! error partly as tilt and accelerometer bias, and the tilt it then reports is flown; and a
 //! velocity learnt only from 1 Hz positions lags by half a second, which the position loop
-//! cannot fly on. The gain is kept to the position and velocity states, the covariance
-//! updated in Joseph form (right for any gain); the first fix places the position. Its
+//! cannot fly on. The position rows' gain is kept to position and velocity; the horizontal
+//! velocity rows' gain reaches roll and pitch as well: a velocity the estimate did not
+//! foresee grew from a tilt it did not see (the velocity aiding of PX4's and ArduPilot's
+//! filters; the IMU's own angles read the thrust axis in flight, and the gyros' drift is
+//! otherwise corrected by nothing). The covariance is updated in Joseph form (right for any
+//! gain); the first fix places the position. Its
 //! position rows and its horizontal velocity rows are gated apart (PX4 EKF2's separate
 //! gates): a position outside its gate with a velocity inside is a multipath glitch, and the
 //! velocity alone is fused; the vertical velocity row is gated on its own.
@@ -20,9 +24,13 @@ use crate::core::gps::GpsSample;
 use crate::core::math::rotation_portable;
 use nalgebra::{SMatrix, SVector};
 
-/// The states a fix's horizontal rows correct, and its altitude row: the barometer owns the
-/// vertical, and a horizontal error must not move it (nor the altitude the horizontal).
+/// The states a fix's horizontal position rows correct, its horizontal velocity rows, and its
+/// altitude row: the barometer owns the vertical, and a horizontal error must not move it (nor
+/// the altitude the horizontal). The velocity rows reach the tilt, the position rows do not (a
+/// receiver's metre-level bias read as tilt would be flown); nor the accelerometer's states
+/// (their rows set them every step).
 const HORIZONTAL: [usize; 4] = [idx::X, idx::Y, idx::VQX, idx::VQY];
+const HORIZONTAL_SPEED: [usize; 6] = [idx::X, idx::Y, idx::VQX, idx::VQY, idx::PSI, idx::PHI];
 const VERTICAL: [usize; 2] = [idx::Z, idx::VQZ];
 /// Rows: x, y, z, north, west and up velocity (the last only while the barometer is lost).
 const ROWS: usize = 6;
@@ -146,6 +154,7 @@ impl Ekf {
                 let keep = match c {
                     2 => &VERTICAL[..],
                     5 => &VERTICAL_SPEED[..],
+                    3 | 4 => &HORIZONTAL_SPEED[..],
                     _ => &HORIZONTAL[..],
                 };
                 if !keep.contains(&st) {
@@ -188,9 +197,10 @@ impl Ekf {
         (h, y, pht, s)
     }
 
-    /// H: the position rows read x, y, z; the velocity rows (north, west, up) the body velocity turned by the
-    /// estimated attitude (its partials in the angles are left out with their gain). Rows not
-    /// used are zero.
+    /// H: the position rows read x, y, z; the velocity rows (north, west, up) the body velocity
+    /// turned by the estimated attitude (its partials in the angles, a velocity's metres a
+    /// second times a tilt's error, are left out: the tilt is reached through its covariance
+    /// with the velocity, which the model's g·sin(tilt) builds). Rows not used are zero.
     fn observation(&self, used: &[bool; ROWS]) -> SMatrix<f64, ROWS, N_STATES> {
         let mut h = SMatrix::<f64, ROWS, N_STATES>::zeros();
         for i in 0..3 {
@@ -355,23 +365,22 @@ mod tests {
     }
 
     #[test]
-    fn the_first_fix_places_the_position_and_later_ones_leave_the_attitude_alone() {
+    fn the_first_fix_places_the_position_and_a_later_position_leaves_the_attitude_alone() {
         let (mut ekf, still, mut input) = filter();
         input.gps = Some(fix(3.0, -2.0, None));
         let (_, res) = ekf.step(&still, &input);
         res.unwrap();
         assert_eq!([ekf.x[idx::X], ekf.x[idx::Y]], [3.0, -2.0]);
-        // A second fix 2 m off, with a velocity of 1 m/s north: position and velocity move,
-        // attitude, rates, biases and the altitude do not.
+        // A second fix 2 m off, without a velocity: the position moves, attitude, rates,
+        // biases and the altitude do not.
         for _ in 0..100 {
             input.gps = None;
             ekf.step(&still, &input).1.unwrap();
         }
         let before = ekf.x;
-        input.gps = Some(fix(5.0, -2.0, Some([1.0, 0.0, 0.0])));
+        input.gps = Some(fix(5.0, -2.0, None));
         ekf.step(&still, &input).1.unwrap();
         assert!(ekf.x[idx::X] > before[idx::X] + 0.01, "{}", ekf.x[idx::X]);
-        assert!(ekf.x[idx::VQX] > 0.5, "velocity {}", ekf.x[idx::VQX]);
         for s in [
             idx::PSI,
             idx::PHI,
@@ -390,6 +399,38 @@ mod tests {
         }
         // The covariance stays symmetric and positive definite.
         assert!((ekf.p - ekf.p.transpose()).norm() < 1e-9 * ekf.p.norm());
+        assert!(ekf.p.cholesky().is_some());
+    }
+
+    #[test]
+    fn a_velocity_the_estimate_did_not_foresee_corrects_the_tilt_it_grew_from() {
+        let (mut ekf, still, mut input) = filter();
+        input.gps = Some(fix(0.0, 0.0, Some([0.0; 3])));
+        ekf.step(&still, &input).1.unwrap();
+        // A second of the still model builds the velocity's covariance with the tilt.
+        for _ in 0..100 {
+            input.gps = None;
+            ekf.step(&still, &input).1.unwrap();
+        }
+        let before = ekf.x;
+        // 0.2 m/s north where the estimate holds still: roll and pitch move so that the
+        // model's g·sin(tilt) would have accelerated the body north (+x at zero yaw: +φ),
+        // the yaw and the accelerometer's states stay.
+        input.gps = Some(fix(0.0, 0.0, Some([0.2, 0.0, 0.0])));
+        ekf.step(&still, &input).1.unwrap();
+        assert!(
+            ekf.x[idx::VQX] > before[idx::VQX] + 0.05,
+            "{}",
+            ekf.x[idx::VQX]
+        );
+        assert!(
+            ekf.x[idx::PHI] > before[idx::PHI] + 1e-4,
+            "pitch {}",
+            ekf.x[idx::PHI]
+        );
+        for s in [idx::THETA, idx::BAX, idx::BAY] {
+            assert!((ekf.x[s] - before[s]).abs() < 1e-9, "state {s}");
+        }
         assert!(ekf.p.cholesky().is_some());
     }
 
