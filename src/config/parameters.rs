@@ -99,6 +99,7 @@ pub const PARAMETERS: &[(&str, &str)] = &[
     ("SIM_GPS_VEL_NOI", "sim.gps_noise_vel_m_s"),
     ("EKF_R_GPS_VEL", "ekf.r_gps_vel"),
     ("EKF_DRAG_PER_S", "ekf.drag_per_s"),
+    ("EKF_ANGLE_PER_S", "ekf.angle_period_s"),
     ("CMD_CLIMB_M_S", "commander.climb_m_s"),
     ("CMD_CLIMB_ACC", "commander.climb_acc_m_s2"),
     ("CMD_TKO_TOL_M", "commander.takeoff_tolerance_m"),

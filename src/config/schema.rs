@@ -281,6 +281,8 @@ pub struct Ekf {
     pub ground_fusion: bool,
     /// Their noise: height (m²), each body velocity ((m/s)²).
     pub r_ground: [f64; 2],
+    /// Fuse the IMU's angles once every this many seconds; 0: every step (the 2012 flights).
+    pub angle_period_s: f64,
 }
 
 impl Default for Ekf {
@@ -300,6 +302,7 @@ impl Default for Ekf {
             drag_per_s: p.drag_per_s,
             ground_fusion: p.ground_fusion,
             r_ground: p.r_ground,
+            angle_period_s: p.angle_period_s,
         }
     }
 }
@@ -322,6 +325,7 @@ impl Ekf {
             drag_per_s: self.drag_per_s,
             ground_fusion: self.ground_fusion,
             r_ground: self.r_ground,
+            angle_period_s: self.angle_period_s,
         }
     }
 }

@@ -896,6 +896,10 @@ fn ekf_rules(c: &Config) -> Vec<Check> {
             0.0..=10.0,
             "1/s",
         )])
+        .chain([
+            in_range("ekf.angle_period_s", c.ekf.angle_period_s, 0.0..=10.0, "s")
+                .note("0: every step"),
+        ])
         .collect()
 }
 

@@ -118,6 +118,9 @@ pub struct EkfParams {
     /// The noise of those rows: the height, m², and each body velocity, (m/s)², on the
     /// profile's own scale of noise.
     pub r_ground: [f64; 2],
+    /// Fuse the IMU's angles once every this many seconds, each fusion one reading of their
+    /// error's correlation time (`core::ekf_angles`); 0: every step.
+    pub angle_period_s: f64,
 }
 
 /// How a GPS fix is fused.
@@ -160,6 +163,38 @@ impl EkfParams {
             // The 2012 flights' filter knew no ground; their replays must stay bit-exact.
             ground_fusion: false,
             r_ground: [1e3, 1e-2],
+            // The 2012 flights fused the angles every step.
+            angle_period_s: 0.0,
+        }
+    }
+}
+
+/// When the IMU's angles are next fused, and what that fusion compares with
+/// (`core::ekf_angles`).
+#[derive(Debug, Clone, Copy)]
+pub struct AngleClock {
+    /// Time since the last fusion, s.
+    pub(crate) since_s: f64,
+    /// The estimate's horizontal velocity (north, west) at the last fusion, m/s, and at the
+    /// start of the window before the next one (with its time since that fusion, s).
+    pub(crate) v_earth_m_s: [f64; 2],
+    pub(crate) window: Option<([f64; 2], f64)>,
+    /// This step fuses the angles.
+    pub(crate) due: bool,
+    /// The attitude's test ratio at the last fusion.
+    pub(crate) ratio: f64,
+}
+
+impl Default for AngleClock {
+    fn default() -> Self {
+        AngleClock {
+            // The first step fuses: the initial covariance knows nothing of the attitude, and
+            // the fixes' velocity must not tilt it meanwhile.
+            since_s: f64::INFINITY,
+            v_earth_m_s: [0.0; 2],
+            window: None,
+            due: true,
+            ratio: 0.0,
         }
     }
 }
@@ -387,6 +422,8 @@ pub struct Ekf {
     pub(crate) drag_samples: u32,
     /// Windows in a row that have read a push (`core::ekf_drag`).
     pub(crate) push_windows: u32,
+    /// When the IMU's angles are next fused (`core::ekf_angles`).
+    pub(crate) angles: AngleClock,
 }
 
 struct Trig {
@@ -636,6 +673,7 @@ impl Ekf {
             drag_sum_m_s2: [0.0; 2],
             drag_samples: 0,
             push_windows: 0,
+            angles: AngleClock::default(),
         }
     }
 
@@ -671,6 +709,7 @@ impl Ekf {
         self.flying = total_thrust_n(&input.u_rad_s) > FLYING_THRUST_SHARE * weight_n;
         let u = &input.u_rad_s;
         self.predict(u, dt_used_us as f64 / 1e6, input.mass_kg);
+        self.tick_angles(dt_used_us as f64 / 1e6);
         let az_pred = total_thrust_n(u) / input.mass_kg + self.x[idx::BAZ];
         let out = self.correct(sample, theta_m, az_pred, input.gps);
         // A fix's velocity alone (its position left out) observes the velocity as well: the
@@ -793,6 +832,7 @@ impl Ekf {
                 });
                 let mut r = self.params.r_gps_diag;
                 self.without_gyro(&mut r);
+                self.angle_rows(&mut r);
                 if g.z_m.is_none() {
                     // A fix without altitude: the barometer's row, with its noise, stands in.
                     r[GPS_ROWS - 1] = self.params.r_imu_diag[IMU_ROWS - 1];
@@ -828,6 +868,7 @@ impl Ekf {
             r[0] = R_ANGLES_PUSHED_RAD2;
             r[1] = R_ANGLES_PUSHED_RAD2;
         }
+        self.angle_rows(&mut r);
         let out = self.update::<IMU_ROWS>(&z, &IMU_OBS, &IMU_GROUPS, az_pred, &r);
         if self.drag_active() && out.result.is_ok() {
             self.fuse_drag(sample.acc_m_s2);
@@ -887,8 +928,23 @@ impl Ekf {
         for i in 0..M {
             s[(i, i)] += r_diag[i];
         }
-        let ratios = test_ratios(&innovation, &s, groups, self.params.gate_sigma);
-        let nis = step_nis(&innovation, &s, groups);
+        let mut ratios = test_ratios(&innovation, &s, groups, self.params.gate_sigma);
+        let mut nis = step_nis(&innovation, &s, groups);
+        if self.angles.due {
+            self.angles.ratio = ratios.attitude;
+        } else {
+            // Not this step's: the angle rows are left out exactly, the ratio is the last
+            // fusion's (a NaN angle is still judged: it refuses the update below).
+            if !ratios.attitude.is_nan() {
+                ratios.attitude = self.angles.ratio;
+            }
+            nis.attitude = None;
+            let angles = GatedGroups {
+                attitude: true,
+                ..GatedGroups::default()
+            };
+            leave_out(angles, groups, &mut innovation, &mut pht, &mut s);
+        }
         let lost = non_finite_groups(z, groups);
         // Without the barometer the other rows still hold the attitude (position-velocity
         // fusion: the fixes then hold the vertical); any other row not a number refuses the
@@ -918,6 +974,8 @@ impl Ekf {
             GatedGroups::default()
         };
         gated.altitude |= lost.altitude;
+        // A held ratio outside the gate is not a step's measurement left out.
+        gated.attitude &= self.angles.due;
         if gated.any() {
             leave_out(gated, groups, &mut innovation, &mut pht, &mut s);
         }

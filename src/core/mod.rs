@@ -6,6 +6,7 @@ pub mod allan;
 pub mod commander;
 pub mod control;
 pub mod ekf;
+mod ekf_angles;
 pub mod ekf_drag;
 pub mod ekf_fix;
 pub mod ekf_kernels;

@@ -1,0 +1,160 @@
+//! The IMU's angles (roll and pitch from its accelerometer, yaw from its magnetometer) fused
+//! once every `ekf.angle_period_s` instead of every step (0: every step, as the 2012 flights).
+//!
+//! Their error in flight is not white noise. The accelerometer's angles read the specific
+//! force, off the vertical by the vehicle's horizontal acceleration over g for as long as a
+//! manoeuvre lasts (the simulated hover's error keeps 0.8 of its correlation over 0.1 s and
+//! loses it within 1 s); the magnetometer's yaw is held over several frames. Fused every step
+//! at their true noise they would count one error a hundred times and pull the estimate onto
+//! the thrust axis; at a noise inflated to make up for it, their test ratios and NIS sit far
+//! under their bounds and a drifting gyro stays unseen. Fused once a period, each fusion is
+//! one reading at its own noise, and the ratios mean what they say. Roll's and pitch's noise
+//! grows by the horizontal acceleration the estimate flew over the period, over g: the
+//! original's norm-dependent R (spec, kalman module), on the quantity the error is made of.
+//!
+//! Between fusions the angle rows are left out exactly, the attitude's test ratio holds its
+//! last value (the failsafe times a group outside its gate across the steps between fusions,
+//! as it does the fixes) and the step has no attitude NIS.
+
+use crate::core::ekf::{Ekf, idx};
+use crate::core::math::rotation_portable;
+use crate::core::model::GRAVITY_M_S2;
+
+/// How long before a fusion the acceleration its roll and pitch are judged by is taken, s.
+const ACCEL_WINDOW_S: f64 = 0.25;
+
+/// The angles' noise per step while the gyro is lost, rad².
+const R_ANGLES_NO_GYRO_RAD2: f64 = 0.11;
+
+impl Ekf {
+    /// A predicted step of `dt_s` has passed.
+    pub(crate) fn tick_angles(&mut self, dt_s: f64) {
+        self.angles.since_s += dt_s;
+    }
+
+    /// Whether this step fuses the IMU's angle rows (the first three of `r`), with their
+    /// noise for this step written into `r`.
+    pub(crate) fn angle_rows<const M: usize>(&mut self, r: &mut [f64; M]) -> bool {
+        let period_s = self.params.angle_period_s;
+        self.angles.due = true;
+        if period_s <= 0.0 {
+            return true;
+        }
+        if self.gyro_lost {
+            // The angles are then all the attitude has: every step, at a noise that levels
+            // the estimate over seconds (the landing without a gyro is flown on it) and does
+            // not pull it onto a touchdown's jolt.
+            r[..3]
+                .iter_mut()
+                .for_each(|v| *v = v.max(R_ANGLES_NO_GYRO_RAD2));
+            return true;
+        }
+        let since_s = self.angles.since_s;
+        // Within a microsecond of the period: steps of 10 000 µs sum to 0.999 999 s.
+        if since_s + 1e-6 < period_s {
+            if self.angles.window.is_none() && since_s + ACCEL_WINDOW_S + 1e-6 >= period_s {
+                self.angles.window = Some((self.earth_velocity_xy_m_s(), since_s));
+            }
+            self.angles.due = false;
+            return false;
+        }
+        let v = self.earth_velocity_xy_m_s();
+        // The acceleration of the fusion's moment, not the period's mean (a manoeuvre's
+        // start and stop cancel over a second).
+        let (v0, t0_s) = self
+            .angles
+            .window
+            .take()
+            .unwrap_or((self.angles.v_earth_m_s, 0.0));
+        let dv = [0, 1].map(|i| v[i] - v0[i]);
+        let accel_m_s2 = dv[0].hypot(dv[1]) / (since_s - t0_s).max(1e-3);
+        let off_vertical = (accel_m_s2 / GRAVITY_M_S2).powi(2);
+        // The yaw as well: the magnetometer's field is levelled by the same angles.
+        r[..3].iter_mut().for_each(|v| *v += off_vertical);
+        self.angles.since_s = 0.0;
+        self.angles.v_earth_m_s = v;
+        true
+    }
+
+    /// The estimate's horizontal velocity, north and west, m/s.
+    fn earth_velocity_xy_m_s(&self) -> [f64; 2] {
+        let x = &self.x;
+        let r = rotation_portable(x[idx::PSI], x[idx::PHI], x[idx::THETA]);
+        let v = [x[idx::VQX], x[idx::VQY], x[idx::VQZ]];
+        [0, 1].map(|row| (0..3).map(|c| r[row][c] * v[c]).sum())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::core::ekf::{Ekf, EkfParams, StepInput, idx};
+    use crate::core::imu::calib::ImuSample;
+    use crate::core::model::GRAVITY_M_S2;
+
+    fn filter(period_s: f64) -> (Ekf, ImuSample, StepInput) {
+        let mut p = EkfParams::flight_2012();
+        p.original_model = false;
+        p.angle_period_s = period_s;
+        p.r_imu_diag[..3].fill(1e-4);
+        p.q_diag[idx::PSI] = 1e-7;
+        p.q_diag[idx::PHI] = 1e-7;
+        let still = ImuSample {
+            acc_m_s2: [0.0, 0.0, GRAVITY_M_S2],
+            ..ImuSample::default()
+        };
+        (Ekf::new(p, &still), still, StepInput::hover_10ms())
+    }
+
+    #[test]
+    fn the_angles_are_fused_once_a_period_and_their_ratio_held_between() {
+        let (mut ekf, mut tilted, input) = filter(1.0);
+        // The IMU reads a roll of 0.02 rad the estimate does not have.
+        tilted.euler_rad[0] = 0.02;
+        let mut fused = Vec::new();
+        for step in 1..=250 {
+            let before = ekf.x[idx::PSI];
+            let (rep, res) = ekf.step(&tilted, &input);
+            res.unwrap();
+            let moved = ekf.x[idx::PSI] - before;
+            if rep.nis.attitude.is_some() {
+                fused.push(step);
+                // Towards the IMU's roll: most of the way at the first fusion.
+                let least = if step == 1 { 1e-3 } else { 1e-7 };
+                assert!(moved > least, "step {step}: {moved}");
+            } else {
+                assert!(moved.abs() < 1e-7, "step {step}: {moved}");
+            }
+            assert!(rep.ratios.attitude > 0.0, "a held ratio, step {step}");
+        }
+        // The first step, then the first after each second's prediction.
+        assert_eq!(fused, vec![1, 101, 201], "fused at {fused:?}");
+    }
+
+    #[test]
+    fn with_no_period_every_step_fuses_the_angles() {
+        let (mut ekf, mut tilted, input) = filter(0.0);
+        tilted.euler_rad[0] = 0.02;
+        for _ in 0..5 {
+            let before = ekf.x[idx::PSI];
+            let (rep, res) = ekf.step(&tilted, &input);
+            res.unwrap();
+            assert!(ekf.x[idx::PSI] > before && rep.nis.attitude.is_some());
+        }
+    }
+
+    #[test]
+    fn an_acceleration_before_the_fusion_widens_the_angles_noise() {
+        let (mut ekf, _, _) = filter(1.0);
+        let mut r = [1e-4; 10];
+        assert!(ekf.angle_rows(&mut r));
+        assert_eq!(r[0], 1e-4);
+        // 0.98 m/s north gained over a second: a tenth of g, 0.01 rad² more on roll and pitch.
+        ekf.x[idx::VQX] = 0.1 * GRAVITY_M_S2;
+        ekf.tick_angles(1.0);
+        let mut r = [1e-4; 10];
+        assert!(ekf.angle_rows(&mut r));
+        assert!((r[0] - 1e-4 - 0.01).abs() < 1e-9, "{r:?}");
+        // Pitch, and the yaw the magnetometer's field is levelled by, alike; the rest stay.
+        assert!(r[1] == r[0] && r[2] == r[0] && r[3] == 1e-4, "{r:?}");
+    }
+}
