@@ -64,7 +64,8 @@ fn every_fault_alone_in_every_phase_holds_the_invariants() {
 fn a_broken_invariant_is_named_with_the_run_that_broke_it() {
     // Without the drag's velocity a GPS lost on a mission's leg drifts; the fence, grown by
     // the position's uncertainty, would land it in time, but set to only hold it lets it
-    // drift out: run 74 (seed 75) of the campaign is that one.
+    // drift out past a fence drawn close around the mission (15 m; the square reaches
+    // 14.1 m): run 74 (seed 75) of the campaign is that one.
     let (ok, r, text) = campaign(&[
         "--runs",
         "87",
@@ -72,6 +73,8 @@ fn a_broken_invariant_is_named_with_the_run_that_broke_it() {
         "ekf.drag_per_s=0",
         "--set",
         "fence.action=hold",
+        "--set",
+        "fence.radius_m=15",
     ]);
     assert!(!ok, "a violation exits non-zero: {text}");
     // Its fence breach (the run also ends in hold, in the air: invariant 2).
@@ -111,7 +114,7 @@ fn a_broken_invariant_is_named_with_the_run_that_broke_it() {
     )
     .unwrap();
     let far_m = rerun["safety"]["max_from_start_m"].as_f64().unwrap();
-    assert!(far_m > 60.0, "{far_m} m: {rerun}");
+    assert!(far_m > 25.0, "{far_m} m: {rerun}");
     assert!(
         v["seen"]
             .as_str()
