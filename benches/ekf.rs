@@ -52,10 +52,14 @@ fn bench_step(c: &mut Criterion) {
 /// The step's two halves on their own: the covariance propagation through F's fixed structure
 /// and the update's P −= U·Uᵀ.
 fn bench_kernels(c: &mut Criterion) {
-    use uquad::core::ekf::{StateMatrix, jacobian};
+    use uquad::core::ekf::{N_STATES, StateMatrix, jacobian};
     use uquad::core::ekf_kernels::{propagate_covariance, subtract_gram};
     let x = uquad::core::ekf::State::from_fn(|i, _| 0.05 * i as f64 - 0.3);
-    let f = jacobian(&x, &[300.0, 310.0, 295.0, 305.0], 0.01, true);
+    // The filter's F, the gyros' bias states on (the default profile's).
+    let mut params = EkfParams::flight_2012();
+    params.gyro_bias_q = 1e-7;
+    let ekf = Ekf::new(params, &Default::default());
+    let f = ekf.filter_jacobian(&jacobian(&x, &[300.0, 310.0, 295.0, 305.0], 0.01, true));
     let a = StateMatrix::from_fn(|i, j| ((i * 7 + j * 3) % 11) as f64 - 5.0);
     let p0 = a * a.transpose() * 1e-2 + StateMatrix::identity();
     let mut p = p0;
@@ -66,7 +70,7 @@ fn bench_kernels(c: &mut Criterion) {
             black_box(&p);
         })
     });
-    let u = nalgebra::SMatrix::<f64, 15, 10>::from_fn(|i, j| 0.01 * ((i * 5 + j) % 7) as f64);
+    let u = nalgebra::SMatrix::<f64, N_STATES, 10>::from_fn(|i, j| 0.01 * ((i * 5 + j) % 7) as f64);
     c.bench_function("ekf_subtract_gram_10_rows", |b| {
         b.iter(|| {
             p = p0;

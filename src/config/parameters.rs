@@ -100,6 +100,8 @@ pub const PARAMETERS: &[(&str, &str)] = &[
     ("EKF_R_GPS_VEL", "ekf.r_gps_vel"),
     ("EKF_DRAG_PER_S", "ekf.drag_per_s"),
     ("EKF_ANGLE_PER_S", "ekf.angle_period_s"),
+    ("EKF_Q_GYRO_BIAS", "ekf.q_gyro_bias"),
+    ("EKF_P0_GYRO_BIA", "ekf.p0_gyro_bias"),
     ("CMD_CLIMB_M_S", "commander.climb_m_s"),
     ("CMD_CLIMB_ACC", "commander.climb_acc_m_s2"),
     ("CMD_TKO_TOL_M", "commander.takeoff_tolerance_m"),

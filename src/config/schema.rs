@@ -283,6 +283,10 @@ pub struct Ekf {
     pub r_ground: [f64; 2],
     /// Fuse the IMU's angles once every this many seconds; 0: every step (the 2012 flights).
     pub angle_period_s: f64,
+    /// The gyros' bias states: process noise per step and initial variance, (rad/s)²; both
+    /// 0: none (the 2012 flights).
+    pub q_gyro_bias: f64,
+    pub p0_gyro_bias: f64,
 }
 
 impl Default for Ekf {
@@ -303,6 +307,8 @@ impl Default for Ekf {
             ground_fusion: p.ground_fusion,
             r_ground: p.r_ground,
             angle_period_s: p.angle_period_s,
+            q_gyro_bias: p.gyro_bias_q,
+            p0_gyro_bias: p.gyro_bias_p0,
         }
     }
 }
@@ -326,6 +332,8 @@ impl Ekf {
             ground_fusion: self.ground_fusion,
             r_ground: self.r_ground,
             angle_period_s: self.angle_period_s,
+            gyro_bias_q: self.q_gyro_bias,
+            gyro_bias_p0: self.p0_gyro_bias,
         }
     }
 }

@@ -899,6 +899,14 @@ fn ekf_rules(c: &Config) -> Vec<Check> {
         .chain([
             in_range("ekf.angle_period_s", c.ekf.angle_period_s, 0.0..=10.0, "s")
                 .note("0: every step"),
+            in_range("ekf.q_gyro_bias", c.ekf.q_gyro_bias, 0.0..=1.0, "(rad/s)²").note("0: none"),
+            in_range(
+                "ekf.p0_gyro_bias",
+                c.ekf.p0_gyro_bias,
+                0.0..=1.0,
+                "(rad/s)²",
+            )
+            .note("0: none"),
         ])
         .collect()
 }

@@ -18,7 +18,12 @@ use crate::core::model::{
 use nalgebra::{ArrayStorage, SMatrix, SVector};
 
 pub use crate::core::ekf_kernels::{N_STATES, StateMatrix};
-pub type State = SVector<f64, N_STATES>;
+/// The model's states (spec 3.1): what the process model, the controller and the logs know.
+pub const N_MODEL: usize = 15;
+pub type State = SVector<f64, N_MODEL>;
+pub type ModelMatrix = SMatrix<f64, N_MODEL, N_MODEL>;
+/// The filter's states: the model's, then the gyros' bias (`core::ekf_gyro_bias`).
+pub type FilterState = SVector<f64, N_STATES>;
 /// Motor speeds m0..m3, rad/s.
 pub type Input = [f64; 4];
 
@@ -39,6 +44,10 @@ pub mod idx {
     pub const BAX: usize = 12;
     pub const BAY: usize = 13;
     pub const BAZ: usize = 14;
+    /// The gyros' bias, body x y z, rad/s (the filter's only: `core::ekf_gyro_bias`).
+    pub const BGX: usize = 15;
+    pub const BGY: usize = 16;
+    pub const BGZ: usize = 17;
 }
 
 /// Rows of the IMU-only update: ψ, φ, θ, ax, ay, az, ωx, ωy, ωz, baro altitude.
@@ -88,13 +97,13 @@ pub struct EkfParams {
     /// rotation's `cφ·cψ` and `cψ·sθ`.
     pub original_model: bool,
     /// Process noise, diagonal (added unscaled each step).
-    pub q_diag: [f64; N_STATES],
+    pub q_diag: [f64; N_MODEL],
     /// IMU measurement noise, diagonal, rows as `IMU_ROWS`.
     pub r_imu_diag: [f64; IMU_ROWS],
     /// IMU + GPS measurement noise, diagonal, rows as `GPS_ROWS`.
     pub r_gps_diag: [f64; GPS_ROWS],
     /// Initial covariance, diagonal.
-    pub p0_diag: [f64; N_STATES],
+    pub p0_diag: [f64; N_MODEL],
     /// Accepted step interval; outside it dt is clamped (spec 3.9), µs.
     pub dt_min_us: i64,
     pub dt_max_us: i64,
@@ -121,6 +130,10 @@ pub struct EkfParams {
     /// Fuse the IMU's angles once every this many seconds, each fusion one reading of their
     /// error's correlation time (`core::ekf_angles`); 0: every step.
     pub angle_period_s: f64,
+    /// The gyros' bias states (`core::ekf_gyro_bias`): their process noise per step and
+    /// initial variance, (rad/s)² each; both 0: no bias (the states stay 0).
+    pub gyro_bias_q: f64,
+    pub gyro_bias_p0: f64,
 }
 
 /// How a GPS fix is fused.
@@ -151,7 +164,7 @@ impl EkfParams {
             r_gps_diag: [
                 100.0, 100.0, 1e5, 1e4, 1e4, 1e4, 1e-3, 1e-3, 1e-3, 100.0, 100.0, 1e5,
             ],
-            p0_diag: [1.0; N_STATES],
+            p0_diag: [1.0; N_MODEL],
             dt_min_us: 8_000,
             dt_max_us: 12_000,
             gate_sigma: DEFAULT_GATE_SIGMA,
@@ -163,8 +176,10 @@ impl EkfParams {
             // The 2012 flights' filter knew no ground; their replays must stay bit-exact.
             ground_fusion: false,
             r_ground: [1e3, 1e-2],
-            // The 2012 flights fused the angles every step.
+            // The 2012 flights fused the angles every step, and knew no gyro bias.
             angle_period_s: 0.0,
+            gyro_bias_q: 0.0,
+            gyro_bias_p0: 0.0,
         }
     }
 }
@@ -400,7 +415,7 @@ pub(crate) struct UpdateOutcome {
 #[derive(Debug, Clone)]
 pub struct Ekf {
     pub params: EkfParams,
-    pub x: State,
+    pub x: FilterState,
     pub p: StateMatrix,
     /// A fix has been fused (with [`GpsFusion::PositionVelocity`] the first one places the
     /// position).
@@ -533,12 +548,12 @@ fn process_at(
 }
 
 /// The Jacobian F = ∂f/∂x at `x` (spec 3.4, ERRATA 2).
-pub fn jacobian(x: &State, u: &Input, t_s: f64, original_model: bool) -> StateMatrix {
+pub fn jacobian(x: &State, u: &Input, t_s: f64, original_model: bool) -> ModelMatrix {
     jacobian_at(x, &Trig::of(x), u, t_s, original_model)
 }
 
 /// [`jacobian`] with the state's sines and cosines already taken.
-fn jacobian_at(x: &State, trig: &Trig, u: &Input, t_s: f64, original_model: bool) -> StateMatrix {
+fn jacobian_at(x: &State, trig: &Trig, u: &Input, t_s: f64, original_model: bool) -> ModelMatrix {
     let &Trig {
         s_psi,
         c_psi,
@@ -553,7 +568,7 @@ fn jacobian_at(x: &State, trig: &Trig, u: &Input, t_s: f64, original_model: bool
     let g = GRAVITY_M_S2;
     let t = t_s;
     let w_sum = u[0] - u[1] + u[2] - u[3];
-    let mut f = StateMatrix::identity();
+    let mut f = ModelMatrix::identity();
     if original_model {
         f[(0, 3)] = t * (vqz * (c_psi * s_th - c_th * s_phi * s_psi) + vqy * c_psi * c_th * s_phi);
         f[(0, 4)] = t
@@ -653,14 +668,17 @@ impl Ekf {
     /// The initial state from the calibration null sample (spec 3.7): attitude from its Euler
     /// angles, accelerometer bias = its acceleration minus gravity, everything else 0; P = P₀.
     pub fn new(params: EkfParams, null_sample: &ImuSample) -> Self {
-        let mut x = State::zeros();
+        let mut x = FilterState::zeros();
         x[idx::PSI] = null_sample.euler_rad[0];
         x[idx::PHI] = null_sample.euler_rad[1];
         x[idx::THETA] = null_sample.euler_rad[2];
         x[idx::BAX] = null_sample.acc_m_s2[0];
         x[idx::BAY] = null_sample.acc_m_s2[1];
         x[idx::BAZ] = null_sample.acc_m_s2[2] - GRAVITY_M_S2;
-        let p = StateMatrix::from_diagonal(&State::from(params.p0_diag));
+        let p0 = params.p0_diag;
+        let p = StateMatrix::from_diagonal(&FilterState::from_fn(|i, _| {
+            p0.get(i).copied().unwrap_or(params.gyro_bias_p0)
+        }));
         Ekf {
             params,
             x,
@@ -738,14 +756,17 @@ impl Ekf {
     /// The prediction: x⁻ = f(x, u, T), P⁻ = F·P·Fᵀ + Q with F at the previous estimate.
     fn predict(&mut self, u: &Input, t_s: f64, mass_kg: f64) {
         let orig = self.params.original_model;
+        // The model runs on the body's rates: the rate states' gyro frame less the bias.
+        let xm = self.model_state();
         // F and f(x) share the previous estimate's sines and cosines: take them once.
-        let trig = Trig::of(&self.x);
-        let f = jacobian_at(&self.x, &trig, u, t_s, orig);
-        let x_pred = process_at(&self.x, &trig, u, t_s, mass_kg, orig);
+        let trig = Trig::of(&xm);
+        let f = self.filter_jacobian(&jacobian_at(&xm, &trig, u, t_s, orig));
+        let x_pred = process_at(&xm, &trig, u, t_s, mass_kg, orig);
         kernels::propagate_covariance(&f, &mut self.p);
-        for i in 0..N_STATES {
+        for i in 0..N_MODEL {
             self.p[(i, i)] += self.params.q_diag[i];
         }
+        self.bias_process_noise();
         if self.drag_modelled() {
             // bax, bay are then the drag, tied to the velocity: not a bias free to wander
             // (also on a step the thrust dips: a wide P would let the next window's drag jump
@@ -777,7 +798,7 @@ impl Ekf {
             self.p[(idx::Z, idx::Z)] += Q_Z_NO_BARO_M2 - self.params.q_diag[idx::Z];
             self.p[(idx::VQZ, idx::VQZ)] += Q_VZ_NO_BARO - self.params.q_diag[idx::VQZ];
         }
-        self.x = x_pred;
+        self.set_model_state(&x_pred);
     }
 
     /// The measurement update: the IMU rows, plus the GPS rows when a sample is given. `theta_m`
@@ -1214,14 +1235,14 @@ mod tests {
             let x = some_state();
             let f = jacobian(&x, &u, t, orig);
             let h = 1e-6;
-            for j in 0..N_STATES {
+            for j in 0..N_MODEL {
                 let mut xp = x;
                 let mut xm = x;
                 xp[j] += h;
                 xm[j] -= h;
                 let col =
                     (process(&xp, &u, t, 1.55, orig) - process(&xm, &u, t, 1.55, orig)) / (2.0 * h);
-                for i in 0..N_STATES {
+                for i in 0..N_MODEL {
                     assert!(
                         (f[(i, j)] - col[i]).abs() < 1e-8,
                         "orig {orig}: F[{i}][{j}] = {} but finite difference {}",
@@ -1237,8 +1258,12 @@ mod tests {
     fn sparse_propagation_equals_the_dense_product() {
         let a = StateMatrix::from_fn(|i, j| ((i * 7 + j * 3) % 11) as f64 - 5.0);
         let p = a * a.transpose() + StateMatrix::identity();
+        let mut params = EkfParams::flight_2012();
+        params.gyro_bias_q = 1e-9;
+        let ekf = Ekf::new(params, &ImuSample::default());
         for orig in [true, false] {
             let f = jacobian(&some_state(), &[300.0, 310.0, 295.0, 305.0], 0.01, orig);
+            let f = ekf.filter_jacobian(&f);
             let dense = f * p * f.transpose();
             let mut sparse = p;
             kernels::propagate_covariance(&f, &mut sparse);
@@ -1253,8 +1278,8 @@ mod tests {
         for orig in [true, false] {
             for scale in [0.0, 0.5, 1.0, -2.0] {
                 let f = jacobian(&(some_state() * scale), &u, 0.01, orig);
-                for i in 0..N_STATES {
-                    for j in 0..N_STATES {
+                for i in 0..N_MODEL {
+                    for j in 0..N_MODEL {
                         let d = f[(i, j)] - if i == j { 1.0 } else { 0.0 };
                         let listed = kernels::D_COLS[i].contains(&j);
                         assert!(
@@ -1274,7 +1299,7 @@ mod tests {
         let a = process(&x, &u, 0.01, 1.55, true);
         let b = process(&x, &u, 0.01, 1.55, false);
         let (c_psi, c_phi, s_th) = (x[idx::PSI].cos(), x[idx::PHI].cos(), x[idx::THETA].sin());
-        for i in 0..N_STATES {
+        for i in 0..N_MODEL {
             if i == idx::Z {
                 let expected = 0.01 * x[idx::VQZ] * (c_psi * c_psi - c_phi * c_psi);
                 assert!((a[i] - b[i] - expected).abs() < 1e-15);
@@ -1347,7 +1372,7 @@ mod tests {
             ..EkfParams::flight_2012()
         };
         let mut ekf = Ekf::new(params, &ImuSample::default());
-        ekf.x = some_state();
+        ekf.x = FilterState::from_fn(|i, _| some_state().get(i).copied().unwrap_or(0.0));
         ekf.p = p;
         ekf
     }
@@ -1389,7 +1414,7 @@ mod tests {
         let s = &h * &p * h.transpose() + DMatrix::from_diagonal(&r);
         let k = &p * h.transpose() * s.try_inverse().unwrap();
         let mut out = ekf.clone();
-        out.x += State::from_fn(|i, _| (&k * &y)[i]);
+        out.x += FilterState::from_fn(|i, _| (&k * &y)[i]);
         let kp = &k * &h * &p;
         out.p -= StateMatrix::from_fn(|i, j| kp[(i, j)]);
         out

@@ -14,7 +14,8 @@
 //! gain); the first fix places the position. Its
 //! position rows and its horizontal velocity rows are gated apart (PX4 EKF2's separate
 //! gates): a position outside its gate with a velocity inside is a multipath glitch, and the
-//! velocity alone is fused; the vertical velocity row is gated on its own.
+//! velocity alone is fused; a velocity outside its gate is the estimate's own error, fused at
+//! the gate's edge unless it is wild; the vertical velocity row is gated on its own.
 
 use crate::core::ekf::{
     Ekf, EkfError, GPS_ROWS, GatedGroups, N_STATES, StateMatrix, StepNis, TestRatios,
@@ -26,14 +27,28 @@ use nalgebra::{SMatrix, SVector};
 
 /// The states a fix's horizontal position rows correct, its horizontal velocity rows, and its
 /// altitude row: the barometer owns the vertical, and a horizontal error must not move it (nor
-/// the altitude the horizontal). The velocity rows reach the tilt, the position rows do not (a
-/// receiver's metre-level bias read as tilt would be flown); nor the accelerometer's states
-/// (their rows set them every step).
+/// the altitude the horizontal). The velocity rows reach the tilt and the gyros' bias it grew
+/// from, the position rows do not (a receiver's metre-level bias read as tilt would be
+/// flown); nor the accelerometer's states (their rows set them every step).
 const HORIZONTAL: [usize; 4] = [idx::X, idx::Y, idx::VQX, idx::VQY];
-const HORIZONTAL_SPEED: [usize; 6] = [idx::X, idx::Y, idx::VQX, idx::VQY, idx::PSI, idx::PHI];
+const HORIZONTAL_SPEED: [usize; 9] = [
+    idx::X,
+    idx::Y,
+    idx::VQX,
+    idx::VQY,
+    idx::PSI,
+    idx::PHI,
+    idx::BGX,
+    idx::BGY,
+    idx::BGZ,
+];
 const VERTICAL: [usize; 2] = [idx::Z, idx::VQZ];
 /// Rows: x, y, z, north, west and up velocity (the last only while the barometer is lost).
 const ROWS: usize = 6;
+/// A horizontal velocity whose test ratio is above 1 and at most this is fused at its gate's
+/// edge; above it (25 gate widths, a velocity off by metres a second) it is left out: a
+/// receiver's fault, or an estimate beyond saving by a fix.
+const VELOCITY_CLIP_MAX_RATIO: f64 = 25.0;
 /// The vertical velocity row's gain goes to the vertical speed alone: a correction of the
 /// height at a fix is a step the altitude loop flies (a few tenths of a metre saturate it),
 /// while the height integrated from a corrected speed moves smoothly.
@@ -44,7 +59,7 @@ impl Ekf {
     pub(crate) fn fuse_fix(&mut self, g: &GpsSample) -> UpdateOutcome {
         let rg = self.params.r_gps_diag;
         let rv = self.params.r_gps_vel;
-        let r = [
+        let mut r = [
             rg[GPS_ROWS - 3],
             rg[GPS_ROWS - 2],
             rg[GPS_ROWS - 1],
@@ -127,12 +142,26 @@ impl Ekf {
             }
         }
         let velocity_ratio = used[3].then_some(vel_ratio);
-        if used[3] && (outside(vel_ratio) || (broken && self.params.gate_fusion)) {
+        let velocity_out = used[3] && (outside(vel_ratio) || (broken && self.params.gate_fusion));
+        if velocity_out && !broken && vel_ratio <= VELOCITY_CLIP_MAX_RATIO {
+            // Outside its gate but not wild: the estimate's own error (a tilt, a gyro's bias
+            // it has not learnt yet), which leaving the velocity out would let grow until
+            // the fixes are lost. Fused at the noise that puts it on the gate's edge: the
+            // estimate moves less than a velocity on the edge would move it.
+            for i in [3, 4] {
+                let edge = y[i] * y[i] / gate_sq;
+                if edge > s[(i, i)] {
+                    r[i] += edge - s[(i, i)];
+                    s[(i, i)] = edge;
+                }
+            }
+        } else if velocity_out {
             for i in [3, 4] {
                 drop_row(i, &mut used, &mut y, &mut pht, &mut s);
             }
         }
-        let velocity_fused = used[3];
+        // Fused as a measurement, inside its gate: the velocity observed the vehicle.
+        let velocity_fused = used[3] && !velocity_out;
         let judged = |result| UpdateOutcome {
             nis: StepNis {
                 gps: nis,
@@ -280,10 +309,15 @@ fn drop_row(
 
 #[cfg(test)]
 mod tests {
-    use crate::core::ekf::{Ekf, EkfParams, GpsFusion, StepInput, idx};
+    use crate::core::ekf::{Ekf, EkfParams, GpsFusion, N_MODEL, StepInput, idx};
     use crate::core::gps::GpsSample;
     use crate::core::imu::calib::ImuSample;
     use crate::core::model::GRAVITY_M_S2;
+
+    /// The model states' covariance (the bias states, off here, have none).
+    fn model_block(ekf: &Ekf) -> nalgebra::SMatrix<f64, N_MODEL, N_MODEL> {
+        ekf.p.fixed_view::<N_MODEL, N_MODEL>(0, 0).into_owned()
+    }
 
     /// A level filter at rest, fusing fixes into position and velocity.
     fn filter() -> (Ekf, ImuSample, StepInput) {
@@ -399,7 +433,7 @@ mod tests {
         }
         // The covariance stays symmetric and positive definite.
         assert!((ekf.p - ekf.p.transpose()).norm() < 1e-9 * ekf.p.norm());
-        assert!(ekf.p.cholesky().is_some());
+        assert!(model_block(&ekf).cholesky().is_some());
     }
 
     #[test]
@@ -431,7 +465,7 @@ mod tests {
         for s in [idx::THETA, idx::BAX, idx::BAY] {
             assert!((ekf.x[s] - before[s]).abs() < 1e-9, "state {s}");
         }
-        assert!(ekf.p.cholesky().is_some());
+        assert!(model_block(&ekf).cholesky().is_some());
     }
 
     #[test]
@@ -478,12 +512,54 @@ mod tests {
         assert!(ekf.x[idx::VQX] > 0.01, "{}", ekf.x[idx::VQX]);
         // The velocity observed the vehicle: the drag's hold is not needed.
         assert_eq!(ekf.steps_without_fix, 0);
-        // Both out of their gates: nothing fused, each ratio above 1.
+        // Both out of their gates, the velocity wildly: nothing fused, each ratio above 1.
         input.gps = Some(fix(500.0, 0.0, Some([50.0, 0.0, 0.0])));
         let (rep, _) = ekf.step(&still, &input);
         assert!(rep.gated.gps && !rep.fix_velocity_fused);
         assert!(rep.fix_velocity_ratio.is_some_and(|r| r > 1.0));
         assert_eq!(ekf.steps_without_fix, 1);
+    }
+
+    #[test]
+    fn a_velocity_outside_its_gate_moves_the_estimate_less_than_one_on_its_edge() {
+        let (mut ekf, still, mut input) = placed(true, fix(0.0, 0.0, Some([0.0; 3])));
+        for _ in 0..100 {
+            input.gps = None;
+            ekf.step(&still, &input).1.unwrap();
+        }
+        // The north velocity that lands on the gate's edge, found by its ratio (1 at the edge).
+        let ratio_of = |v: f64| {
+            let mut e = ekf.clone();
+            let mut i = input;
+            i.gps = Some(fix(0.0, 0.0, Some([v, 0.0, 0.0])));
+            let (rep, res) = e.step(&still, &i);
+            res.unwrap();
+            (
+                rep.fix_velocity_ratio.unwrap(),
+                rep.fix_velocity_fused,
+                e.x[idx::VQX],
+            )
+        };
+        let edge_m_s = 1.0 / ratio_of(1.0).0.sqrt();
+        let (r_edge, in_edge, moved_edge) = ratio_of(0.999 * edge_m_s);
+        assert!(r_edge < 1.0 && in_edge);
+        let (r2, in2, moved2) = ratio_of(2.0 * edge_m_s);
+        let (r4, in4, moved4) = ratio_of(4.0 * edge_m_s);
+        assert!(r2 > 3.9 && r4 > 15.9 && r4 < 25.0, "{r2} {r4}");
+        // Fused, though not counted as a velocity inside its gate.
+        assert!(!in2 && !in4);
+        assert!(moved2 > 0.0 && moved4 > 0.0, "{moved2} {moved4}");
+        // Never further than the edge's, and the wilder the less.
+        assert!(
+            moved2 < moved_edge && moved4 < moved2,
+            "{moved_edge} {moved2} {moved4}"
+        );
+        // Far outside (a receiver's fault): left out.
+        let (r_wild, _, moved_wild) = ratio_of(6.0 * edge_m_s);
+        assert!(
+            r_wild > 25.0 && moved_wild.abs() < 1e-3 * moved4,
+            "{moved_wild}"
+        );
     }
 
     #[test]

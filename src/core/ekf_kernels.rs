@@ -6,26 +6,31 @@
 
 use nalgebra::{SMatrix, SVector};
 
-/// The filter's state count (spec 3.1) and its covariance's type; `ekf` re-exports both.
-pub const N_STATES: usize = 15;
+/// The filter's state count (spec 3.1's fifteen, then the gyros' bias) and its covariance's
+/// type; `ekf` re-exports both.
+pub const N_STATES: usize = 18;
 pub type StateMatrix = SMatrix<f64, N_STATES, N_STATES>;
 
 /// The columns of the non-zero entries of D = F − I in each row: the structure of the
-/// Jacobian of spec 3.4 (both models). Position (x, y, z) drives no state, and the rates and
-/// biases (rows 11–14) have no state-dependent terms. A test checks that `ekf::jacobian` writes
-/// nothing outside it.
+/// Jacobian of spec 3.4 (both models), then the gyros' bias (columns 15–17), which enters
+/// wherever the body rates do (`ekf_gyro_bias`). Position (x, y, z) drives no state, and the
+/// yaw rate, the accelerometer's states and the biases (rows 11–17) have no state-dependent
+/// terms. A test checks that the filter's Jacobian writes nothing outside it.
 pub const D_COLS: [&[usize]; N_STATES] = [
     &[3, 4, 5, 6, 7, 8],
     &[3, 4, 5, 6, 7, 8],
     &[3, 4, 6, 7, 8],
-    &[3, 4, 9, 10, 11],
-    &[3, 10, 11],
-    &[3, 4, 10, 11],
-    &[4, 7, 8, 10, 11, 12],
-    &[3, 4, 6, 8, 9, 11, 13],
-    &[3, 4, 6, 7, 9, 10, 14],
-    &[10, 11],
-    &[9, 11],
+    &[3, 4, 9, 10, 11, 15, 16, 17],
+    &[3, 10, 11, 16, 17],
+    &[3, 4, 10, 11, 16, 17],
+    &[4, 7, 8, 10, 11, 12, 16, 17],
+    &[3, 4, 6, 8, 9, 11, 13, 15, 17],
+    &[3, 4, 6, 7, 9, 10, 14, 15, 16],
+    &[10, 11, 16, 17],
+    &[9, 11, 15, 17],
+    &[],
+    &[],
+    &[],
     &[],
     &[],
     &[],
@@ -65,7 +70,7 @@ fn column_of_times_ft<const I: usize, const FROM: usize>(
 /// Runs `$body` once for each state index as a constant `$i` (one copy of the code per row).
 macro_rules! for_each_state {
     ($i:ident => $body:block) => {
-        for_each_state!(@ $i $body; 0 1 2 3 4 5 6 7 8 9 10 11 12 13 14)
+        for_each_state!(@ $i $body; 0 1 2 3 4 5 6 7 8 9 10 11 12 13 14 15 16 17)
     };
     (@ $i:ident $body:block; $($n:literal)*) => {{
         $({
@@ -75,7 +80,7 @@ macro_rules! for_each_state {
     }};
 }
 
-/// P ← F·P·Fᵀ for a symmetric P, using the fixed structure of F = I + D (`D_COLS`, 53
+/// P ← F·P·Fᵀ for a symmetric P, using the fixed structure of F = I + D (`D_COLS`, 70
 /// entries); see `propagate_covariance_portable`.
 pub fn propagate_covariance(f: &StateMatrix, p: &mut StateMatrix) {
     #[cfg(target_arch = "x86_64")]
@@ -86,7 +91,7 @@ pub fn propagate_covariance(f: &StateMatrix, p: &mut StateMatrix) {
     propagate_covariance_portable(f, p)
 }
 
-/// P ← F·P·Fᵀ for a symmetric P, using the fixed structure of F = I + D (`D_COLS`, 53
+/// P ← F·P·Fᵀ for a symmetric P, using the fixed structure of F = I + D (`D_COLS`, 70
 /// entries). With G = P·Fᵀ, whose column i is P's column i plus Σⱼ Dᵢⱼ·(P's column j), and
 /// Gᵀ = F·P (P symmetric), F·P·Fᵀ = Gᵀ·Fᵀ is the same column operation on Gᵀ. Only the lower
 /// triangle of the result is computed; it is mirrored, so P stays exactly symmetric.

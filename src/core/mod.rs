@@ -9,6 +9,7 @@ pub mod ekf;
 mod ekf_angles;
 pub mod ekf_drag;
 pub mod ekf_fix;
+mod ekf_gyro_bias;
 pub mod ekf_kernels;
 pub mod esc;
 pub mod flight;

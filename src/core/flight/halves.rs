@@ -218,7 +218,7 @@ impl EstimatorCore {
             t_ctrl_us: t_us,
             t_cmd_us: t_us,
             sample,
-            x: ekf.x,
+            x: ekf.model_state(),
             theta_cal_rad: self.theta_cal_rad,
             gps_used: gps.is_some() && !report.gated.gps,
             gps_velocity_used: report.fix_velocity_fused,
