@@ -2,7 +2,8 @@
 //! leave them out of everything, as the 2012 flights had them).
 //!
 //! The calibration at rest removes the gyros' offset, but a MEMS gyro's bias moves with
-//! temperature and time, and can step (`--inject gyro-bias`): without a state for it, the
+//! temperature and time, and can step (`--inject gyro-bias`). Not in the original's spec
+//! (3.1 has fifteen states and no bias for the gyros): without a state for it, the
 //! estimate's attitude runs off at the bias's rate between the IMU's angle fusions, the
 //! controller flies that error as a tilt, and the fixes' velocity soon contradicts the
 //! estimate. PX4's and ArduPilot's filters carry the same three states.

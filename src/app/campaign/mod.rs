@@ -70,10 +70,9 @@ struct Judged {
 }
 
 /// A known exception: a gyro the filter cannot follow - stuck (seen within 0.1 s, but the
-/// landing then flies the model's attitude, which drifts within a second), or its
-/// bias stepped (no state holds it: the fixes' contradicted velocity lands the vehicle, but
-/// on an attitude still drifting at the bias's rate) - breaking the touchdown speed (3) or
-/// the fence (5).
+/// landing then flies the model's attitude, which drifts within a second), or its bias
+/// stepped where nothing can teach the bias states (the fixes lost: the attitude drifts at
+/// the bias's rate) - breaking the touchdown speed (3) or the fence (5).
 fn known(run: &Run, f: &Finding) -> bool {
     use crate::sim::faults::Fault;
     let gyro = run
