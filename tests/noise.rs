@@ -19,10 +19,11 @@ fn still_run(duration: &str, sets: &[&str]) -> (tempfile::TempDir, PathBuf) {
         "--set",
         "commander.disarm_ground_s=600",
     ];
-    // The walks this test recovers are a hundred times a real MEMS's. The filter, which has
-    // no bias states, then soon contradicts the fixes on this profile's noise values (a lost
-    // receiver disarms the vehicle, a tumbling estimate halts it); on the 2012 flights' wide
-    // ones it follows them. The noise is read from the raw frames, not the filter.
+    // The walks this test recovers are a hundred times a real MEMS's, and the accelerometer's
+    // has no state in the filter: on this profile's noise values it soon contradicts the fixes
+    // (a lost receiver disarms the vehicle, a tumbling estimate halts it); on the 2012
+    // flights' wide ones it follows them. The noise is read from the raw frames, not the
+    // filter.
     args.extend_from_slice(&EKF_2012);
     for s in sets {
         args.extend_from_slice(&["--set", s]);

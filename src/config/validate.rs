@@ -844,7 +844,11 @@ fn failsafe_rules(c: &Config) -> Vec<Check> {
             0.0..=600.0,
             "s",
         ),
-        in_range("failsafe.ekf_bad_s", f.ekf_bad_s, positive_to(600.0), "s"),
+        in_range("failsafe.ekf_bad_s", f.ekf_bad_s, positive_to(600.0), "s").and(
+            f.ekf_bad_s >= 2.0 * c.ekf.angle_period_s,
+            "at least twice ekf.angle_period_s (the attitude's ratio is held between the \
+             angles' fusions: one fusion outside its gate must not be the failsafe)",
+        ),
         in_range(
             "fence.radius_m",
             fence.radius_m,

@@ -1,4 +1,5 @@
-//! The 15-state extended Kalman filter of the original.
+//! The 15-state extended Kalman filter of the original, with the three gyro-bias states the
+//! default profile adds (`core::ekf_gyro_bias`; the 2012 profile has them off).
 //!
 //! Spec section 3 with ERRATA 2–4: states (3.1), process model (3.3), Jacobian (3.4, without
 //! the `F[3][12] = T` term the flown program did not have), observation models (3.5), noise
@@ -110,8 +111,9 @@ pub struct EkfParams {
     /// Width of the innovation gate, standard deviations of the innovation: a row's test
     /// ratio is y²/(gate_sigma²·S_ii), above 1 outside the gate (PX4 EKF2's convention).
     pub gate_sigma: f64,
-    /// Leave a measurement group whose test ratio is above 1 out of the step's update. `false`
-    /// fuses every row (the ratios are still computed and reported).
+    /// Leave a measurement group whose test ratio is above 1 out of the step's update (a
+    /// fix's velocity with its position inside is fused at the gate's edge instead,
+    /// `core::ekf_fix`). `false` fuses every row (the ratios are still computed and reported).
     pub gate_fusion: bool,
     /// How a GPS fix is fused.
     pub gps_fusion: GpsFusion,
@@ -190,10 +192,10 @@ impl EkfParams {
 pub struct AngleClock {
     /// Time since the last fusion, s.
     pub(crate) since_s: f64,
-    /// The estimate's horizontal velocity (north, west) at the last fusion, m/s, and at the
-    /// start of the window before the next one (with its time since that fusion, s).
-    pub(crate) v_earth_m_s: [f64; 2],
-    pub(crate) window: Option<([f64; 2], f64)>,
+    /// The predictions' change of the horizontal velocity (north, west), m/s, over the
+    /// window before the next fusion, and the window's length so far, s.
+    pub(crate) window_dv_m_s: [f64; 2],
+    pub(crate) window_s: f64,
     /// This step fuses the angles.
     pub(crate) due: bool,
     /// The attitude's test ratio at the last fusion.
@@ -206,8 +208,8 @@ impl Default for AngleClock {
             // The first step fuses: the initial covariance knows nothing of the attitude, and
             // the fixes' velocity must not tilt it meanwhile.
             since_s: f64::INFINITY,
-            v_earth_m_s: [0.0; 2],
-            window: None,
+            window_dv_m_s: [0.0; 2],
+            window_s: 0.0,
             due: true,
             ratio: 0.0,
         }
@@ -269,7 +271,9 @@ pub struct StepReport {
     pub gated: GatedGroups,
     /// The normalised innovation squared of each group fused or judged in the step.
     pub nis: StepNis,
-    /// A fix's horizontal velocity was fused this step, whether or not its position was.
+    /// A fix's horizontal velocity was fused this step inside its gate, whether or not its
+    /// position was (one fused at the gate's edge does not count: it is not a measurement the
+    /// estimate agrees with).
     pub fix_velocity_fused: bool,
     /// The test ratio of a fix's horizontal velocity rows alone, when it had them: a
     /// position jump with a consistent velocity is the receiver's glitch, a velocity outside
@@ -287,7 +291,8 @@ pub struct Nis {
 }
 
 /// The NIS of each measurement group of one step; `None` for a group the step did not measure
-/// (no fix, a lost barometer, the first fix that places the position).
+/// (no fix, a lost barometer, the first fix that places the position, the attitude between
+/// the IMU's angle fusions).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct StepNis {
     pub attitude: Option<Nis>,
@@ -346,7 +351,8 @@ fn step_nis<const M: usize>(
 /// Normalised innovation test ratios of one step, one per measurement group: the largest over
 /// the group's rows of y_i²/(gate_sigma²·S_ii), with y the innovation and S = H·P·Hᵀ + R.
 /// Dimensionless; above 1 the innovation is outside the gate. NaN when a row's measurement is
-/// not a number (the step then fuses nothing).
+/// not a number (the step then fuses nothing). The attitude's is its last fusion's between the
+/// IMU's angle fusions (`core::ekf_angles`).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct TestRatios {
     pub attitude: f64,
@@ -726,8 +732,9 @@ impl Ekf {
         let weight_n = input.mass_kg * crate::core::model::GRAVITY_M_S2;
         self.flying = total_thrust_n(&input.u_rad_s) > FLYING_THRUST_SHARE * weight_n;
         let u = &input.u_rad_s;
+        let v_before_m_s = self.earth_velocity_xy_m_s();
         self.predict(u, dt_used_us as f64 / 1e6, input.mass_kg);
-        self.tick_angles(dt_used_us as f64 / 1e6);
+        self.tick_angles(dt_used_us as f64 / 1e6, v_before_m_s);
         let az_pred = total_thrust_n(u) / input.mass_kg + self.x[idx::BAZ];
         let out = self.correct(sample, theta_m, az_pred, input.gps);
         // A fix's velocity alone (its position left out) observes the velocity as well: the
@@ -777,7 +784,8 @@ impl Ekf {
         }
         if self.pushed_now() {
             // The gyros alone carry roll and pitch through a push: the profile's attitude
-            // noise is sized against the IMU's angle rows, fused every step, which a push
+            // noise is sized against the IMU's angle rows (fused every step or once a
+            // period, `core::ekf_angles`), which a push
             // leaves out (below); without them it would spread a tilt's doubt into the
             // velocity within a second.
             for i in [idx::PSI, idx::PHI] {
@@ -951,9 +959,7 @@ impl Ekf {
         }
         let mut ratios = test_ratios(&innovation, &s, groups, self.params.gate_sigma);
         let mut nis = step_nis(&innovation, &s, groups);
-        if self.angles.due {
-            self.angles.ratio = ratios.attitude;
-        } else {
+        if !self.angles.due {
             // Not this step's: the angle rows are left out exactly, the ratio is the last
             // fusion's (a NaN angle is still judged: it refuses the update below).
             if !ratios.attitude.is_nan() {
@@ -1001,6 +1007,7 @@ impl Ekf {
             leave_out(gated, groups, &mut innovation, &mut pht, &mut s);
         }
         let result = self.fuse(&innovation, &mut pht, &mut s);
+        self.angles_fused(result.is_ok(), ratios.attitude);
         UpdateOutcome {
             ratios,
             gated,

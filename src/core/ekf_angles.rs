@@ -8,9 +8,11 @@
 //! at their true noise they would count one error a hundred times and pull the estimate onto
 //! the thrust axis; at a noise inflated to make up for it, their test ratios and NIS sit far
 //! under their bounds and a drifting gyro stays unseen. Fused once a period, each fusion is
-//! one reading at its own noise, and the ratios mean what they say. Roll's and pitch's noise
-//! grows by the horizontal acceleration the estimate flew over the period, over g: the
-//! original's norm-dependent R (spec, kalman module), on the quantity the error is made of.
+//! one reading at its own noise, and the ratios mean what they say. Their noise grows by the
+//! horizontal acceleration the estimate flew (its prediction, not its corrections) in the
+//! 0.25 s before the fusion, over g, squared - the yaw's too, the magnetometer's field being
+//! levelled by the same angles: the original's norm-dependent R (spec, kalman module), on the
+//! quantity the error is made of.
 //!
 //! Between fusions the angle rows are left out exactly, the attitude's test ratio holds its
 //! last value (the failsafe times a group outside its gate across the steps between fusions,
@@ -27,13 +29,32 @@ const ACCEL_WINDOW_S: f64 = 0.25;
 const R_ANGLES_NO_GYRO_RAD2: f64 = 0.11;
 
 impl Ekf {
-    /// A predicted step of `dt_s` has passed.
-    pub(crate) fn tick_angles(&mut self, dt_s: f64) {
+    /// A predicted step of `dt_s` has passed, the estimate's horizontal velocity before it
+    /// `v_before_m_s`: the prediction's change of it in the window before the next fusion is
+    /// the acceleration flown (the fixes' corrections are not: they are the estimate's own).
+    pub(crate) fn tick_angles(&mut self, dt_s: f64, v_before_m_s: [f64; 2]) {
+        let period_s = self.params.angle_period_s;
+        if period_s <= 0.0 {
+            return;
+        }
         self.angles.since_s += dt_s;
+        if self.angles.since_s + ACCEL_WINDOW_S + 1e-6 >= period_s {
+            let v = self.earth_velocity_xy_m_s();
+            for (sum, (after, before)) in self
+                .angles
+                .window_dv_m_s
+                .iter_mut()
+                .zip(v.iter().zip(v_before_m_s))
+            {
+                *sum += after - before;
+            }
+            self.angles.window_s += dt_s;
+        }
     }
 
     /// Whether this step fuses the IMU's angle rows (the first three of `r`), with their
-    /// noise for this step written into `r`.
+    /// noise for this step written into `r`. The clock moves on only once the fusion is made
+    /// ([`Ekf::angles_fused`]): a step refused whole leaves it due.
     pub(crate) fn angle_rows<const M: usize>(&mut self, r: &mut [f64; M]) -> bool {
         let period_s = self.params.angle_period_s;
         self.angles.due = true;
@@ -49,35 +70,40 @@ impl Ekf {
                 .for_each(|v| *v = v.max(R_ANGLES_NO_GYRO_RAD2));
             return true;
         }
-        let since_s = self.angles.since_s;
         // Within a microsecond of the period: steps of 10 000 µs sum to 0.999 999 s.
-        if since_s + 1e-6 < period_s {
-            if self.angles.window.is_none() && since_s + ACCEL_WINDOW_S + 1e-6 >= period_s {
-                self.angles.window = Some((self.earth_velocity_xy_m_s(), since_s));
-            }
+        if self.angles.since_s + 1e-6 < period_s {
             self.angles.due = false;
             return false;
         }
-        let v = self.earth_velocity_xy_m_s();
         // The acceleration of the fusion's moment, not the period's mean (a manoeuvre's
         // start and stop cancel over a second).
-        let (v0, t0_s) = self
-            .angles
-            .window
-            .take()
-            .unwrap_or((self.angles.v_earth_m_s, 0.0));
-        let dv = [0, 1].map(|i| v[i] - v0[i]);
-        let accel_m_s2 = dv[0].hypot(dv[1]) / (since_s - t0_s).max(1e-3);
+        let dv = self.angles.window_dv_m_s;
+        let accel_m_s2 = if self.angles.window_s > 0.0 {
+            dv[0].hypot(dv[1]) / self.angles.window_s
+        } else {
+            0.0
+        };
         let off_vertical = (accel_m_s2 / GRAVITY_M_S2).powi(2);
         // The yaw as well: the magnetometer's field is levelled by the same angles.
         r[..3].iter_mut().for_each(|v| *v += off_vertical);
-        self.angles.since_s = 0.0;
-        self.angles.v_earth_m_s = v;
         true
     }
 
+    /// The step's update is done, `ratio` the attitude's test ratio: a fusion that was due
+    /// and made (`made`: the update not refused) restarts the clock and is held as the
+    /// attitude's ratio until the next one.
+    pub(crate) fn angles_fused(&mut self, made: bool, ratio: f64) {
+        if !self.angles.due || !made || !ratio.is_finite() {
+            return;
+        }
+        self.angles.since_s = 0.0;
+        self.angles.window_dv_m_s = [0.0; 2];
+        self.angles.window_s = 0.0;
+        self.angles.ratio = ratio;
+    }
+
     /// The estimate's horizontal velocity, north and west, m/s.
-    fn earth_velocity_xy_m_s(&self) -> [f64; 2] {
+    pub(crate) fn earth_velocity_xy_m_s(&self) -> [f64; 2] {
         let x = &self.x;
         let r = rotation_portable(x[idx::PSI], x[idx::PHI], x[idx::THETA]);
         let v = [x[idx::VQX], x[idx::VQY], x[idx::VQZ]];
@@ -143,18 +169,60 @@ mod tests {
     }
 
     #[test]
-    fn an_acceleration_before_the_fusion_widens_the_angles_noise() {
+    fn an_acceleration_predicted_before_the_fusion_widens_the_angles_noise() {
         let (mut ekf, _, _) = filter(1.0);
         let mut r = [1e-4; 10];
         assert!(ekf.angle_rows(&mut r));
         assert_eq!(r[0], 1e-4);
-        // 0.98 m/s north gained over a second: a tenth of g, 0.01 rad² more on roll and pitch.
-        ekf.x[idx::VQX] = 0.1 * GRAVITY_M_S2;
-        ekf.tick_angles(1.0);
+        ekf.angles_fused(true, 0.0);
+        // A second of 10 ms steps. Every step's prediction gains a tenth of g north; every
+        // step of the first half also corrects the velocity by 0.5 m/s (a fix's pull): only
+        // the last 0.25 s's predictions count, 0.01 rad² more on every angle.
+        for k in 0..100 {
+            if k < 50 {
+                ekf.x[idx::VQX] += 0.5;
+            }
+            let before = ekf.earth_velocity_xy_m_s();
+            ekf.x[idx::VQX] += 0.1 * GRAVITY_M_S2 * 0.01;
+            ekf.tick_angles(0.01, before);
+            if k == 98 {
+                assert!(
+                    !ekf.angle_rows(&mut [1e-4; 10]),
+                    "not due before the second"
+                );
+            }
+        }
         let mut r = [1e-4; 10];
         assert!(ekf.angle_rows(&mut r));
-        assert!((r[0] - 1e-4 - 0.01).abs() < 1e-9, "{r:?}");
+        assert!((r[0] - 1e-4 - 0.01).abs() < 1e-6, "{r:?}");
         // Pitch, and the yaw the magnetometer's field is levelled by, alike; the rest stay.
         assert!(r[1] == r[0] && r[2] == r[0] && r[3] == 1e-4, "{r:?}");
+    }
+
+    #[test]
+    fn a_fusion_refused_by_a_bad_reading_stays_due_and_its_ratio_is_not_held() {
+        let (mut ekf, still, input) = filter(1.0);
+        for _ in 0..99 {
+            ekf.step(&still, &input).1.unwrap();
+        }
+        let held = ekf.step(&still, &input).0.ratios.attitude;
+        assert!(held.is_finite());
+        // Steps 101 (a fusion) to 200.
+        for _ in 0..100 {
+            ekf.step(&still, &input).1.unwrap();
+        }
+        // The next fusion's step brings a roll that is not a number: the update is refused.
+        let mut bad = still;
+        bad.euler_rad[0] = f64::NAN;
+        let (rep, res) = ekf.step(&bad, &input);
+        assert!(res.is_err() && rep.ratios.attitude.is_nan());
+        // The next step fuses instead, and no step after holds the NaN.
+        let (rep, res) = ekf.step(&still, &input);
+        res.unwrap();
+        assert!(rep.nis.attitude.is_some());
+        for _ in 0..50 {
+            let (rep, _) = ekf.step(&still, &input);
+            assert!(rep.ratios.attitude.is_finite() && rep.nis.attitude.is_none());
+        }
     }
 }

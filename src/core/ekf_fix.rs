@@ -15,7 +15,8 @@
 //! position rows and its horizontal velocity rows are gated apart (PX4 EKF2's separate
 //! gates): a position outside its gate with a velocity inside is a multipath glitch, and the
 //! velocity alone is fused; a velocity outside its gate is the estimate's own error, fused at
-//! the gate's edge unless it is wild; the vertical velocity row is gated on its own.
+//! the gate's edge unless it is wild; the vertical velocity row is gated on its own. The
+//! velocity rows reach the gyros' bias states too.
 
 use crate::core::ekf::{
     Ekf, EkfError, GPS_ROWS, GatedGroups, N_STATES, StateMatrix, StepNis, TestRatios,
@@ -46,8 +47,8 @@ const VERTICAL: [usize; 2] = [idx::Z, idx::VQZ];
 /// Rows: x, y, z, north, west and up velocity (the last only while the barometer is lost).
 const ROWS: usize = 6;
 /// A horizontal velocity whose test ratio is above 1 and at most this is fused at its gate's
-/// edge; above it (25 gate widths, a velocity off by metres a second) it is left out: a
-/// receiver's fault, or an estimate beyond saving by a fix.
+/// edge; above it (five gate widths: 25 standard deviations of the innovation with the 5σ
+/// gate) it is left out: a receiver's fault, or an estimate beyond saving by a fix.
 const VELOCITY_CLIP_MAX_RATIO: f64 = 25.0;
 /// The vertical velocity row's gain goes to the vertical speed alone: a correction of the
 /// height at a fix is a step the altitude loop flies (a few tenths of a metre saturate it),
@@ -145,9 +146,11 @@ impl Ekf {
         let velocity_out = used[3] && (outside(vel_ratio) || (broken && self.params.gate_fusion));
         if velocity_out && !broken && vel_ratio <= VELOCITY_CLIP_MAX_RATIO {
             // Outside its gate but not wild: the estimate's own error (a tilt, a gyro's bias
-            // it has not learnt yet), which leaving the velocity out would let grow until
-            // the fixes are lost. Fused at the noise that puts it on the gate's edge: the
-            // estimate moves less than a velocity on the edge would move it.
+            // it has not learnt yet), which leaving the velocity out would let grow until the
+            // fixes are lost - also while a multipath glitch holds the positions out (the
+            // receiver's Doppler velocity stays good). Fused at the noise that puts it on the
+            // gate's edge: the estimate moves less than a velocity on the edge would move it;
+            // a velocity off by more (a receiver's fault) stays out.
             for i in [3, 4] {
                 let edge = y[i] * y[i] / gate_sq;
                 if edge > s[(i, i)] {

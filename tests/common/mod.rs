@@ -181,10 +181,10 @@ pub const EKF_R_IMU_2012: &str =
     "ekf.r_imu=[100.0, 100.0, 1e5, 1e4, 1e4, 1e4, 1e-3, 1e-3, 1e-3, 1e5]";
 pub const EKF_R_GPS_2012: &str =
     "ekf.r_gps=[100.0, 100.0, 1e5, 1e4, 1e4, 1e4, 1e-3, 1e-3, 1e-3, 100.0, 100.0, 1e12]";
-/// `--set` arguments giving the default profile the 2012 flights' filter noise (Q and R),
-/// their fusion of the IMU's angles at every step (their noise is sized for it), and with
-/// them the original's calibration order ([`AFTER_ARM`]).
-pub const EKF_2012: [&str; 10] = [
+/// `--set` arguments giving the default profile the 2012 flights' filter: their noise (Q and
+/// R), their fusion of the IMU's angles at every step (their noise is sized for it), no gyro
+/// bias states, and with them the original's calibration order ([`AFTER_ARM`]).
+pub const EKF_2012: [&str; 14] = [
     "--set",
     EKF_Q_2012,
     "--set",
@@ -193,6 +193,10 @@ pub const EKF_2012: [&str; 10] = [
     EKF_R_GPS_2012,
     "--set",
     "ekf.angle_period_s=0",
+    "--set",
+    "ekf.q_gyro_bias=0",
+    "--set",
+    "ekf.p0_gyro_bias=0",
     "--set",
     AFTER_ARM,
 ];

@@ -50,8 +50,8 @@ pub struct CampaignReport {
     pub seed: u64,
     pub jobs: usize,
     pub violations: Vec<Violation>,
-    /// Violations a gyro the filter cannot follow is known to cause (stuck or its bias
-    /// stepped, breaking invariant 3 or 5), listed apart.
+    /// Violations a gyro the filter cannot follow is known to cause (stuck, or its bias
+    /// stepped with the fixes lost; breaking invariant 3 or 5), listed apart.
     pub known_exceptions: Vec<Violation>,
     /// Runs by fault (`a+b` for a pair), phase and outcome.
     pub outcomes: BTreeMap<String, BTreeMap<String, BTreeMap<String, u64>>>,
@@ -75,10 +75,8 @@ struct Judged {
 /// the bias's rate) - breaking the touchdown speed (3) or the fence (5).
 fn known(run: &Run, f: &Finding) -> bool {
     use crate::sim::faults::Fault;
-    let gyro = run
-        .inject
-        .iter()
-        .any(|(f, _)| matches!(f, Fault::GyroStuck | Fault::GyroBias));
+    let has = |fault: Fault| run.inject.iter().any(|(f, _)| *f == fault);
+    let gyro = has(Fault::GyroStuck) || (has(Fault::GyroBias) && has(Fault::GpsLoss));
     gyro && matches!(f.invariant, 3 | 5)
 }
 

@@ -51,8 +51,9 @@ pub struct Estimate {
     /// gate (a receiver whose positions stay gated is, past `failsafe.gps_loss_land_s`, a
     /// lost one to the commander).
     pub gps_used: bool,
-    /// A fix's horizontal velocity was fused in this step, its position perhaps left out (a
-    /// position glitch): the velocity, and the position dead-reckoned on it, stay observed.
+    /// A fix's horizontal velocity was fused in this step inside its gate, its position
+    /// perhaps left out (a position glitch): the velocity, and the position dead-reckoned on
+    /// it, stay observed.
     pub gps_velocity_used: bool,
     /// The test ratio of a fix's velocity rows alone, when one came with a velocity.
     pub gps_velocity_ratio: Option<f64>,
