@@ -436,6 +436,16 @@ fn the_flight_faults_strike_on_the_wall_clock_too() {
     assert!(after > before * 1.1, "m0 {before:.1} -> {after:.1} rad/s");
     assert!(stderr.contains("log writes stalled"), "{stderr}");
     assert_eq!(r["deadline_misses"], 0, "{r}");
+    // The true state went to truth.log frame by frame, on the logs' clock: a row for every
+    // Kalman step at least, and the vehicle truly at its height in the hover.
+    let truth = run.join("truth.log");
+    let kalman = numbers(&run.join("kalman_in.log"));
+    assert!(numbers(&truth).len() >= kalman.len(), "{stderr}");
+    let height_m = mean_between(&truth, 3, 14.0, 18.0);
+    assert!(
+        (0.5..1.5).contains(&height_m),
+        "true height {height_m:.2} m"
+    );
     // gust: pushed north (seen on the fixes); gps-loss: the failsafe, 3 s after the last fix.
     let (r, run, stderr, _dir) = realtime(&[
         "--inject",

@@ -2,7 +2,8 @@
 //! paced by the wall clock. A simulator thread steps the physics at `sim.physics_hz`, sends the
 //! IMU's frames through an in-memory pipe into fly's IMU reader, publishes simulated gpsd fixes
 //! where fly's gpsd client would, and reads fly's newest step for the hover window; the ESC
-//! writer's I2C writes reach the simulated ESCs through the bus trait.
+//! writer's I2C writes reach the simulated ESCs through the bus trait. The true state of each
+//! frame sent goes to truth.log as the run goes.
 
 use crate::app::fly::{self, Edges, FlyOptions};
 use crate::app::report::SimSummary;
@@ -49,6 +50,8 @@ struct SimThread {
     /// Ends the run once the vehicle has landed and disarmed after the script.
     cancel: CancellationToken,
     trace: CycleTrace,
+    /// Where the frames' true states go.
+    truth: TruthFile,
 }
 
 /// What the simulator thread measured.
@@ -57,6 +60,76 @@ struct SimResult {
     simulated_us: i64,
     hover: HoverStats,
     figures: crate::core::commander::Figures,
+    /// truth.log was written whole.
+    truth_whole: bool,
+}
+
+/// truth.log's rows (`sim::truth`), one per frame sent, on the simulator's wall clock (the
+/// logs' own, give or take the few milliseconds between the two starts). A realtime run's
+/// length is not known in advance: the rows go to a file as they come, nothing is held, and
+/// the run folder receives it at the end.
+struct TruthFile {
+    path: std::path::PathBuf,
+    out: Option<std::io::BufWriter<std::fs::File>>,
+    line: String,
+}
+
+impl TruthFile {
+    /// A file in the system's temporary folder; without one the run goes on, without truth.log.
+    fn create(seed: u64) -> Self {
+        let name = format!("uquad-truth-{}-{seed}.log", std::process::id());
+        let path = std::env::temp_dir().join(name);
+        let out = match std::fs::File::create(&path) {
+            Ok(f) => Some(std::io::BufWriter::new(f)),
+            Err(e) => {
+                tracing::warn!("truth.log: cannot create {}: {e}", path.display());
+                None
+            }
+        };
+        TruthFile {
+            path,
+            out,
+            line: String::new(),
+        }
+    }
+
+    /// One frame's row; a failed write stops the file (named once) and not the run.
+    fn row(&mut self, t_us: i64, values: &[f64; 15]) {
+        use std::io::Write;
+        let Some(out) = self.out.as_mut() else {
+            return;
+        };
+        self.line.clear();
+        crate::logs::format::write_values_row(&mut self.line, Some(t_us), values);
+        if let Err(e) = out.write_all(self.line.as_bytes()) {
+            tracing::warn!(
+                "truth.log: writing {}: {e}; no more rows",
+                self.path.display()
+            );
+            self.out = None;
+        }
+    }
+
+    /// Flushes the file: whether it holds every row.
+    fn finish(&mut self) -> bool {
+        use std::io::Write;
+        self.out.take().is_some_and(|mut out| out.flush().is_ok())
+    }
+}
+
+/// Moves the simulator's truth file into the run folder (copied when the two are on different
+/// file systems); the temporary file is removed either way.
+fn place_truth(tmp: &std::path::Path, whole: bool, fly: &mut crate::app::report::FlySummary) {
+    let dest = fly.run_dir.join(crate::sim::truth::FILE);
+    if whole
+        && std::fs::rename(tmp, &dest).is_err()
+        && let Err(e) = std::fs::copy(tmp, &dest)
+    {
+        let why = format!("cannot write {}: {e}", dest.display());
+        tracing::error!("{why}");
+        fly.error.get_or_insert(why);
+    }
+    let _ = std::fs::remove_file(tmp);
 }
 
 pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSummary> {
@@ -93,7 +166,9 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
         live: live_rx,
         stop: stop.clone(),
         rt: tokio::runtime::Handle::current(),
+        truth: TruthFile::create(seed),
     };
+    let truth_tmp = thread.truth.path.clone();
     let sim_thread =
         crate::tasks::spawn_thread("sim", true, SIM_PRIORITY, Cpu::First, move || thread.run())?;
     let timer = {
@@ -141,7 +216,14 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
         .and_then(Result::ok)
         .unwrap_or_default();
     let esc_end = model.lock().map(|m| m.end_state()).unwrap_or_default();
-    let mut fly = summary?;
+    let mut fly = match summary {
+        Ok(fly) => fly,
+        Err(e) => {
+            let _ = std::fs::remove_file(&truth_tmp);
+            return Err(e);
+        }
+    };
+    place_truth(&truth_tmp, result.truth_whole, &mut fly);
     fly.commander.figures = result.figures;
     Ok(SimSummary {
         esc_end,
@@ -207,12 +289,16 @@ impl SimThread {
                 break;
             }
             hover.sample(t_us, self.flight_view(), TrueState::of(&plant));
+            let bias_m = self.gps_tx.is_some().then(|| gps.bias_m());
+            let row = crate::sim::truth::row(&plant, bias_m);
+            self.truth.row(now_us, &row);
             self.watch(t_us, &plant);
         }
         SimResult {
             simulated_us: t_us,
             hover: hover.stats(),
             figures: self.trace.figures(),
+            truth_whole: self.truth.finish(),
         }
     }
 

@@ -734,7 +734,7 @@ impl Ekf {
         let u = &input.u_rad_s;
         let v_before_m_s = self.earth_velocity_xy_m_s();
         self.predict(u, dt_used_us as f64 / 1e6, input.mass_kg);
-        self.tick_angles(dt_used_us as f64 / 1e6, v_before_m_s);
+        let v_predicted_m_s = self.earth_velocity_xy_m_s();
         let az_pred = total_thrust_n(u) / input.mass_kg + self.x[idx::BAZ];
         let out = self.correct(sample, theta_m, az_pred, input.gps);
         // A fix's velocity alone (its position left out) observes the velocity as well: the
@@ -747,6 +747,14 @@ impl Ekf {
         {
             self.fuse_ground(ground_m);
         }
+        // The velocity the step flew, for the IMU's angles' noise: its prediction and the
+        // IMU's own corrections (a push the accelerometer reads, the drag), not a fix's pull.
+        let v_flown_m_s = if input.gps.is_some() {
+            v_predicted_m_s
+        } else {
+            self.earth_velocity_xy_m_s()
+        };
+        self.tick_angles(dt_used_us as f64 / 1e6, v_before_m_s, v_flown_m_s);
         let report = StepReport {
             dt_used_us,
             dt_clamped,

@@ -29,23 +29,20 @@ const ACCEL_WINDOW_S: f64 = 0.25;
 const R_ANGLES_NO_GYRO_RAD2: f64 = 0.11;
 
 impl Ekf {
-    /// A predicted step of `dt_s` has passed, the estimate's horizontal velocity before it
-    /// `v_before_m_s`: the prediction's change of it in the window before the next fusion is
-    /// the acceleration flown (the fixes' corrections are not: they are the estimate's own).
-    pub(crate) fn tick_angles(&mut self, dt_s: f64, v_before_m_s: [f64; 2]) {
+    /// A step of `dt_s` has passed, the estimate's horizontal velocity `v_before_m_s` before
+    /// it and `v_flown_m_s` after its prediction and the IMU's own corrections (not a fix's:
+    /// those are the estimate's own error, and a fix's phase against the fusions would widen
+    /// every fusion or none): its change in the window before the next fusion is the
+    /// acceleration flown.
+    pub(crate) fn tick_angles(&mut self, dt_s: f64, v_before_m_s: [f64; 2], v_flown_m_s: [f64; 2]) {
         let period_s = self.params.angle_period_s;
         if period_s <= 0.0 {
             return;
         }
         self.angles.since_s += dt_s;
         if self.angles.since_s + ACCEL_WINDOW_S + 1e-6 >= period_s {
-            let v = self.earth_velocity_xy_m_s();
-            for (sum, (after, before)) in self
-                .angles
-                .window_dv_m_s
-                .iter_mut()
-                .zip(v.iter().zip(v_before_m_s))
-            {
+            let pairs = v_flown_m_s.iter().zip(v_before_m_s);
+            for (sum, (after, before)) in self.angles.window_dv_m_s.iter_mut().zip(pairs) {
                 *sum += after - before;
             }
             self.angles.window_s += dt_s;
@@ -175,16 +172,16 @@ mod tests {
         assert!(ekf.angle_rows(&mut r));
         assert_eq!(r[0], 1e-4);
         ekf.angles_fused(true, 0.0);
-        // A second of 10 ms steps. Every step's prediction gains a tenth of g north; every
-        // step of the first half also corrects the velocity by 0.5 m/s (a fix's pull): only
-        // the last 0.25 s's predictions count, 0.01 rad² more on every angle.
+        // A second of 10 ms steps. Every step flies a tenth of g north; every step of the
+        // first half is also pulled by 0.5 m/s (a fix's correction, not flown): only the last
+        // 0.25 s's flight counts, 0.01 rad² more on every angle.
         for k in 0..100 {
             if k < 50 {
                 ekf.x[idx::VQX] += 0.5;
             }
             let before = ekf.earth_velocity_xy_m_s();
             ekf.x[idx::VQX] += 0.1 * GRAVITY_M_S2 * 0.01;
-            ekf.tick_angles(0.01, before);
+            ekf.tick_angles(0.01, before, ekf.earth_velocity_xy_m_s());
             if k == 98 {
                 assert!(
                     !ekf.angle_rows(&mut [1e-4; 10]),

@@ -160,6 +160,16 @@ pub struct EstError {
     pub steps: u64,
 }
 
+/// truth.log's row for the vehicle `plant` and the simulated receiver's bias (north, west,
+/// up, m; zero without a receiver).
+pub fn row(plant: &Plant, receiver_bias_m: Option<[f64; 3]>) -> [f64; 15] {
+    let bias_m = receiver_bias_m.unwrap_or_default();
+    std::array::from_fn(|i| match i {
+        0..12 => plant.x[i],
+        _ => bias_m[i - 12],
+    })
+}
+
 /// The figures over every Kalman step.
 #[derive(Debug, Default)]
 pub struct TruthTrace {
@@ -196,10 +206,7 @@ impl TruthTrace {
     ) -> [f64; 15] {
         let x = &plant.x;
         let bias_m = receiver_bias_m.unwrap_or_default();
-        let truth: [f64; 15] = std::array::from_fn(|i| match i {
-            0..12 => x[i],
-            _ => bias_m[i - 12],
-        });
+        let truth = row(plant, receiver_bias_m);
         let e = &est.x;
         let d = |i: usize| e[i] - x[i];
         let pos = [d(idx::X), d(idx::Y), d(idx::Z)];
