@@ -112,8 +112,7 @@ pub struct EkfParams {
     /// ratio is y²/(gate_sigma²·S_ii), above 1 outside the gate (PX4 EKF2's convention).
     pub gate_sigma: f64,
     /// Leave a measurement group whose test ratio is above 1 out of the step's update (a
-    /// fix's velocity with its position inside is fused at the gate's edge instead,
-    /// `core::ekf_fix`). `false` fuses every row (the ratios are still computed and reported).
+    /// fix's velocity not wildly off is fused at the gate's edge instead, `core::ekf_fix`). `false` fuses every row (the ratios are still computed and reported).
     pub gate_fusion: bool,
     /// How a GPS fix is fused.
     pub gps_fusion: GpsFusion,
@@ -732,9 +731,13 @@ impl Ekf {
         let weight_n = input.mass_kg * crate::core::model::GRAVITY_M_S2;
         self.flying = total_thrust_n(&input.u_rad_s) > FLYING_THRUST_SHARE * weight_n;
         let u = &input.u_rad_s;
-        let v_before_m_s = self.earth_velocity_xy_m_s();
-        self.predict(u, dt_used_us as f64 / 1e6, input.mass_kg);
-        let v_predicted_m_s = self.earth_velocity_xy_m_s();
+        let dt_s = dt_used_us as f64 / 1e6;
+        // The velocities the IMU's angles' noise is judged by, only in the window that needs
+        // them (the 2012 profile's every-step fusion never does).
+        let watch = self.angle_window_open(dt_s);
+        let v_before_m_s = watch.then(|| self.earth_velocity_xy_m_s());
+        self.predict(u, dt_s, input.mass_kg);
+        let v_predicted_m_s = watch.then(|| self.earth_velocity_xy_m_s());
         let az_pred = total_thrust_n(u) / input.mass_kg + self.x[idx::BAZ];
         let out = self.correct(sample, theta_m, az_pred, input.gps);
         // A fix's velocity alone (its position left out) observes the velocity as well: the
@@ -752,9 +755,9 @@ impl Ekf {
         let v_flown_m_s = if input.gps.is_some() {
             v_predicted_m_s
         } else {
-            self.earth_velocity_xy_m_s()
+            watch.then(|| self.earth_velocity_xy_m_s())
         };
-        self.tick_angles(dt_used_us as f64 / 1e6, v_before_m_s, v_flown_m_s);
+        self.tick_angles(dt_s, v_before_m_s.zip(v_flown_m_s));
         let report = StepReport {
             dt_used_us,
             dt_clamped,

@@ -22,27 +22,40 @@ use crate::core::ekf::{Ekf, idx};
 use crate::core::math::rotation_portable;
 use crate::core::model::GRAVITY_M_S2;
 
-/// How long before a fusion the acceleration its roll and pitch are judged by is taken, s.
+/// How long before a fusion the acceleration its angles' noise is widened by is taken, s.
 const ACCEL_WINDOW_S: f64 = 0.25;
 
 /// The angles' noise per step while the gyro is lost, rad².
 const R_ANGLES_NO_GYRO_RAD2: f64 = 0.11;
 
 impl Ekf {
-    /// A step of `dt_s` has passed, the estimate's horizontal velocity `v_before_m_s` before
-    /// it and `v_flown_m_s` after its prediction and the IMU's own corrections (not a fix's:
-    /// those are the estimate's own error, and a fix's phase against the fusions would widen
-    /// every fusion or none): its change in the window before the next fusion is the
-    /// acceleration flown.
-    pub(crate) fn tick_angles(&mut self, dt_s: f64, v_before_m_s: [f64; 2], v_flown_m_s: [f64; 2]) {
+    /// A step of `dt_s` is about to be taken that may fall in the window before the next
+    /// fusion (its velocities are then wanted by [`Ekf::tick_angles`]).
+    pub(crate) fn angle_window_open(&self, dt_s: f64) -> bool {
+        let period_s = self.params.angle_period_s;
+        period_s > 0.0 && self.angles.since_s + dt_s + ACCEL_WINDOW_S + 1e-6 >= period_s
+    }
+
+    /// A step of `dt_s` has passed, with the estimate's horizontal velocity before it and
+    /// after its prediction and the IMU's own corrections (not a fix's: those are the
+    /// estimate's own error, and a fix's phase against the fusions would widen every fusion
+    /// or none), when [`Ekf::angle_window_open`] asked for them: their change in the window
+    /// before the next fusion is the acceleration flown.
+    pub(crate) fn tick_angles(&mut self, dt_s: f64, velocities_m_s: Option<([f64; 2], [f64; 2])>) {
         let period_s = self.params.angle_period_s;
         if period_s <= 0.0 {
             return;
         }
         self.angles.since_s += dt_s;
-        if self.angles.since_s + ACCEL_WINDOW_S + 1e-6 >= period_s {
-            let pairs = v_flown_m_s.iter().zip(v_before_m_s);
-            for (sum, (after, before)) in self.angles.window_dv_m_s.iter_mut().zip(pairs) {
+        if self.angles.since_s + ACCEL_WINDOW_S + 1e-6 >= period_s
+            && let Some((before, flown)) = velocities_m_s
+        {
+            for (sum, (after, before)) in self
+                .angles
+                .window_dv_m_s
+                .iter_mut()
+                .zip(flown.iter().zip(before))
+            {
                 *sum += after - before;
             }
             self.angles.window_s += dt_s;
@@ -181,7 +194,9 @@ mod tests {
             }
             let before = ekf.earth_velocity_xy_m_s();
             ekf.x[idx::VQX] += 0.1 * GRAVITY_M_S2 * 0.01;
-            ekf.tick_angles(0.01, before, ekf.earth_velocity_xy_m_s());
+            let asked = ekf.angle_window_open(0.01);
+            let flown = ekf.earth_velocity_xy_m_s();
+            ekf.tick_angles(0.01, asked.then_some((before, flown)));
             if k == 98 {
                 assert!(
                     !ekf.angle_rows(&mut [1e-4; 10]),
