@@ -444,7 +444,7 @@ fn the_flight_faults_strike_on_the_wall_clock_too() {
     let height_m = mean_between(&truth, 3, 14.0, 18.0);
     assert!(
         (0.5..1.5).contains(&height_m),
-        "true height {height_m:.2} m"
+        "true height {height_m:.2} m\n{stderr}"
     );
     // gust: pushed north (seen on the fixes); gps-loss: the failsafe, 3 s after the last fix.
     let (r, run, stderr, _dir) = realtime(&[
