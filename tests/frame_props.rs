@@ -2,7 +2,6 @@
 
 use bytes::BytesMut;
 use proptest::prelude::*;
-use tokio_util::codec::Decoder;
 use uquad::core::imu::frame::{FRAME_LEN, FrameDecoder, RawFrame};
 
 fn arb_frame() -> impl Strategy<Value = RawFrame> {
@@ -32,8 +31,8 @@ fn encode_all(frames: &[RawFrame]) -> Vec<u8> {
         .collect()
 }
 
-/// Feeds `bytes` to a fresh decoder in the given chunk sizes (cycled), through the
-/// `tokio_util` Decoder interface a framed reader uses.
+/// Feeds `bytes` to a fresh decoder in the given chunk sizes (cycled), as the IMU reader
+/// does with what each read returns.
 fn decode_chunked(bytes: &[u8], chunks: &[usize]) -> (Vec<RawFrame>, FrameDecoder) {
     let mut d = FrameDecoder::new();
     let mut buf = BytesMut::new();
@@ -45,7 +44,7 @@ fn decode_chunked(bytes: &[u8], chunks: &[usize]) -> (Vec<RawFrame>, FrameDecode
         k += 1;
         buf.extend_from_slice(&bytes[at..at + n]);
         at += n;
-        while let Some(f) = d.decode(&mut buf).expect("the decoder never errors") {
+        while let Some(f) = d.next_frame(&mut buf) {
             out.push(f);
         }
     }

@@ -388,14 +388,7 @@ fn decode_checked(bytes: &[u8], chunks: &[usize]) -> Result<Vec<RawFrame>, TestC
         let n = chunks[k % chunks.len()].clamp(1, bytes.len() - fed);
         buf.extend_from_slice(&bytes[fed..fed + n]);
         fed += n;
-        loop {
-            // Both entry points: the decoder itself and the codec interface a reader uses.
-            let next = if k % 2 == 0 {
-                d.next_frame(&mut buf)
-            } else {
-                d.decode(&mut buf).expect("the decoder never errors")
-            };
-            let Some(f) = next else { break };
+        while let Some(f) = d.next_frame(&mut buf) {
             let end = fed - buf.len();
             prop_assert!(end >= FRAME_LEN, "a frame out of {end} bytes");
             let start = end - FRAME_LEN;

@@ -290,8 +290,14 @@ impl Encoder {
         self
     }
 
-    /// `msg` as one frame appended to `out`.
+    /// `msg` as one frame appended to `out`, signed (with a key) at the signing clock's now.
     pub fn encode(&mut self, msg: &MavMessage, out: &mut Vec<u8>) {
+        self.encode_at(msg, out, signing::now());
+    }
+
+    /// `msg` as one frame appended to `out`, signed (with a key) at `signing_now` (10 µs units
+    /// since 2015): the caller's clock, so a protocol that never reads one can sign.
+    pub fn encode_at(&mut self, msg: &MavMessage, out: &mut Vec<u8>, signing_now: u64) {
         let header = MavHeader {
             system_id: u32::from(self.system_id),
             component_id: self.component_id,
@@ -306,7 +312,7 @@ impl Encoder {
             signing.sign(
                 &mut frame,
                 MavMessage::extra_crc(msg.message_id()),
-                signing::now(),
+                signing_now,
             );
             out.extend_from_slice(&frame);
         }

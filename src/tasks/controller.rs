@@ -40,25 +40,7 @@ pub struct ControllerTask {
     pub live: watch::Sender<Option<Live>>,
 }
 
-/// What the console (and the simulator's hover window) sees of the running flight.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Live {
-    pub step: u32,
-    pub x: [f64; 15],
-    pub w_rad_s: [f64; 4],
-    /// The set point (x, y, z), m.
-    pub setpoint_m: [f64; 3],
-    /// The commander's mode and the height above the takeoff point it sends the vehicle to, m.
-    pub mode: crate::core::commander::Mode,
-    pub height_m: f64,
-    /// Steps under the control law so far (the flight ramp is done after 100).
-    pub flying_steps: u64,
-    /// The estimate's innovation test ratios, and the takeoff point (m), for a ground station.
-    pub ratios: crate::core::ekf::TestRatios,
-    pub home_m: Option<[f64; 3]>,
-    /// The mission item flown or paused at (as loaded).
-    pub mission_item: Option<usize>,
-}
+pub use crate::core::status::Live;
 
 impl ControllerTask {
     pub async fn run(mut self) -> ControllerReport {

@@ -11,6 +11,7 @@ pub mod latency;
 pub mod logger;
 pub mod notices;
 pub mod prearm;
+pub mod status;
 pub mod watchdog;
 
 use crate::core::flight::{FlightRecord, Outputs};

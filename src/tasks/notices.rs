@@ -3,29 +3,13 @@
 //! queue the control path only ever `try_send`s into (no lock a reader holds can stall it);
 //! what a full queue cannot take is dropped and counted.
 
-use crate::core::commander::{Command, Event, LinkSource};
+pub use crate::gcs::connection::Notice;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use tokio::sync::mpsc;
 
 /// Notices held for the link: a burst of refusals from a flood of commands fits.
 const QUEUE: usize = 256;
-
-#[derive(Debug, Clone, PartialEq)]
-pub enum Notice {
-    Event(Event),
-    /// A command as the commander took it: refused (and why) or done.
-    Outcome {
-        command: Command,
-        source: LinkSource,
-        refused: Option<String>,
-    },
-    /// A ground station's mission (by its file's name) as the commander took it.
-    Mission {
-        name: String,
-        refused: Option<String>,
-    },
-}
 
 /// The sending side; cheap to clone. `Notices::default()` sends nowhere.
 #[derive(Debug, Clone, Default)]

@@ -4,19 +4,17 @@
 use super::{FlyOptions, RunHandles};
 use crate::config::Profile;
 use crate::core::commander::OperatorInput;
-use crate::core::gps::LiveFix;
 use crate::gcs::params::Params;
 use crate::tasks::gcs::{self, GcsContext, Link, ParamStore};
 use crate::tasks::notices::{Notice, Notices};
-use tokio::sync::{mpsc, watch};
+use crate::tasks::status::StatusSources;
+use tokio::sync::mpsc;
 
 /// What the link takes from the run beyond the shared handles.
 pub(super) struct Inputs {
     pub operator: mpsc::Sender<OperatorInput>,
     pub notices: mpsc::Receiver<Notice>,
-    pub gps_live: Option<watch::Receiver<Option<LiveFix>>>,
-    pub log_problem: watch::Receiver<Option<String>>,
-    pub control_cpu: Option<libc::clockid_t>,
+    pub status: StatusSources,
 }
 
 /// The flight's notices for the link, when it is served: the sending side for the control
@@ -46,18 +44,11 @@ pub(super) fn spawn(
             logs: h.logs.clone(),
         },
         operator: i.operator,
-        notices: Some(i.notices),
+        notices: i.notices,
         notices_tx: h.notices.clone(),
-        live: h.live.clone(),
-        gps: i.gps_live,
-        log_problem: i.log_problem,
+        status: i.status,
         gps_timeout_us: (cfg.control.gps_hold_timeout_s * 1e6).round() as i64,
-        watchdog: h.wd_status.clone(),
-        imu: h.imu_stats.clone(),
-        esc: h.esc_status.clone(),
-        esc_addresses: profile.motor_map().addresses,
-        beats: h.beats.clone(),
-        control_cpu: i.control_cpu,
+        boot: h.beats.start(),
         stats: h.gcs_stats.clone().unwrap_or_default(),
         cancel: h.cancel.clone(),
         signing_key: profile.signing_key,

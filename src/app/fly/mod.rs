@@ -182,14 +182,23 @@ pub async fn run(
         &opts,
         &h,
     )?;
-    serve_operator(profile, &opts, &h, &operator_tx);
+    // The vehicle's status as every watcher reads it: the console and the link alike.
+    let status = crate::tasks::status::StatusSources {
+        live: h.live.clone(),
+        gps: gps_live,
+        log_problem,
+        watchdog: h.wd_status.clone(),
+        imu: h.imu_stats.clone(),
+        esc: h.esc_status.clone(),
+        esc_addresses: profile.motor_map().addresses,
+        control_cpu: crate::hw::cpu_clock::thread_clock(&control),
+    };
+    serve_operator(profile, &opts, &h, &operator_tx, &status);
     let gcs = notices_rx.map(|notices| {
         let link = gcs_link::Inputs {
             operator: operator_tx.clone(),
             notices,
-            gps_live,
-            log_problem,
-            control_cpu: crate::tasks::gcs::thread_clock(&control),
+            status,
         };
         gcs_link::spawn(profile, &opts, &h, link)
     });
@@ -317,6 +326,7 @@ fn serve_operator(
     opts: &FlyOptions,
     h: &RunHandles,
     operator_tx: &mpsc::Sender<OperatorInput>,
+    status: &crate::tasks::status::StatusSources,
 ) {
     let cfg = &profile.config;
     if opts.stdin_keys {
@@ -339,8 +349,8 @@ fn serve_operator(
     }
     if !cfg.console.socket.as_os_str().is_empty() {
         let stats: crate::console::StatsFn = {
-            let h = h.clone();
-            Arc::new(move || operators::console_stats(&h))
+            let (h, status) = (h.clone(), status.clone());
+            Arc::new(move || operators::console_stats(&h, &status.read()))
         };
         let path = cfg.console.socket.clone();
         let drops = h.console_drops.clone();

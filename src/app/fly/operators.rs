@@ -4,6 +4,7 @@
 
 use super::RunHandles;
 use crate::core::commander::{LinkSource, OperatorInput};
+use crate::core::status::VehicleStatus;
 use crate::tasks::esc_writer::EscMailbox;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
@@ -13,7 +14,7 @@ use tokio_util::sync::CancellationToken;
 
 /// The console's statistics line: latency histogram, deadline misses, log drops, the current
 /// estimate and motor speeds.
-pub(super) fn console_stats(h: &RunHandles) -> String {
+pub(super) fn console_stats(h: &RunHandles, status: &VehicleStatus) -> String {
     // Latency histogram of the last second's commands (at most 100), in buckets of 100 µs,
     // and where it went: each stage's median and maximum over the same commands.
     let latency = &h.esc_status.latency;
@@ -26,7 +27,7 @@ pub(super) fn console_stats(h: &RunHandles) -> String {
         "stats t={:.1}s frames={} deadline_misses={} log_drops={} latency_us[<100,<200,<300,<400,<500,>=500]={:?} \
          latency_stages_us[estimate,command,write](median/max)=[{}/{}, {}/{}, {}/{}]",
         h.beats.us(Instant::now()) as f64 / 1e6,
-        h.imu_stats.frames.load(Ordering::Relaxed),
+        status.imu_frames,
         h.wd_status.deadline_misses.load(Ordering::Relaxed),
         h.logs.dropped().total(),
         hist,
@@ -37,7 +38,7 @@ pub(super) fn console_stats(h: &RunHandles) -> String {
         w.0,
         w.1
     );
-    if let Some(l) = *h.live.borrow() {
+    if let Some(l) = status.live {
         let _ = std::fmt::Write::write_fmt(
             &mut s,
             format_args!(
@@ -55,9 +56,8 @@ pub(super) fn console_stats(h: &RunHandles) -> String {
             ),
         );
     }
-    if let Some(halt) = h.wd_status.halt() {
-        let _ =
-            std::fmt::Write::write_fmt(&mut s, format_args!(" HALT={}", halt.trip.reason.name()));
+    if let Some(reason) = status.halt {
+        let _ = std::fmt::Write::write_fmt(&mut s, format_args!(" HALT={}", reason.name()));
     }
     s
 }

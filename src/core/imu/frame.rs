@@ -12,7 +12,6 @@
 //!   `u16`, which breaks below 0 °C).
 
 use bytes::{Buf, BytesMut};
-use tokio_util::codec::Decoder;
 
 /// Length of a binary frame in bytes (spec 1.2).
 pub const FRAME_LEN: usize = 30;
@@ -188,15 +187,6 @@ impl FrameDecoder {
             self.stats.discarded_bytes += 1;
             buf.advance(1);
         }
-    }
-}
-
-impl Decoder for FrameDecoder {
-    type Item = RawFrame;
-    type Error = std::io::Error;
-
-    fn decode(&mut self, src: &mut BytesMut) -> Result<Option<RawFrame>, std::io::Error> {
-        Ok(self.next_frame(src))
     }
 }
 

@@ -1,63 +1,73 @@
 //! The ground-station link task: MAVLink 2 over UDP or a serial radio, on the main runtime and
-//! never on the control path. The protocol is `crate::gcs`; this task moves its messages.
+//! never on the control path. The protocol is `crate::gcs::connection`, which does no I/O;
+//! this task moves its bytes, reads the vehicle's status for it, keeps its timer, and does
+//! its file work (err.log lines, kept parameters, uploads planned on a blocking worker).
 //!
-//! In: frames from the link, at most `gcs.max_rx_per_s` a second (beyond: dropped, counted);
-//! the flight's notices (mode changes, failsafes, refusals, commands' outcomes) from a queue
-//! the control path only `try_send`s into; its newest step, GPS fix, log folder probe and
-//! watchdog status.
-//! Out: operator inputs (commands; the ground station's heartbeats as link beats) into the
-//! flight's bounded operator queue, never waited on (a full queue refuses the command);
-//! telemetry, acknowledgements and texts to the link (a full link drops and counts).
-//! Rate: a tick every 20 ms sends what is due. Ends: on cancel.
-//!
-//! - `state`: the task's state, the bytes heard, the notices, the tick and health;
-//! - `commands`: commands to the commander and their acknowledgements;
-//! - `streams`: the periodic messages and requests for one;
-//! - `params`: the parameter protocol; `store`: keeping a set value;
-//! - `mission`: the mission protocol (upload, download, progress); `mission_state`: its state;
-//! - `link`: the UDP socket or the serial radio.
+//! In: bytes from the link; the flight's notices (a queue the control path only `try_send`s
+//! into); the newest step (a watch) and the rest of the vehicle's status (`tasks::status`).
+//! Out: operator inputs into the flight's bounded queue, never waited on (a full queue is
+//! told back to the protocol, which refuses the command); frames to the link (a full link
+//! drops and counts).
+//! Rate: whenever the protocol's timer is due (20 ms at the fastest). Ends: on cancel, after a
+//! last heartbeat; or when the serial radio fails.
 
-mod commands;
 mod link;
-mod mission;
-mod mission_state;
-mod params;
-mod state;
 mod store;
-mod streams;
 
 pub use link::Link;
-pub use mission_state::MissionDesk;
-pub use state::GcsContext;
 pub use store::ParamStore;
 
+use crate::config::{GcsConfig, Profile};
+use crate::core::commander::OperatorInput;
+use crate::core::mission::MissionPlan;
+use crate::gcs::connection::{Connection, Counts, Effect, MissionSettings, Notice, Settings};
+use crate::gcs::params::Params;
+use crate::hw::cpu_clock::thread_cpu_ns;
+use crate::tasks::notices::Notices;
+use crate::tasks::status::StatusSources;
+use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
-use std::time::Duration;
+use std::time::{Duration, Instant};
+use tokio::sync::mpsc;
+use tokio_util::sync::CancellationToken;
 
-/// How often the task looks at what is due.
-const TICK: Duration = Duration::from_millis(20);
+/// What the task is given: the link's settings, the flight's shared state, its queues.
+pub struct GcsContext {
+    pub cfg: GcsConfig,
+    pub params: Params,
+    pub store: ParamStore,
+    pub operator: mpsc::Sender<OperatorInput>,
+    /// The flight's notices, and their sending side's count of what a full queue dropped.
+    pub notices: mpsc::Receiver<Notice>,
+    pub notices_tx: Notices,
+    pub status: StatusSources,
+    /// A fix older than this does not hold position, µs.
+    pub gps_timeout_us: i64,
+    /// The run's start.
+    pub boot: Instant,
+    pub stats: GcsStats,
+    pub cancel: CancellationToken,
+    /// Plans ground stations' missions (none: uploads are refused).
+    pub missions: Option<MissionDesk>,
+    /// MAVLink 2 signing's key (`gcs.signing_key_file`; none: off).
+    pub signing_key: Option<crate::config::SigningKey>,
+}
+
+/// What the link needs to plan an upload: the profile (its checks, weights and speeds) and
+/// the run folder the mission files go into; the mission loaded at start, if any.
+pub struct MissionDesk {
+    pub profile: Arc<Profile>,
+    pub run_dir: PathBuf,
+    pub loaded: Option<Arc<MissionPlan>>,
+}
 
 /// The link's part of the run's report; the task publishes it after each thing it handles.
 #[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
 pub struct GcsReport {
     #[serde(flatten)]
-    pub rx: crate::gcs::wire::RxCounts,
-    /// Frames over `gcs.max_rx_per_s`, and datagrams over its bytes, dropped unread.
-    pub flood_drops: u64,
-    pub rx_errors: u64,
-    pub tx_frames: u64,
-    pub tx_drops: u64,
-    pub commands: u64,
-    pub commands_refused: u64,
-    /// Commands, parameter sets and mission writes from a sender that may not command (not
-    /// a ground station, or not in `gcs.allowed_systems`): denied.
-    pub senders_denied: u64,
-    /// Inputs the flight's full operator queue could not take.
-    pub input_drops: u64,
-    pub param_sets: u64,
+    pub counts: Counts,
     /// Notices the flight's full queue dropped before the link read them.
     pub notices_missed: u64,
-    pub gcs_heartbeats: u64,
     /// The task's CPU time, ms, and its share of one core over its run, %.
     pub cpu_ms: f64,
     pub cpu_pct: f64,
@@ -66,73 +76,171 @@ pub struct GcsReport {
 /// Where the task publishes its report.
 pub type GcsStats = Arc<Mutex<GcsReport>>;
 
+/// A worker's plan of upload `name`.
+struct Planned {
+    name: String,
+    plan: Result<MissionPlan, String>,
+}
+
+/// The protocol's settings from the task's context and its link.
+fn settings(ctx: &GcsContext, link: &Link, now: Instant) -> Settings {
+    let since_boot_10us = now.saturating_duration_since(ctx.boot).as_micros() / 10;
+    let at_boot = crate::gcs::signing::now().saturating_sub(since_boot_10us as u64);
+    Settings {
+        cfg: ctx.cfg.clone(),
+        params: ctx.params.clone(),
+        boot: ctx.boot,
+        signing: ctx.signing_key.map(|k| (k.0, at_boot)),
+        gps_timeout_us: ctx.gps_timeout_us,
+        datagrams: !link.is_serial(),
+        params_per_pace: link.params_per_tick(),
+        missions: ctx.missions.as_ref().map(|d| MissionSettings {
+            speed_m_s: d.profile.config.mission.speed_m_s,
+            hover_z_m: d.profile.config.control.hover_z_m,
+            loaded_items: d.loaded.as_ref().map(|p| p.mission.items.len()),
+        }),
+    }
+}
+
 /// Serves the link until cancel.
-pub async fn run(mut link: Link, ctx: GcsContext) {
-    let streams = streams::default_streams(&ctx.cfg, std::time::Instant::now());
-    let mut g = state::Gcs::new(ctx, link.decoder(), streams, link.params_per_tick());
-    let mut notices = g.take_notices();
-    let mut designed = g.missions.take_designed();
+pub async fn run(mut link: Link, mut ctx: GcsContext) {
+    let started = Instant::now();
+    let mut conn = Connection::new(settings(&ctx, &link, started), started);
+    let (plans_tx, mut plans) = mpsc::channel::<Planned>(1);
+    let mut live = ctx.status.live.clone();
+    let (mut live_open, mut cpu_ns) = (true, 0u64);
     let mut buf = vec![0u8; 4096];
-    let mut tick = tokio::time::interval(TICK);
-    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
-    let cancel = g.cancel();
+    // Far enough never to come; a protocol always has its health check due.
+    let never = Instant::now() + Duration::from_secs(86_400);
     loop {
-        // Cancel, then the tick and the flight's notices before the link's bytes: a link
-        // that never goes quiet (a flood) must not starve telemetry and acknowledgements.
-        tokio::select! {
+        let due = tokio::time::Instant::from_std(conn.poll_timeout().unwrap_or(never));
+        // Cancel, then the timer and the flight before the link's bytes: a link that never
+        // goes quiet (a flood) must not starve telemetry and acknowledgements.
+        let t0 = tokio::select! {
             biased;
-            _ = cancel.cancelled() => break,
-            _ = tick.tick() => g.timed(|g| {
-                // The notices already sent first: the tick reads the flight's newest step,
-                // and a step's notices (the last item reached, at touchdown) are sent before
-                // the step is published; read after, a finished mission would show as not
-                // started for a tick.
-                while let Ok(n) = notices.try_recv() {
-                    g.on_notice(n, &mut link);
+            _ = ctx.cancel.cancelled() => break,
+            _ = tokio::time::sleep_until(due) => {
+                let t0 = thread_cpu_ns();
+                fresh_status(&mut conn, &mut ctx);
+                conn.handle_timeout(Instant::now());
+                t0
+            }
+            Some(n) = ctx.notices.recv() => {
+                let t0 = thread_cpu_ns();
+                conn.handle_notice(Instant::now(), n);
+                t0
+            }
+            Some(p) = plans.recv() => {
+                let t0 = thread_cpu_ns();
+                conn.handle_plan(Instant::now(), &p.name, p.plan);
+                t0
+            }
+            r = live.changed(), if live_open => {
+                let t0 = thread_cpu_ns();
+                live.borrow_and_update();
+                live_open = r.is_ok();
+                fresh_status(&mut conn, &mut ctx);
+                t0
+            }
+            r = link.recv(&mut buf) => {
+                let t0 = thread_cpu_ns();
+                match r {
+                    Ok((n, from)) => {
+                        if conn.handle_datagram(Instant::now(), &buf[..n])
+                            && let Some(f) = from
+                        {
+                            link.heard_from(f);
+                        }
+                    }
+                    // A datagram refused on the way (ICMP): nothing to read, go on.
+                    Err(_) if !link.is_serial() => conn.count_rx_error(),
+                    Err(e) => {
+                        tracing::error!("gcs: the serial radio failed ({e}); the link is closed");
+                        break;
+                    }
                 }
-                g.on_tick(&mut link)
-            }),
-            Some(n) = notices.recv() => g.timed(|g| g.on_notice(n, &mut link)),
-            Some(d) = designed.recv() => g.timed(|g| g.on_designed(d, &mut link)),
-            r = link.recv(&mut buf) => match r {
-                Ok((n, from)) => g.timed(|g| g.on_bytes(&buf[..n], from, &mut link)),
-                // A datagram refused on the way (ICMP): nothing to read, go on.
-                Err(_) if !link.is_serial() => g.timed(|g| g.count_rx_error()),
-                Err(e) => {
-                    tracing::error!("gcs: the serial radio failed ({e}); the link is closed");
-                    break;
-                }
-            },
-        }
+                t0
+            }
+        };
+        drive(&mut conn, &mut link, &ctx, &plans_tx);
+        cpu_ns += thread_cpu_ns().saturating_sub(t0);
+        publish(&conn, &ctx, cpu_ns, started);
     }
     // The run ends: what the flight said last (a halt, the kill) still reaches the ground
     // station, with a last heartbeat.
-    g.timed(|g| g.on_end(&mut notices, &mut link));
+    fresh_status(&mut conn, &mut ctx);
+    conn.handle_end(Instant::now());
+    drive(&mut conn, &mut link, &ctx, &plans_tx);
+    publish(&conn, &ctx, cpu_ns, started);
 }
 
-/// The calling thread's CPU time, ns.
-fn thread_cpu_ns() -> u64 {
-    clock_ns(libc::CLOCK_THREAD_CPUTIME_ID)
-}
-
-fn clock_ns(clock: libc::clockid_t) -> u64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: clock_gettime writes into `ts` only.
-    if unsafe { libc::clock_gettime(clock, &mut ts) } != 0 {
-        return 0;
+/// The vehicle's status, after the notices already sent: a step's notices (the last item
+/// reached, at touchdown) are sent before the step is published; told after, a finished
+/// mission would show as not started for a moment.
+fn fresh_status(conn: &mut Connection, ctx: &mut GcsContext) {
+    while let Ok(n) = ctx.notices.try_recv() {
+        conn.handle_notice(Instant::now(), n);
     }
-    (ts.tv_sec as u64) * 1_000_000_000 + ts.tv_nsec as u64
+    conn.handle_status(Instant::now(), ctx.status.read());
 }
 
-/// The CPU clock of a running thread (for the control thread's load).
-pub fn thread_clock<T>(handle: &std::thread::JoinHandle<T>) -> Option<libc::clockid_t> {
-    use std::os::unix::thread::JoinHandleExt;
-    let mut clock: libc::clockid_t = 0;
-    // SAFETY: the thread is joinable (not yet joined), so its pthread_t is valid; the call
-    // writes the clock id into `clock` only.
-    let rc = unsafe { libc::pthread_getcpuclockid(handle.as_pthread_t(), &mut clock) };
-    (rc == 0).then_some(clock)
+/// Everything the protocol has for the outside: inputs to the flight, file work, frames.
+fn drive(conn: &mut Connection, link: &mut Link, ctx: &GcsContext, plans: &mpsc::Sender<Planned>) {
+    while let Some(input) = conn.poll_operator() {
+        if let Err(e) = ctx.operator.try_send(input) {
+            conn.handle_operator_full(Instant::now(), e.into_inner());
+        }
+    }
+    while let Some(effect) = conn.poll_effect() {
+        match effect {
+            Effect::ErrLog(line) => ctx.store.logs.err(line),
+            Effect::KeepParam {
+                index,
+                param,
+                value,
+                t_s,
+            } => {
+                let kept = ctx.store.set(&param, value.clone(), t_s);
+                conn.handle_param_kept(Instant::now(), index, &value, kept);
+            }
+            Effect::PlanMission { name, text } => plan(ctx.missions.as_ref(), name, text, plans),
+        }
+    }
+    while let Some(frame) = conn.poll_transmit() {
+        conn.count_sent(link.send(&frame).is_ok());
+    }
+}
+
+/// Writes upload `name` into the run folder and plans it on a blocking worker, off this task
+/// and off the control path; the plan comes back through `plans`.
+fn plan(desk: Option<&MissionDesk>, name: String, text: String, plans: &mpsc::Sender<Planned>) {
+    let Some(desk) = desk else {
+        return;
+    };
+    let (profile, path, tx) = (
+        desk.profile.clone(),
+        desk.run_dir.join(&name),
+        plans.clone(),
+    );
+    tokio::task::spawn_blocking(move || {
+        let plan = std::fs::write(&path, &text)
+            .map_err(|e| format!("mission upload: cannot write {}: {e}", path.display()))
+            .and_then(|()| profile.plan_mission(&path, &text));
+        // A link that has ended takes no plan: nothing to tell.
+        let _ = tx.blocking_send(Planned { name, plan });
+    });
+}
+
+/// The report, with the task's CPU time over its run so far.
+fn publish(conn: &Connection, ctx: &GcsContext, cpu_ns: u64, started: Instant) {
+    let wall_ns = started.elapsed().as_nanos().max(1) as f64;
+    let report = GcsReport {
+        counts: conn.counts(),
+        notices_missed: ctx.notices_tx.dropped(),
+        cpu_ms: cpu_ns as f64 / 1e6,
+        cpu_pct: 100.0 * cpu_ns as f64 / wall_ns,
+    };
+    if let Ok(mut shared) = ctx.stats.lock() {
+        *shared = report;
+    }
 }

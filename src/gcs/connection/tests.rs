@@ -1,0 +1,694 @@
+//! The protocol's rules on simulated time: a ground station (system 255) and strangers write
+//! frames, the test plays the owner (the flight's queue, the files) and reads what comes out.
+
+use super::*;
+use crate::config::Config;
+use crate::core::commander::Action;
+use crate::core::mission::MissionPlan;
+use crate::core::status::Live;
+use crate::core::watchdog::TripReason;
+use crate::gcs::wire::Decoder;
+
+const GCS: (u8, u8) = (255, 190);
+const OTHER_GCS: (u8, u8) = (254, 190);
+
+/// The protocol, a simulated clock, and what came out of it.
+struct Bench {
+    conn: Connection,
+    now: Instant,
+    encoders: Vec<((u8, u8), Encoder)>,
+}
+
+fn settings(boot: Instant) -> Settings {
+    let config = Config::default();
+    Settings {
+        cfg: config.gcs.clone(),
+        params: Params::of(&config),
+        boot,
+        signing: None,
+        gps_timeout_us: 1_000_000,
+        datagrams: true,
+        params_per_pace: 10,
+        missions: Some(MissionSettings {
+            speed_m_s: 1.0,
+            hover_z_m: 1.0,
+            loaded_items: None,
+        }),
+    }
+}
+
+impl Bench {
+    fn new() -> Bench {
+        Bench::with(|_| {})
+    }
+
+    fn with(change: impl FnOnce(&mut Settings)) -> Bench {
+        let now = Instant::now();
+        let mut s = settings(now);
+        change(&mut s);
+        Bench {
+            conn: Connection::new(s, now),
+            now,
+            encoders: Vec::new(),
+        }
+    }
+
+    /// `msg` from `from`, as one datagram.
+    fn hear(&mut self, from: (u8, u8), msg: MavMessage) -> bool {
+        let bytes = self.frame(from, &msg);
+        self.conn.handle_datagram(self.now, &bytes)
+    }
+
+    fn frame(&mut self, from: (u8, u8), msg: &MavMessage) -> Vec<u8> {
+        let i = match self.encoders.iter().position(|(f, _)| *f == from) {
+            Some(i) => i,
+            None => {
+                self.encoders.push((from, Encoder::new(from.0, from.1)));
+                self.encoders.len() - 1
+            }
+        };
+        let mut out = Vec::new();
+        self.encoders[i].1.encode_at(msg, &mut out, 0);
+        out
+    }
+
+    fn beat(&mut self, from: (u8, u8)) {
+        let hb = MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+            mavtype: MavType::MAV_TYPE_GCS,
+            ..HEARTBEAT_DATA::DEFAULT
+        });
+        self.hear(from, hb);
+    }
+
+    /// Moves the clock on by `ms`, calling the timer each time it is due on the way.
+    fn pass_ms(&mut self, ms: u64) {
+        let end = self.now + Duration::from_millis(ms);
+        while let Some(due) = self.conn.poll_timeout().filter(|d| *d <= end) {
+            self.now = self.now.max(due);
+            self.conn.handle_timeout(self.now);
+        }
+        self.now = end;
+    }
+
+    /// Every frame sent so far, decoded.
+    fn sent(&mut self) -> Vec<MavMessage> {
+        let mut out = Vec::new();
+        while let Some(f) = self.conn.poll_transmit() {
+            let mut d = Decoder::for_datagrams();
+            d.push(&f);
+            out.extend(std::iter::from_fn(|| d.next_message()).map(|r| r.msg));
+        }
+        out
+    }
+
+    /// The texts, long ones put together from their 50-byte chunks (one id, the last chunk
+    /// shorter), as a ground station shows them.
+    fn texts(msgs: &[MavMessage]) -> Vec<String> {
+        let (mut texts, mut open) = (Vec::new(), String::new());
+        for m in msgs {
+            let MavMessage::STATUSTEXT(t) = m else {
+                continue;
+            };
+            let chunk = t.text.to_str().unwrap_or("");
+            open.push_str(chunk);
+            if t.id == 0 || chunk.len() < 50 {
+                texts.push(std::mem::take(&mut open));
+            }
+        }
+        texts
+    }
+
+    fn operator(&mut self) -> Vec<OperatorInput> {
+        std::iter::from_fn(|| self.conn.poll_operator()).collect()
+    }
+
+    fn effects(&mut self) -> Vec<Effect> {
+        std::iter::from_fn(|| self.conn.poll_effect()).collect()
+    }
+
+    /// The vehicle flying in `mode`.
+    fn status(&mut self, mode: Mode) {
+        let live = Live {
+            step: 1,
+            x: [0.0; 15],
+            w_rad_s: [0.0; 4],
+            setpoint_m: [0.0; 3],
+            mode,
+            height_m: 1.0,
+            flying_steps: 0,
+            ratios: Default::default(),
+            home_m: None,
+            mission_item: None,
+        };
+        let status = VehicleStatus {
+            live: Some(live),
+            escs_answering: true,
+            ..VehicleStatus::default()
+        };
+        self.conn.handle_status(self.now, status);
+    }
+}
+
+fn command(cmd: MavCmd, p1: f32) -> MavMessage {
+    MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
+        target_system: 1,
+        target_component: 1,
+        command: cmd,
+        param1: p1,
+        ..COMMAND_LONG_DATA::DEFAULT
+    })
+}
+
+fn acks(msgs: &[MavMessage]) -> Vec<(MavCmd, MavResult)> {
+    msgs.iter()
+        .filter_map(|m| match m {
+            MavMessage::COMMAND_ACK(a) => Some((a.command, a.result)),
+            _ => None,
+        })
+        .collect()
+}
+
+const ARM: MavCmd = MavCmd::MAV_CMD_COMPONENT_ARM_DISARM;
+
+#[test]
+fn a_command_is_acknowledged_by_the_flights_outcome_or_its_silence() {
+    let mut b = Bench::new();
+    b.beat(GCS);
+    b.hear(GCS, command(ARM, 1.0));
+    assert_eq!(
+        b.operator(),
+        [
+            OperatorInput::Beat(LinkSource::Gcs),
+            OperatorInput::Command(Command::Arm, LinkSource::Gcs)
+        ]
+    );
+    // No answer until the flight has taken it.
+    assert!(acks(&b.sent()).is_empty());
+    b.conn.handle_notice(
+        b.now,
+        Notice::Outcome {
+            command: Command::Arm,
+            source: LinkSource::Gcs,
+            refused: None,
+        },
+    );
+    assert_eq!(acks(&b.sent()), [(ARM, MavResult::MAV_RESULT_ACCEPTED)]);
+    // One the flight never answers: FAILED after 5 s, not before.
+    b.hear(GCS, command(ARM, 0.0));
+    b.pass_ms(4_900);
+    assert!(acks(&b.sent()).is_empty());
+    b.pass_ms(200);
+    let out = b.sent();
+    assert_eq!(acks(&out), [(ARM, MavResult::MAV_RESULT_FAILED)]);
+    assert_eq!(Bench::texts(&out), ["disarm: no answer from the flight"]);
+}
+
+#[test]
+fn a_full_operator_queue_refuses_the_command_at_once() {
+    let mut b = Bench::new();
+    b.beat(GCS);
+    b.operator();
+    b.hear(GCS, command(ARM, 1.0));
+    let input = b.conn.poll_operator().unwrap();
+    b.conn.handle_operator_full(b.now, input);
+    let out = b.sent();
+    assert_eq!(
+        acks(&out),
+        [(ARM, MavResult::MAV_RESULT_TEMPORARILY_REJECTED)]
+    );
+    assert_eq!(
+        Bench::texts(&out),
+        ["arm refused: the flight is not taking commands now"]
+    );
+    assert_eq!(b.conn.counts().input_drops, 1);
+    // Nothing waits for it: no FAILED later.
+    b.pass_ms(6_000);
+    assert!(acks(&b.sent()).is_empty());
+}
+
+#[test]
+fn a_flood_is_cut_at_the_seconds_budget_but_heartbeats_always_count() {
+    let mut b = Bench::new();
+    b.beat(GCS);
+    let read = MavMessage::PARAM_REQUEST_READ(PARAM_REQUEST_READ_DATA {
+        target_system: 1,
+        target_component: 1,
+        param_index: 0,
+        ..PARAM_REQUEST_READ_DATA::DEFAULT
+    });
+    // 200 frames a second (gcs.max_rx_per_s) pass; heartbeats are not counted against it.
+    for _ in 0..250 {
+        b.hear(GCS, read.clone());
+    }
+    let values = |out: &[MavMessage]| {
+        out.iter()
+            .filter(|m| matches!(m, MavMessage::PARAM_VALUE(_)))
+            .count()
+    };
+    assert_eq!(values(&b.sent()), 200);
+    assert_eq!(b.conn.counts().flood_drops, 50);
+    // A heartbeat in the flood still reaches the flight.
+    b.operator();
+    b.pass_ms(600);
+    b.sent();
+    b.beat(GCS);
+    assert_eq!(b.operator(), [OperatorInput::Beat(LinkSource::Gcs)]);
+    // The next second has its own budget.
+    b.pass_ms(500);
+    b.sent();
+    b.hear(GCS, read);
+    assert_eq!(values(&b.sent()), 1);
+}
+
+#[test]
+fn commands_over_twenty_a_second_are_refused() {
+    let mut b = Bench::new();
+    b.beat(GCS);
+    for _ in 0..21 {
+        b.hear(GCS, command(MavCmd::MAV_CMD_NAV_LAND, 0.0));
+    }
+    let out = b.sent();
+    assert_eq!(
+        acks(&out),
+        [(
+            MavCmd::MAV_CMD_NAV_LAND,
+            MavResult::MAV_RESULT_TEMPORARILY_REJECTED
+        )]
+    );
+    assert_eq!(
+        Bench::texts(&out),
+        ["land refused: more than 20 commands a second"]
+    );
+    assert_eq!(b.operator().len(), 21, "the beat and 20 commands");
+}
+
+fn param_set(id: &str, value: f32) -> MavMessage {
+    MavMessage::PARAM_SET(PARAM_SET_DATA {
+        target_system: 1,
+        target_component: 1,
+        param_id: id.into(),
+        param_value: value,
+        param_type: MavParamType::MAV_PARAM_TYPE_REAL32,
+    })
+}
+
+fn param_values(out: &[MavMessage]) -> Vec<(String, f32)> {
+    out.iter()
+        .filter_map(|m| match m {
+            MavMessage::PARAM_VALUE(p) => {
+                Some((p.param_id.to_str().unwrap_or("").into(), p.param_value))
+            }
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn a_parameter_set_is_kept_by_the_owner_or_refused_with_the_old_value() {
+    let mut b = Bench::new();
+    b.beat(GCS);
+    b.hear(GCS, param_set("CMD_CLIMB_M_S", 0.4));
+    // Nothing answered until the value is kept.
+    assert!(param_values(&b.sent()).is_empty());
+    let Some(Effect::KeepParam {
+        index,
+        param,
+        value,
+        ..
+    }) = b.effects().pop()
+    else {
+        panic!("no parameter to keep");
+    };
+    assert_eq!(
+        (param.key, value.clone()),
+        ("commander.climb_m_s", toml::Value::Float(0.4))
+    );
+    b.conn.handle_param_kept(b.now, index, &value, Ok(()));
+    assert_eq!(param_values(&b.sent()), [("CMD_CLIMB_M_S".into(), 0.4)]);
+    assert_eq!(b.conn.counts().param_sets, 1);
+
+    // Refused by the files' rules: the old value comes back, and why.
+    b.hear(GCS, param_set("WD_MISSED_ACKS", 50.0));
+    let Some(Effect::KeepParam { index, value, .. }) = b.effects().pop() else {
+        panic!("no parameter to keep");
+    };
+    let why = "watchdog.max_missed_acks: 50 is out of range".to_string();
+    b.conn.handle_param_kept(b.now, index, &value, Err(why));
+    let out = b.sent();
+    assert_eq!(param_values(&out), [("WD_MISSED_ACKS".into(), 3.0)]);
+    assert_eq!(
+        Bench::texts(&out),
+        ["parameter WD_MISSED_ACKS not set: watchdog.max_missed_acks: 50 is out of range"]
+    );
+
+    // Refused by the link's own rule while flying: no file is touched.
+    b.status(Mode::Hold);
+    b.sent();
+    b.hear(GCS, param_set("CMD_CLIMB_M_S", 0.5));
+    assert!(b.effects().is_empty());
+    let out = b.sent();
+    assert_eq!(param_values(&out), [("CMD_CLIMB_M_S".into(), 0.4)]);
+    assert_eq!(
+        Bench::texts(&out),
+        [
+            "parameter CMD_CLIMB_M_S not set: commander.climb_m_s: flight-critical, refused while hold"
+        ]
+    );
+}
+
+#[test]
+fn parameter_sets_over_five_a_second_and_from_strangers_are_refused() {
+    let mut b = Bench::new();
+    // A sender that never said it is a ground station: denied, nothing kept, no answer;
+    // err.log told (once in a hundred).
+    b.hear((7, 1), param_set("CMD_CLIMB_M_S", 0.4));
+    assert!(matches!(&b.effects()[..], [Effect::ErrLog(l)] if l.contains("may not command")));
+    assert!(b.sent().is_empty());
+    assert_eq!(b.conn.counts().senders_denied, 1);
+    b.beat(GCS);
+    for i in 0..6 {
+        b.hear(GCS, param_set("CMD_CLIMB_M_S", 0.11 + 0.1 * i as f32));
+    }
+    let keeps = b
+        .effects()
+        .into_iter()
+        .filter(|e| matches!(e, Effect::KeepParam { .. }))
+        .count();
+    assert_eq!(keeps, 5);
+    let texts = Bench::texts(&b.sent());
+    assert_eq!(
+        texts,
+        ["parameter CMD_CLIMB_M_S not set: more than 5 parameter sets a second"]
+    );
+}
+
+#[test]
+fn a_parameter_list_is_paced() {
+    let mut b = Bench::new();
+    let n = b.conn.s.params.len();
+    b.hear(
+        GCS,
+        MavMessage::PARAM_REQUEST_LIST(PARAM_REQUEST_LIST_DATA {
+            target_system: 1,
+            target_component: 1,
+        }),
+    );
+    b.pass_ms(1);
+    assert_eq!(param_values(&b.sent()).len(), 10);
+    b.pass_ms(20);
+    assert_eq!(param_values(&b.sent()).len(), 10);
+    b.pass_ms(20 * n as u64);
+    let rest = param_values(&b.sent()).len();
+    assert_eq!(rest, n - 20);
+}
+
+fn mission_count(count: u16) -> MavMessage {
+    MavMessage::MISSION_COUNT(MISSION_COUNT_DATA {
+        target_system: 1,
+        target_component: 1,
+        count,
+        mission_type: MavMissionType::MAV_MISSION_TYPE_MISSION,
+        opaque_id: 0,
+    })
+}
+
+fn item(seq: u16) -> MavMessage {
+    let (command, frame, z) = match seq {
+        0 => (
+            MavCmd::MAV_CMD_NAV_TAKEOFF,
+            MavFrame::MAV_FRAME_LOCAL_NED,
+            -1.5,
+        ),
+        1 => (
+            MavCmd::MAV_CMD_NAV_RETURN_TO_LAUNCH,
+            MavFrame::MAV_FRAME_MISSION,
+            0.0,
+        ),
+        _ => (MavCmd::MAV_CMD_NAV_LAND, MavFrame::MAV_FRAME_MISSION, 0.0),
+    };
+    MavMessage::MISSION_ITEM_INT(MISSION_ITEM_INT_DATA {
+        target_system: 1,
+        target_component: 1,
+        seq,
+        frame,
+        command,
+        autocontinue: 1,
+        z,
+        mission_type: MavMissionType::MAV_MISSION_TYPE_MISSION,
+        ..MISSION_ITEM_INT_DATA::DEFAULT
+    })
+}
+
+/// The MISSION_REQUEST_INTs' sequence numbers, and the MISSION_ACKs' results.
+fn mission_answers(out: &[MavMessage]) -> (Vec<u16>, Vec<MavMissionResult>) {
+    let asked = out
+        .iter()
+        .filter_map(|m| match m {
+            MavMessage::MISSION_REQUEST_INT(r) => Some(r.seq),
+            _ => None,
+        })
+        .collect();
+    let acked = out
+        .iter()
+        .filter_map(|m| match m {
+            MavMessage::MISSION_ACK(a) => Some(a.mavtype),
+            _ => None,
+        })
+        .collect();
+    (asked, acked)
+}
+
+#[test]
+fn an_upload_with_lost_and_repeated_items_completes_and_is_flown() {
+    let mut b = Bench::new();
+    b.beat(GCS);
+    b.operator();
+    b.hear(GCS, mission_count(3));
+    b.hear(GCS, item(0));
+    assert_eq!(mission_answers(&b.sent()).0, [0, 1]);
+    // Item 1 is lost: asked again after a second, not before.
+    b.pass_ms(900);
+    assert_eq!(mission_answers(&b.sent()).0, Vec::<u16>::new());
+    b.pass_ms(200);
+    assert_eq!(mission_answers(&b.sent()).0, [1]);
+    // A repeat of item 0 is ignored; item 2 ahead of 1 asks for 1 again.
+    b.hear(GCS, item(0));
+    assert!(b.sent().is_empty());
+    b.hear(GCS, item(2));
+    assert_eq!(mission_answers(&b.sent()).0, [1]);
+    b.hear(GCS, item(1));
+    b.hear(GCS, item(2));
+    let Some(Effect::PlanMission { name, text }) = b.effects().pop() else {
+        panic!("the upload was not planned");
+    };
+    assert_eq!(name, "mission-1.toml");
+    assert!(
+        text.contains("kind = \"takeoff\"") && text.contains("kind = \"land\""),
+        "{text}"
+    );
+    // Planned: to the flight; the commander's verdict answers the ground station.
+    assert!(mission_answers(&b.sent()).1.is_empty());
+    b.conn.handle_plan(b.now, &name, Ok(MissionPlan::default()));
+    assert!(matches!(b.operator()[..], [OperatorInput::Mission(_)]));
+    let verdict = Notice::Mission {
+        name: name.clone(),
+        refused: None,
+    };
+    b.conn.handle_notice(b.now, verdict);
+    assert_eq!(
+        mission_answers(&b.sent()).1,
+        [MavMissionResult::MAV_MISSION_ACCEPTED]
+    );
+    // Downloaded back as uploaded.
+    let request = |seq| {
+        MavMessage::MISSION_REQUEST_INT(MISSION_REQUEST_INT_DATA {
+            target_system: 1,
+            target_component: 1,
+            seq,
+            mission_type: MavMissionType::MAV_MISSION_TYPE_MISSION,
+        })
+    };
+    b.hear(GCS, request(1));
+    let back: Vec<MavCmd> = b
+        .sent()
+        .iter()
+        .filter_map(|m| match m {
+            MavMessage::MISSION_ITEM_INT(i) => Some(i.command),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(back, [MavCmd::MAV_CMD_NAV_RETURN_TO_LAUNCH]);
+}
+
+#[test]
+fn an_upload_whose_items_stop_coming_is_cancelled_after_five_asks() {
+    let mut b = Bench::new();
+    b.beat(GCS);
+    b.hear(GCS, mission_count(2));
+    b.hear(GCS, item(0));
+    b.pass_ms(4_500);
+    let (asked, acked) = mission_answers(&b.sent());
+    assert_eq!(asked, [0, 1, 1, 1, 1, 1]);
+    assert!(acked.is_empty());
+    b.pass_ms(1_000);
+    let out = b.sent();
+    assert_eq!(
+        mission_answers(&out).1,
+        [MavMissionResult::MAV_MISSION_OPERATION_CANCELLED]
+    );
+    assert_eq!(
+        Bench::texts(&out),
+        ["mission upload: item 1 did not come: cancelled"]
+    );
+    assert!(matches!(&b.effects()[..], [Effect::ErrLog(l)] if l.contains("cancelled")));
+}
+
+#[test]
+fn a_plan_refused_or_never_answered_fails_the_upload() {
+    let mut b = Bench::new();
+    b.beat(GCS);
+    b.hear(GCS, mission_count(1));
+    b.hear(GCS, item(0));
+    let name = match b.effects().pop() {
+        Some(Effect::PlanMission { name, .. }) => name,
+        e => panic!("{e:?}"),
+    };
+    b.sent();
+    b.conn
+        .handle_plan(b.now, &name, Err("mission-1.toml: too high".into()));
+    let out = b.sent();
+    assert_eq!(
+        mission_answers(&out).1,
+        [MavMissionResult::MAV_MISSION_DENIED]
+    );
+    assert_eq!(Bench::texts(&out), ["mission-1.toml: too high"]);
+    // A second upload whose plan never comes: ERROR after 10 s, and the next is taken.
+    b.hear(GCS, mission_count(1));
+    b.hear(GCS, item(0));
+    b.sent();
+    b.pass_ms(10_100);
+    assert_eq!(
+        mission_answers(&b.sent()).1,
+        [MavMissionResult::MAV_MISSION_ERROR]
+    );
+    b.hear(GCS, mission_count(1));
+    assert_eq!(mission_answers(&b.sent()).0, [0]);
+}
+
+#[test]
+fn a_second_ground_station_may_command_but_not_cut_into_an_upload() {
+    let mut b = Bench::new();
+    b.beat(GCS);
+    b.beat(OTHER_GCS);
+    b.hear(GCS, mission_count(2));
+    b.sent();
+    b.hear(OTHER_GCS, mission_count(1));
+    let out = b.sent();
+    assert_eq!(
+        mission_answers(&out).1,
+        [MavMissionResult::MAV_MISSION_DENIED]
+    );
+    assert_eq!(
+        Bench::texts(&out),
+        ["mission upload: another ground station is uploading"]
+    );
+    // Its items do not enter the first one's upload.
+    b.hear(OTHER_GCS, item(0));
+    assert!(b.sent().is_empty());
+    // Its commands are taken.
+    b.operator();
+    b.hear(OTHER_GCS, command(MavCmd::MAV_CMD_NAV_LAND, 0.0));
+    assert_eq!(
+        b.operator(),
+        [OperatorInput::Command(Command::Land, LinkSource::Gcs)]
+    );
+}
+
+#[test]
+fn allowed_systems_limit_who_commands() {
+    let mut b = Bench::with(|s| s.cfg.allowed_systems = vec![255]);
+    b.beat(GCS);
+    b.beat(OTHER_GCS);
+    b.operator();
+    b.hear(OTHER_GCS, command(ARM, 1.0));
+    assert!(b.operator().is_empty());
+    assert_eq!(acks(&b.sent()), [(ARM, MavResult::MAV_RESULT_DENIED)]);
+    assert_eq!(b.conn.counts().senders_denied, 1);
+    // A read is anyone's.
+    let version = command(MavCmd::MAV_CMD_REQUEST_MESSAGE, 148.0);
+    b.hear(OTHER_GCS, version);
+    let out = b.sent();
+    assert!(
+        out.iter()
+            .any(|m| matches!(m, MavMessage::AUTOPILOT_VERSION(_)))
+    );
+}
+
+#[test]
+fn a_mode_change_is_told_at_once_and_a_halt_once() {
+    let mut b = Bench::new();
+    b.pass_ms(1);
+    b.sent();
+    b.status(Mode::Armed);
+    let out = b.sent();
+    let modes: Vec<u32> = out
+        .iter()
+        .filter_map(|m| match m {
+            MavMessage::HEARTBEAT(h) => Some(h.custom_mode),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(modes, [1], "armed is custom mode 1");
+    assert!(
+        out.iter()
+            .any(|m| matches!(m, MavMessage::EXTENDED_SYS_STATE(_)))
+    );
+    // The same mode again: nothing new.
+    b.status(Mode::Armed);
+    assert!(b.sent().is_empty());
+    let halted = VehicleStatus {
+        halt: Some(TripReason::ImuTimeout),
+        ..VehicleStatus::default()
+    };
+    b.conn.handle_status(b.now, halted.clone());
+    b.pass_ms(1_000);
+    b.conn.handle_status(b.now, halted);
+    b.pass_ms(3_000);
+    let texts = Bench::texts(&b.sent());
+    assert_eq!(texts, ["halt imu-timeout: motors stopped"]);
+}
+
+#[test]
+fn a_failsafe_is_told_critical_and_a_breach_marks_the_fence_unhealthy() {
+    let mut b = Bench::new();
+    let e = Event::Failsafe {
+        t_us: 0,
+        kind: Failsafe::Geofence,
+        action: Action::Return,
+    };
+    b.conn.handle_notice(b.now, Notice::Event(e));
+    let out = b.sent();
+    let severities: Vec<MavSeverity> = out
+        .iter()
+        .filter_map(|m| match m {
+            MavMessage::STATUSTEXT(t) => Some(t.severity),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(severities, [MavSeverity::MAV_SEVERITY_CRITICAL]);
+    assert!(!b.conn.streams.health.fence);
+}
+
+#[test]
+fn the_next_timeout_is_the_earliest_thing_due() {
+    let mut b = Bench::new();
+    // At start everything periodic is due.
+    assert!(b.conn.poll_timeout().is_some_and(|t| t <= b.now));
+    b.pass_ms(1);
+    // Then the fastest stream: 10 Hz telemetry.
+    let next = b.conn.poll_timeout().unwrap();
+    assert!(
+        next > b.now && next <= b.now + Duration::from_millis(100),
+        "{next:?}"
+    );
+}

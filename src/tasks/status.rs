@@ -1,0 +1,44 @@
+//! Gathers the vehicle's status (`core::status`) from the run's shared state, in one place:
+//! the ground-station link and the console's statistics line both read it here. Reading
+//! never waits on the control path: watches are copied, counters are atomics.
+
+use crate::core::gps::LiveFix;
+use crate::core::status::{Live, VehicleStatus};
+use crate::tasks::esc_writer::EscStatus;
+use crate::tasks::imu_reader::ImuStats;
+use crate::tasks::watchdog::WatchdogStatus;
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use tokio::sync::watch;
+
+/// Where the status comes from.
+#[derive(Clone)]
+pub struct StatusSources {
+    pub live: watch::Receiver<Option<Live>>,
+    /// Live fixes (none: the profile flies without GPS).
+    pub gps: Option<watch::Receiver<Option<LiveFix>>>,
+    /// Why the run folder cannot be written, as last probed.
+    pub log_problem: watch::Receiver<Option<String>>,
+    pub watchdog: Arc<WatchdogStatus>,
+    pub imu: Arc<ImuStats>,
+    pub esc: Arc<EscStatus>,
+    pub esc_addresses: [u8; 4],
+    /// The control thread's CPU clock, where it can be read.
+    pub control_cpu: Option<libc::clockid_t>,
+}
+
+impl StatusSources {
+    /// The status now.
+    pub fn read(&self) -> VehicleStatus {
+        VehicleStatus {
+            live: *self.live.borrow(),
+            fix: self.gps.as_ref().and_then(|rx| *rx.borrow()),
+            gps_used: self.gps.is_some(),
+            imu_frames: self.imu.frames.load(Ordering::Relaxed),
+            escs_answering: self.esc.silent_addresses(&self.esc_addresses).is_empty(),
+            halt: self.watchdog.halt().map(|h| h.trip.reason),
+            log_problem: self.log_problem.borrow().clone(),
+            control_cpu_ns: self.control_cpu.map(crate::hw::cpu_clock::clock_ns),
+        }
+    }
+}
