@@ -202,6 +202,16 @@ Kalman steps, time and steps per second. A run that fails is named with its reas
 the others are still written, and the exit status is non-zero."
     )]
     Replay(ReplayArgs),
+    /// Write the book's reference pages from the code: commands, configuration keys, MAVLink.
+    #[command(
+        long_about = "Write the book's reference pages from the code itself: every command's \
+--help (commands.md), every configuration key with its built-in value, what its checks allow and \
+its MAVLink parameter id (config.md), and every MAVLink message and command the link handles \
+(mavlink.md).\n\n\
+Run it after changing a command, a key or the link, and commit the pages: the tests fail while a \
+page in docs/src/reference differs from what this writes."
+    )]
+    Reference(ReferenceArgs),
 }
 
 #[derive(clap::Args, Debug)]
@@ -387,6 +397,13 @@ struct ParamsArgs {
 }
 
 #[derive(clap::Args, Debug)]
+struct ReferenceArgs {
+    /// The folder the pages go into (created if missing).
+    #[arg(long, value_name = "DIR", default_value = "docs/src/reference")]
+    out: PathBuf,
+}
+
+#[derive(clap::Args, Debug)]
 struct GpsArgs {
     /// gpsd's address.
     #[arg(long, value_name = "HOST:PORT", default_value = "127.0.0.1:2947")]
@@ -568,6 +585,7 @@ fn main() -> ExitCode {
         Command::Gps(a) => a.run(),
         Command::Lqr(a) => a.run(),
         Command::Replay(a) => a.run(),
+        Command::Reference(a) => a.run(),
     };
     match result {
         Ok(code) => code,
@@ -827,6 +845,32 @@ impl ConsoleArgs {
         )??;
         Ok(ExitCode::SUCCESS)
     }
+}
+
+impl ReferenceArgs {
+    fn run(self) -> anyhow::Result<ExitCode> {
+        for path in uquad::app::reference::write(&self.out, &command_helps())? {
+            println!("wrote {path}");
+        }
+        Ok(ExitCode::SUCCESS)
+    }
+}
+
+/// Each command's line and long help, the program's own first; at a fixed width of 100
+/// columns, so the pages do not depend on the terminal they were written from.
+fn command_helps() -> Vec<(String, String)> {
+    use clap::CommandFactory;
+    let mut cli = Cli::command().term_width(100);
+    cli.build();
+    let mut helps = vec![("uquad".to_string(), cli.render_long_help().to_string())];
+    for sub in cli.get_subcommands_mut() {
+        if sub.get_name() == "help" {
+            continue;
+        }
+        let line = format!("uquad {}", sub.get_name());
+        helps.push((line, sub.render_long_help().to_string()));
+    }
+    helps
 }
 
 impl ParamsArgs {

@@ -31,7 +31,7 @@ fn campaign(args: &[&str]) -> (bool, serde_json::Value, String) {
 fn every_fault_alone_in_every_phase_holds_the_invariants() {
     // The first 90 runs: the twelve faults, each alone, in each of the first seven phases
     // (then six of them in the eighth). All 108 single-fault runs, and the 1000 of a default
-    // campaign, are `uquad campaign`'s to report (see the README's figures).
+    // campaign, are `uquad campaign`'s to report (see the figures in docs/src/simulator.md).
     let (ok, r, text) = campaign(&["--runs", "90"]);
     assert!(ok, "{text}");
     assert_eq!(r["runs"], 90, "{text}");

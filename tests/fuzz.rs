@@ -23,7 +23,7 @@
 //! `UQUAD_FUZZ_CASES` sets the number of cases per target (default 2000, which keeps the test
 //! command fast); the seed is fixed unless `UQUAD_FUZZ_SEED` gives one, which also replays a
 //! run (each test prints its seed). A failing case
-//! is shrunk by proptest and printed with the seed. The long run (README.md, "Fuzzing"):
+//! is shrunk by proptest and printed with the seed. The long run (docs/src/fuzzing.md):
 //!
 //! ```sh
 //! UQUAD_FUZZ_CASES=1000000 cargo test --release --test fuzz -- --test-threads=1 --nocapture

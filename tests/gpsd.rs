@@ -175,7 +175,7 @@ async fn uquad_gps_prints_the_streams_fixes() {
             assert!(f[k].is_f64(), "{k} missing: {f}");
         }
         // gpsd may open with a 2D fix, whose altitude it does not give (`null`, as the
-        // README says); a 3D fix always has one.
+        // book says: docs/src/install.md); a 3D fix always has one.
         for k in ["alt_m", "z_m"] {
             assert!(
                 f[k].is_f64() || (mode == 2 && f[k].is_null()),

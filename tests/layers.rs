@@ -1,4 +1,4 @@
-//! Dependencies run one way (ARCHITECTURE.md): each layer imports only the layers below it,
+//! Dependencies run one way (docs/src/architecture.md): each layer imports only the layers below it,
 //! and no module imports one that imports it back. Read from the source text: `crate::` and
 //! `super::` paths in code (comments and test modules left out).
 

@@ -37,4 +37,4 @@ pub use schema::{
     Config, Console, Control, Ekf, Esc, Gps, GpsMode, Imu, Integrals, Log, Motor, Sim, Vehicle,
     WatchdogConfig,
 };
-pub use validate::{parse_duration_s, parse_fault_time_s, parse_seed};
+pub use validate::{allowed_by_key, parse_duration_s, parse_fault_time_s, parse_seed};

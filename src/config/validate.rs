@@ -247,6 +247,20 @@ fn above_key(key: &str, value: u32, other_key: &str, other: u32, max: u32, unit:
 
 /// The rules that fail for `c`, in the order of the rule list.
 pub(super) fn validate(c: &Config) -> Vec<Check> {
+    all_rules(c).into_iter().filter(|r| !r.passed).collect()
+}
+
+/// What each rule allows, by key, as its error message words it (the book's reference of the
+/// configuration is written from these). A key with several rules has each, in order.
+pub fn allowed_by_key() -> Vec<(String, String)> {
+    all_rules(&Config::default())
+        .into_iter()
+        .map(|r| (r.key, r.allowed))
+        .collect()
+}
+
+/// Every rule applied to `c`, passed or not, in order.
+fn all_rules(c: &Config) -> Vec<Check> {
     let rules = [
         flight_rules(c),
         imu_rules(&c.imu),
@@ -270,7 +284,7 @@ pub(super) fn validate(c: &Config) -> Vec<Check> {
         gcs_rules(c),
         mission_rules(c),
     ];
-    rules.into_iter().flatten().filter(|r| !r.passed).collect()
+    rules.into_iter().flatten().collect()
 }
 
 /// The vehicle, the set points and the motor lag.

@@ -31,8 +31,11 @@ pub struct Live {
 }
 
 /// Everything a watcher reads of the running vehicle at one moment.
-#[derive(Debug, Clone, PartialEq, Default)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct VehicleStatus {
+    /// The commander's mode, as its last change said: ahead of the newest step's (no step
+    /// follows an arm during the ESCs' ramp or the calibration, nor a halt's kill).
+    pub mode: Mode,
     /// The newest step (none until the first estimate: the IMU still calibrating).
     pub live: Option<Live>,
     /// The newest GPS fix (none without a receiver, or before its first fix).
@@ -51,9 +54,18 @@ pub struct VehicleStatus {
     pub control_cpu_ns: Option<u64>,
 }
 
-impl VehicleStatus {
-    /// The commander's mode as the newest step has it; disarmed before the first step.
-    pub fn mode(&self) -> Mode {
-        self.live.map_or(Mode::Disarmed, |l| l.mode)
+impl Default for VehicleStatus {
+    fn default() -> Self {
+        VehicleStatus {
+            mode: Mode::Disarmed,
+            live: None,
+            fix: None,
+            gps_used: false,
+            imu_frames: 0,
+            escs_answering: false,
+            halt: None,
+            log_problem: None,
+            control_cpu_ns: None,
+        }
     }
 }

@@ -43,6 +43,56 @@ pub struct Args {
     pub frame: Option<MavFrame>,
 }
 
+/// Every command [`map`] takes, with what it does (the book's reference lists these; a test
+/// checks the list against `map` over every command of the dialect).
+#[allow(deprecated)]
+pub const HANDLED: &[(MavCmd, &str)] = &[
+    (
+        MavCmd::MAV_CMD_COMPONENT_ARM_DISARM,
+        "param 1 = 1: `arm`; 0: `disarm`; 0 with param 2 = 21196 (force): `kill`",
+    ),
+    (
+        MavCmd::MAV_CMD_NAV_TAKEOFF,
+        "`takeoff` to param 7 m above the takeoff point (COMMAND_INT: z in a relative frame, \
+         or -z in a local one; NaN: the profile's height); altitudes above sea level refused",
+    ),
+    (MavCmd::MAV_CMD_NAV_LAND, "`land`"),
+    (
+        MavCmd::MAV_CMD_NAV_LOITER_UNLIM,
+        "`hold` where the vehicle is",
+    ),
+    (MavCmd::MAV_CMD_NAV_RETURN_TO_LAUNCH, "`return`"),
+    (MavCmd::MAV_CMD_MISSION_START, "`start` the loaded mission"),
+    (
+        MavCmd::MAV_CMD_DO_PAUSE_CONTINUE,
+        "param 1 = 0: `pause` the mission; 1: `resume` it",
+    ),
+    (
+        MavCmd::MAV_CMD_DO_FLIGHTTERMINATION,
+        "param 1 > 0.5: `kill` (the motors stop at once)",
+    ),
+    (
+        MavCmd::MAV_CMD_DO_SET_MODE,
+        "a custom mode in HEARTBEAT's numbering (base mode: custom-mode flag, optionally \
+         armed; no sub mode): hold, land, mission (`start`) or return; the others are \
+         entered by their own commands",
+    ),
+    (
+        MavCmd::MAV_CMD_REQUEST_MESSAGE,
+        "sends message param 1 once (the messages the link sends)",
+    ),
+    (
+        MavCmd::MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES,
+        "sends AUTOPILOT_VERSION",
+    ),
+    (MavCmd::MAV_CMD_GET_HOME_POSITION, "sends HOME_POSITION"),
+    (
+        MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL,
+        "message param 1 every param 2 µs (at most every 20 ms; 0: its default rate; -1: \
+         never)",
+    ),
+];
+
 // Older ground stations still send the superseded REQUEST_AUTOPILOT_CAPABILITIES,
 // GET_HOME_POSITION and MAV_FRAME_GLOBAL_INT: they are taken.
 #[allow(deprecated)]
@@ -167,6 +217,37 @@ fn set_mode(base: f32, custom: f32, sub: f32) -> Result<Request, Refusal> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The reference's list is `map`'s: every command of the dialect that `map` does not
+    /// answer UNSUPPORTED is listed, and nothing else.
+    #[test]
+    fn the_handled_list_is_what_map_takes() {
+        use num_traits::FromPrimitive;
+        // Taken with some parameters: all 0 (pause) or all 1 (flight termination).
+        let takes = |c: MavCmd| {
+            [0.0, 1.0].into_iter().any(|v| {
+                let args = Args {
+                    p: [v; 7],
+                    frame: None,
+                };
+                !matches!(map(c, args), Err((MavResult::MAV_RESULT_UNSUPPORTED, _)))
+            })
+        };
+        let taken: Vec<MavCmd> = (0..=u16::MAX)
+            .filter_map(|id| MavCmd::from_u32(u32::from(id)))
+            .filter(|&c| takes(c))
+            .collect();
+        let listed: Vec<MavCmd> = HANDLED.iter().map(|(c, _)| *c).collect();
+        for c in &taken {
+            assert!(listed.contains(c), "{c:?} is taken but not in HANDLED");
+        }
+        for c in &listed {
+            assert!(
+                taken.contains(c),
+                "{c:?} is in HANDLED but map does not take it"
+            );
+        }
+    }
 
     fn long(p: [f32; 7]) -> Args {
         Args { p, frame: None }

@@ -6,6 +6,7 @@ use crate::core::gps::LiveFix;
 use crate::core::status::{Live, VehicleStatus};
 use crate::tasks::esc_writer::EscStatus;
 use crate::tasks::imu_reader::ImuStats;
+use crate::tasks::notices::ModeSource;
 use crate::tasks::watchdog::WatchdogStatus;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
@@ -14,6 +15,8 @@ use tokio::sync::watch;
 /// Where the status comes from.
 #[derive(Clone)]
 pub struct StatusSources {
+    /// The commander's mode as its changes pass to the notices.
+    pub mode: ModeSource,
     pub live: watch::Receiver<Option<Live>>,
     /// Live fixes (none: the profile flies without GPS).
     pub gps: Option<watch::Receiver<Option<LiveFix>>>,
@@ -31,6 +34,7 @@ impl StatusSources {
     /// The status now.
     pub fn read(&self) -> VehicleStatus {
         VehicleStatus {
+            mode: self.mode.get(),
             live: *self.live.borrow(),
             fix: self.gps.as_ref().and_then(|rx| *rx.borrow()),
             gps_used: self.gps.is_some(),

@@ -184,6 +184,7 @@ pub async fn run(
     )?;
     // The vehicle's status as every watcher reads it: the console and the link alike.
     let status = crate::tasks::status::StatusSources {
+        mode: h.notices.mode(),
         live: h.live.clone(),
         gps: gps_live,
         log_problem,

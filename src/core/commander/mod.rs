@@ -53,6 +53,19 @@ pub enum Mode {
 }
 
 impl Mode {
+    /// Every mode, in a fixed order (a mode's index in it is how a mode crosses a thread in an
+    /// atomic).
+    pub const ALL: [Mode; 8] = [
+        Mode::Disarmed,
+        Mode::Armed,
+        Mode::Takeoff,
+        Mode::Hold,
+        Mode::Land,
+        Mode::Kill,
+        Mode::Mission,
+        Mode::Return,
+    ];
+
     pub fn name(self) -> &'static str {
         match self {
             Mode::Disarmed => "disarmed",

@@ -24,6 +24,7 @@ mod streams;
 mod tests;
 
 pub use mission::MissionSettings;
+pub use streams::{PERIODIC_SENT, REQUESTABLE};
 
 use crate::config::GcsConfig;
 use crate::core::commander::{Command, Event, Failsafe, LinkSource, Mode, OperatorInput};
@@ -112,6 +113,59 @@ pub struct Counts {
     pub gcs_heartbeats: u64,
 }
 
+/// Every message the protocol reads, with what it does (the book's reference lists these;
+/// `on_message` and `on_mission_message` are the dispatch they describe). Anything else is
+/// decoded, counted and left.
+pub const RECEIVED: &[(&str, &str)] = &[
+    (
+        "HEARTBEAT",
+        "from a ground station (MAV_TYPE_GCS): it may command (`gcs.allowed_systems` \
+         permitting), and its beats, at most two a second, keep the operator link alive",
+    ),
+    ("COMMAND_LONG", "a command (see the table below)"),
+    (
+        "COMMAND_INT",
+        "a command; x, y and z as numbers, the frame for NAV_TAKEOFF",
+    ),
+    (
+        "SET_MODE",
+        "read as DO_SET_MODE (base mode, custom mode) and answered so",
+    ),
+    (
+        "PARAM_REQUEST_LIST",
+        "every parameter as PARAM_VALUE, paced (10 per 20 ms over UDP, 1 over a radio)",
+    ),
+    ("PARAM_REQUEST_READ", "one parameter, by index or id"),
+    (
+        "PARAM_SET",
+        "checked as `--set` is, kept for the next start, answered with the value after it \
+         (the old one, and a text, when refused); flight-critical keys only while disarmed; \
+         5 a second",
+    ),
+    (
+        "MISSION_COUNT",
+        "begins an upload (at most 500 items); an empty fence or rally list is accepted",
+    ),
+    (
+        "MISSION_ITEM_INT",
+        "an upload's item (asked for again after 1 s, the upload cancelled after 5 asks)",
+    ),
+    (
+        "MISSION_ITEM",
+        "the superseded float form, read as MISSION_ITEM_INT (a coordinate not a number \
+         refuses the upload)",
+    ),
+    ("MISSION_REQUEST_LIST", "the last accepted upload's count"),
+    (
+        "MISSION_REQUEST_INT",
+        "an item of the last accepted upload (MISSION_REQUEST too)",
+    ),
+    (
+        "MISSION_CLEAR_ALL",
+        "fence and rally: accepted (none kept); the mission: refused (upload another)",
+    ),
+];
+
 /// The shortest interval of a periodic message, and the pace of a parameter list.
 pub const PACE: Duration = Duration::from_millis(20);
 /// Frames waiting to be sent at most; beyond, dropped and counted. Far above what one call
@@ -124,8 +178,8 @@ pub const COMPONENT_ID: u8 = 1;
 /// The largest MAVLink frame, bytes: `gcs.max_rx_per_s` of them is the byte budget too.
 const LARGEST_FRAME: u64 = 280;
 /// A serial stream's bytes that have not grown a claimed frame for this long: the claim was
-/// noise.
-const STALL: Duration = Duration::from_millis(20);
+/// noise (twice a 20 ms gap between a radio's packets).
+const STALL: Duration = Duration::from_millis(40);
 /// Ground stations remembered; a link rarely has more than two.
 const GCS_SENDERS_MAX: usize = 16;
 
@@ -174,8 +228,10 @@ pub struct Connection {
     rx_bytes: Window,
     last_beat: Option<Instant>,
     text_id: u16,
-    /// The newest `now` the protocol was given (its signatures' time).
+    /// The newest `now` the protocol was given.
     latest: Instant,
+    /// The signing clock as the owner last read it.
+    signing_time: Option<u64>,
     /// A serial stream's held bytes are looked at again then (see [`STALL`]).
     stall_check_at: Option<Instant>,
     counts: Counts,
@@ -216,6 +272,7 @@ impl Connection {
             last_beat: None,
             text_id: 0,
             latest: now,
+            signing_time: None,
             stall_check_at: None,
             counts: Counts::default(),
             gcs_senders: Vec::with_capacity(GCS_SENDERS_MAX),
@@ -324,7 +381,7 @@ impl Connection {
     pub fn handle_status(&mut self, now: Instant, status: VehicleStatus) {
         self.tell_time(now);
         self.status = status;
-        let mode = self.status.mode();
+        let mode = self.status.mode;
         if mode != self.told_mode {
             self.told_mode = mode;
             let snap = self.snapshot(now);
@@ -393,10 +450,19 @@ impl Connection {
         self.tx.push_back(frame);
     }
 
-    /// The signing clock at the newest time the protocol was told of.
+    /// The signing clock (10 µs units since 2015) as the owner last read it: the wall clock,
+    /// which a board without a real-time clock gets only once NTP has set it.
+    pub fn set_signing_time(&mut self, now_10us: u64) {
+        self.signing_time = Some(now_10us);
+    }
+
+    /// The signing clock: the owner's last reading, or the one at boot moved on by the
+    /// protocol's own time (signatures stay increasing either way: the encoder's rule).
     fn signing_now(&self) -> u64 {
-        let at_boot = self.s.signing.map_or(0, |(_, t)| t);
-        at_boot + ticks_10us(self.latest.saturating_duration_since(self.s.boot))
+        self.signing_time.unwrap_or_else(|| {
+            let at_boot = self.s.signing.map_or(0, |(_, t)| t);
+            at_boot + ticks_10us(self.latest.saturating_duration_since(self.s.boot))
+        })
     }
 
     /// Moves the protocol's own clock on to `now` (never back).
@@ -547,9 +613,10 @@ impl Connection {
         self.text(severity, &text);
     }
 
-    /// Disarmed, by the flight's newest step.
+    /// Disarmed by both accounts: the commander's last change and the flight's newest step.
     fn disarmed(&self) -> bool {
-        self.status.mode() == Mode::Disarmed
+        let live_mode = self.status.live.map(|l| l.mode);
+        self.status.mode == Mode::Disarmed && live_mode.is_none_or(|m| m == Mode::Disarmed)
     }
 
     fn snapshot(&self, now: Instant) -> Snapshot {
@@ -559,7 +626,7 @@ impl Connection {
         let fix = st.fix;
         Snapshot {
             t_boot_ms: (now_us / 1000).clamp(0, i64::from(u32::MAX)) as u32,
-            mode: st.mode(),
+            mode: st.mode,
             state: live.map(|l| l.x),
             ratios: live.map(|l| l.ratios),
             fix,

@@ -113,7 +113,7 @@ impl Connection {
             return Ok(None);
         }
         if p.flight_critical() && !self.disarmed() {
-            let mode = self.status.mode().name();
+            let mode = self.status.mode.name();
             return Err(format!("{}: flight-critical, refused while {mode}", p.key));
         }
         if !self.params.sets.allows(now, 1, SETS_PER_S) {

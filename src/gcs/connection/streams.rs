@@ -9,8 +9,8 @@ use mavlink::MessageData;
 use mavlink::dialects::common::*;
 use std::time::{Duration, Instant};
 
-/// The messages the link can send, by id.
-const KNOWN: [u32; 11] = [
+/// The messages the link can send on request (REQUEST_MESSAGE), by id.
+pub const REQUESTABLE: [u32; 11] = [
     HEARTBEAT_DATA::ID,
     SYS_STATUS_DATA::ID,
     GPS_RAW_INT_DATA::ID,
@@ -67,30 +67,41 @@ fn build(id: u32, s: &Snapshot, system_id: u8) -> Option<MavMessage> {
     }
 }
 
+/// The periodic messages by id, with their default interval in seconds (0: every
+/// 1/`gcs.telemetry_hz` s).
+pub const PERIODIC_SENT: [(u32, f64); 10] = [
+    (HEARTBEAT_DATA::ID, 1.0),
+    (SYS_STATUS_DATA::ID, 1.0),
+    (EXTENDED_SYS_STATE_DATA::ID, 1.0),
+    (ESTIMATOR_STATUS_DATA::ID, 1.0),
+    (GPS_RAW_INT_DATA::ID, 1.0),
+    (HOME_POSITION_DATA::ID, 5.0),
+    (MISSION_CURRENT_DATA::ID, 1.0),
+    (ATTITUDE_DATA::ID, 0.0),
+    (LOCAL_POSITION_NED_DATA::ID, 0.0),
+    (GLOBAL_POSITION_INT_DATA::ID, 0.0),
+];
+
 impl Streams {
     pub(super) fn new(cfg: &GcsConfig, now: Instant) -> Self {
         let fast = Duration::from_secs_f64(1.0 / cfg.telemetry_hz);
-        let second = Duration::from_secs(1);
-        let list = [
-            (HEARTBEAT_DATA::ID, second),
-            (SYS_STATUS_DATA::ID, second),
-            (EXTENDED_SYS_STATE_DATA::ID, second),
-            (ESTIMATOR_STATUS_DATA::ID, second),
-            (GPS_RAW_INT_DATA::ID, second),
-            (HOME_POSITION_DATA::ID, 5 * second),
-            (MISSION_CURRENT_DATA::ID, second),
-            (ATTITUDE_DATA::ID, fast),
-            (LOCAL_POSITION_NED_DATA::ID, fast),
-            (GLOBAL_POSITION_INT_DATA::ID, fast),
-        ]
-        .into_iter()
-        .map(|(id, every)| Stream {
-            id,
-            default: Some(every),
-            interval: Some(every),
-            next: now,
-        })
-        .collect();
+        let list = PERIODIC_SENT
+            .into_iter()
+            .map(|(id, every_s)| {
+                let every = if every_s == 0.0 {
+                    fast
+                } else {
+                    Duration::from_secs_f64(every_s)
+                };
+                (id, every)
+            })
+            .map(|(id, every)| Stream {
+                id,
+                default: Some(every),
+                interval: Some(every),
+                next: now,
+            })
+            .collect();
         Streams {
             list,
             health: Health {
@@ -143,8 +154,12 @@ impl Streams {
             if now < s.next {
                 continue;
             }
-            // Keep the rate without bunching after a late call.
-            s.next = (s.next + every).max(now);
+            // Keep the rate; after a late call, a whole interval from now (not again at once).
+            s.next = if s.next + every > now {
+                s.next + every
+            } else {
+                now + every
+            };
             due.push(s.id);
         }
         due
@@ -165,7 +180,7 @@ impl Connection {
 
     /// REQUEST_MESSAGE: the message now, if it can be built.
     pub(super) fn send_by_id(&mut self, now: Instant, id: u32) -> MavResult {
-        if !KNOWN.contains(&id) {
+        if !REQUESTABLE.contains(&id) {
             return MavResult::MAV_RESULT_DENIED;
         }
         match build(id, &self.snapshot(now), self.s.cfg.system_id) {

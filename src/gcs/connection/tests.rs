@@ -141,6 +141,7 @@ impl Bench {
             mission_item: None,
         };
         let status = VehicleStatus {
+            mode,
             live: Some(live),
             escs_answering: true,
             ..VehicleStatus::default()
@@ -691,4 +692,61 @@ fn the_next_timeout_is_the_earliest_thing_due() {
         next > b.now && next <= b.now + Duration::from_millis(100),
         "{next:?}"
     );
+}
+
+#[test]
+fn the_commanders_mode_is_told_when_no_step_follows_it() {
+    // Armed, the ESCs' ramp and the calibration running: no control step yet.
+    let mut b = Bench::new();
+    b.beat(GCS);
+    b.pass_ms(1);
+    b.sent();
+    let armed = VehicleStatus {
+        mode: Mode::Armed,
+        ..VehicleStatus::default()
+    };
+    b.conn.handle_status(b.now, armed.clone());
+    let out = b.sent();
+    let armed_bit = MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED;
+    let told = out.iter().any(|m| {
+        matches!(m, MavMessage::HEARTBEAT(h) if h.custom_mode == 1 && h.base_mode.contains(armed_bit))
+    });
+    assert!(told, "{out:?}");
+    // A flight-critical parameter is not changed while armed, step or no step.
+    b.hear(GCS, param_set("CMD_CLIMB_M_S", 0.3));
+    assert!(b.effects().is_empty());
+    // A halt's kill after the last step: the last heartbeat says so.
+    let killed = VehicleStatus {
+        mode: Mode::Kill,
+        halt: Some(TripReason::ImuTimeout),
+        ..armed
+    };
+    b.conn.handle_status(b.now, killed);
+    b.conn.handle_end(b.now);
+    let out = b.sent();
+    let last = out.iter().rev().find_map(|m| match m {
+        MavMessage::HEARTBEAT(h) => Some(h.custom_mode),
+        _ => None,
+    });
+    assert_eq!(last, Some(5), "kill is custom mode 5: {out:?}");
+    assert!(Bench::texts(&out).contains(&"halt imu-timeout: motors stopped".to_string()));
+}
+
+#[test]
+fn a_late_timer_does_not_send_a_periodic_message_twice() {
+    let mut b = Bench::new();
+    b.pass_ms(1);
+    b.sent();
+    // Called 350 ms late: each message once, then not again until a whole interval later.
+    b.now += Duration::from_millis(350);
+    b.conn.handle_timeout(b.now);
+    let count = |out: &[MavMessage]| {
+        out.iter()
+            .filter(|m| matches!(m, MavMessage::ATTITUDE(_) | MavMessage::HEARTBEAT(_)))
+            .count()
+    };
+    let first = b.sent();
+    b.conn.handle_timeout(b.now);
+    assert_eq!(count(&b.sent()), 0, "{first:?}");
+    assert!(b.conn.poll_timeout().is_some_and(|t| t > b.now));
 }

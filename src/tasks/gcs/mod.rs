@@ -4,7 +4,7 @@
 //! its file work (err.log lines, kept parameters, uploads planned on a blocking worker).
 //!
 //! In: bytes from the link; the flight's notices (a queue the control path only `try_send`s
-//! into); the newest step (a watch) and the rest of the vehicle's status (`tasks::status`).
+//! into); the vehicle's status (`tasks::status`), read at each notice and each timer.
 //! Out: operator inputs into the flight's bounded queue, never waited on (a full queue is
 //! told back to the protocol, which refuses the command); frames to the link (a full link
 //! drops and counts).
@@ -102,72 +102,73 @@ fn settings(ctx: &GcsContext, link: &Link, now: Instant) -> Settings {
     }
 }
 
+/// What woke the task.
+enum Wake {
+    Timer,
+    Notice(Notice),
+    Plan(Planned),
+    Bytes(usize, Option<std::net::SocketAddr>),
+    RxError,
+}
+
 /// Serves the link until cancel.
 pub async fn run(mut link: Link, mut ctx: GcsContext) {
     let started = Instant::now();
     let mut conn = Connection::new(settings(&ctx, &link, started), started);
     let (plans_tx, mut plans) = mpsc::channel::<Planned>(1);
-    let mut live = ctx.status.live.clone();
-    let (mut live_open, mut cpu_ns) = (true, 0u64);
     let mut buf = vec![0u8; 4096];
+    let mut cpu_ns = 0u64;
     // Far enough never to come; a protocol always has its health check due.
     let never = Instant::now() + Duration::from_secs(86_400);
     loop {
         let due = tokio::time::Instant::from_std(conn.poll_timeout().unwrap_or(never));
         // Cancel, then the timer and the flight before the link's bytes: a link that never
         // goes quiet (a flood) must not starve telemetry and acknowledgements.
-        let t0 = tokio::select! {
+        let wake = tokio::select! {
             biased;
             _ = ctx.cancel.cancelled() => break,
-            _ = tokio::time::sleep_until(due) => {
-                let t0 = thread_cpu_ns();
+            _ = tokio::time::sleep_until(due) => Wake::Timer,
+            Some(n) = ctx.notices.recv() => Wake::Notice(n),
+            Some(p) = plans.recv() => Wake::Plan(p),
+            r = link.recv(&mut buf) => match r {
+                Ok((n, from)) => Wake::Bytes(n, from),
+                // A datagram refused on the way (ICMP): nothing to read, go on.
+                Err(_) if !link.is_serial() => Wake::RxError,
+                Err(e) => {
+                    tracing::error!("gcs: the serial radio failed ({e}); the link is closed");
+                    break;
+                }
+            },
+        };
+        let t0 = thread_cpu_ns();
+        conn.set_signing_time(crate::gcs::signing::now());
+        match wake {
+            Wake::Timer => {
                 fresh_status(&mut conn, &mut ctx);
                 conn.handle_timeout(Instant::now());
-                t0
             }
-            Some(n) = ctx.notices.recv() => {
-                let t0 = thread_cpu_ns();
+            // A notice is the flight's news (a mode, an item reached): the status with it.
+            Wake::Notice(n) => {
                 conn.handle_notice(Instant::now(), n);
-                t0
-            }
-            Some(p) = plans.recv() => {
-                let t0 = thread_cpu_ns();
-                conn.handle_plan(Instant::now(), &p.name, p.plan);
-                t0
-            }
-            r = live.changed(), if live_open => {
-                let t0 = thread_cpu_ns();
-                live.borrow_and_update();
-                live_open = r.is_ok();
                 fresh_status(&mut conn, &mut ctx);
-                t0
             }
-            r = link.recv(&mut buf) => {
-                let t0 = thread_cpu_ns();
-                match r {
-                    Ok((n, from)) => {
-                        if conn.handle_datagram(Instant::now(), &buf[..n])
-                            && let Some(f) = from
-                        {
-                            link.heard_from(f);
-                        }
-                    }
-                    // A datagram refused on the way (ICMP): nothing to read, go on.
-                    Err(_) if !link.is_serial() => conn.count_rx_error(),
-                    Err(e) => {
-                        tracing::error!("gcs: the serial radio failed ({e}); the link is closed");
-                        break;
-                    }
+            Wake::Plan(p) => conn.handle_plan(Instant::now(), &p.name, p.plan),
+            Wake::Bytes(n, from) => {
+                if conn.handle_datagram(Instant::now(), &buf[..n])
+                    && let Some(f) = from
+                {
+                    link.heard_from(f);
                 }
-                t0
             }
-        };
+            Wake::RxError => conn.count_rx_error(),
+        }
         drive(&mut conn, &mut link, &ctx, &plans_tx);
         cpu_ns += thread_cpu_ns().saturating_sub(t0);
         publish(&conn, &ctx, cpu_ns, started);
     }
     // The run ends: what the flight said last (a halt, the kill) still reaches the ground
     // station, with a last heartbeat.
+    conn.set_signing_time(crate::gcs::signing::now());
     fresh_status(&mut conn, &mut ctx);
     conn.handle_end(Instant::now());
     drive(&mut conn, &mut link, &ctx, &plans_tx);
