@@ -4,7 +4,7 @@
 
 mod common;
 use common::*;
-use uquad::core::esc::EscPhase;
+use uquad::core::esc::{EscPhase, StopReason};
 use uquad::core::flight::{
     Abort, ControllerSide, EscState, EstimatorSide, Feedback, FlightRecord, FrameAction,
     FrameTimes, Outputs, Phase,
@@ -49,7 +49,7 @@ struct Bench {
     controller: ControllerSide,
     feedback: Feedback,
     esc: EscPhase,
-    esc_reason: Option<String>,
+    esc_reason: Option<StopReason>,
     ramp_left: u32,
     t_us: i64,
     out: Kept,
@@ -107,7 +107,7 @@ impl Bench {
         }
         let esc = EscState {
             phase: self.esc,
-            stop_reason: self.esc_reason.as_deref(),
+            stop_reason: self.esc_reason,
         };
         let action = self.estimator.on_frame(&frame, times, esc, &mut self.out);
         match &action {
@@ -127,7 +127,7 @@ impl Bench {
             FrameAction::Abort(a) => self.aborts.push(a.clone()),
             FrameAction::StopEscs => {
                 self.esc = EscPhase::Stopped;
-                self.esc_reason = Some("disarmed".into());
+                self.esc_reason = Some(StopReason::Disarmed);
             }
             FrameAction::Wait | FrameAction::Ended => {}
         }
@@ -219,7 +219,7 @@ fn escs_stopped_during_their_ramp_abort_the_start_up() {
     b.frame();
     assert_eq!(b.esc, EscPhase::Ramping);
     b.esc = EscPhase::Stopped;
-    b.esc_reason = Some("esc-ack".into());
+    b.esc_reason = Some(StopReason::Halt(TripReason::EscAck));
     let action = b.frame();
     assert_eq!(
         action,

@@ -21,10 +21,12 @@ use crate::config::bounded::{self, FileKind};
 use crate::config::{GpsMode, Profile};
 use crate::core::ekf::Ekf;
 use crate::core::flight::ArmCheck;
+use crate::core::flight::drive::{Edges, EscAsk, EscEdges, Flight};
 use crate::core::flight::{
-    ControllerSide, EscState, EstimatorSide, FrameAction, FrameTimes, GatedCounts, GpsFeed,
+    Command, ControllerSide, EscState, Estimate, EstimatorSide, FrameTimes, GatedCounts, GpsFeed,
+    Outputs,
 };
-use crate::core::gps::{GpsSample, LocalFrame, RecordedGps};
+use crate::core::gps::{GpsSample, LiveFix, LocalFrame, RecordedGps};
 use crate::logs::{self, GpsLogRecord};
 use anyhow::{Context, bail};
 use std::borrow::Cow;
@@ -283,7 +285,7 @@ fn closed_loop(
     profile: &Profile,
     logs: RunLogs,
     out: &mut Records<impl ChunkSink>,
-    mut on_step: impl FnMut(&Ekf),
+    on_step: impl FnMut(&Ekf),
 ) -> anyhow::Result<ReplaySummary> {
     logs.report_cut_off();
     let with_mission = with_kept_mission(run_dir, profile)?;
@@ -297,9 +299,9 @@ fn closed_loop(
         // from mode.log.
         estimator = estimator.calibrating_before_arm().escs_from_records();
     }
-    let mut controller = ControllerSide::new(profile.controller_core());
+    let mut flight = Flight::new(estimator, ControllerSide::new(profile.controller_core()));
+    let mut edges = ReplayEdges { on_step };
     let raw = logs.raw;
-    let mut feedback = controller.first_feedback();
     let last_frame_us = raw.last().map_or(0, |r| r.t_frame_us);
     let recorded = recorded_inputs(run_dir, profile, last_frame_us)?;
     if let Some(id) = &recorded.run_id {
@@ -314,38 +316,65 @@ fn closed_loop(
         // The operator's inputs, at the frame the run applied them at (earlier ones, before
         // the calibration the log starts with, at the first frame).
         while let Some((t_us, input, verdict)) = inputs.next_if(|i| i.0 <= times.t_frame_us) {
-            estimator.operator(input, t_us, ArmCheck::Recorded(&verdict), out);
+            let check = ArmCheck::Recorded(&verdict);
+            flight.operate(input, t_us, check, &mut edges, out);
         }
         out.hand_off_if_full();
-        let sample = match estimator.on_frame(&rec.frame, times, EscState::ABSENT, out) {
-            FrameAction::Step(s) => s,
-            FrameAction::Abort(why) => bail!("{why}"),
-            FrameAction::Wait
-            | FrameAction::StartEscs
-            | FrameAction::StopEscs
-            | FrameAction::Ended => continue,
-        };
-        let Some(est) = estimator.estimate(sample, times, &feedback, None, out) else {
-            continue;
-        };
-        if let Some(e) = est.ekf_error {
-            tracing::warn!(step = est.step, "{e}");
+        if let Err(why) = flight.frame(&rec.frame, times, &mut edges, out) {
+            bail!("{why}");
         }
-        if let Some(ekf) = estimator.ekf() {
-            on_step(ekf);
-        }
-        feedback = controller.control(&est, |_| {}, out).feedback;
     }
     // Inputs recorded after the last frame (expired ones, at the run's end), as the run
     // applied them.
     for (t_us, input, verdict) in inputs {
-        estimator.operator(input, t_us, ArmCheck::Recorded(&verdict), out);
+        let check = ArmCheck::Recorded(&verdict);
+        flight.operate(input, t_us, check, &mut edges, out);
     }
     // The run's halt, from its record: a replay has no watchdog.
     if let Some((t_us, reason)) = recorded.halt {
-        estimator.note_halt(t_us, &reason, out);
+        flight.estimator.note_halt(t_us, &reason, out);
     }
-    summarize(run_dir, profile, raw.len(), &estimator, &controller)
+    summarize(
+        run_dir,
+        profile,
+        raw.len(),
+        &flight.estimator,
+        &flight.controller,
+    )
+}
+
+/// A replay's edges: no ESCs (the records say what they did), no live fixes (the recorded
+/// ones are the GPS feed's), and a look at each Kalman step (an EKF error warned, the
+/// caller's hook).
+struct ReplayEdges<F: FnMut(&Ekf)> {
+    on_step: F,
+}
+
+impl<F: FnMut(&Ekf)> EscEdges for ReplayEdges<F> {
+    fn escs(&mut self, _: EscAsk) {}
+
+    fn quit(&mut self) {}
+}
+
+impl<O: Outputs, F: FnMut(&Ekf)> Edges<O> for ReplayEdges<F> {
+    fn esc_state(&self) -> EscState {
+        EscState::ABSENT
+    }
+
+    fn take_fix(&mut self) -> Option<LiveFix> {
+        None
+    }
+
+    fn estimated(&mut self, est: &Estimate, ekf: Option<&Ekf>, _: &mut O) {
+        if let Some(e) = &est.ekf_error {
+            tracing::warn!(step = est.step, "{e}");
+        }
+        if let Some(ekf) = ekf {
+            (self.on_step)(ekf);
+        }
+    }
+
+    fn command(&mut self, _: &Command) {}
 }
 
 /// The replay's counts, or why it ran no Kalman step.

@@ -16,12 +16,11 @@ use crate::app::run_dir::{create_run_dir, new_run_id, write_run_config};
 use crate::app::sim::SimOptions;
 use crate::config::{GpsMode, Profile};
 use crate::core::commander::{ArmFacts, Command as OperatorCommand, Mode, OperatorInput};
-use crate::core::esc::{CycleKind, CycleRunner, EscDriver, EscPhase};
-use crate::core::flight::{ArmCheck, OperatorAction};
-use crate::core::flight::{
-    Command, ControllerSide, EscState, EstimatorSide, Feedback, FlightRecord, FrameAction,
-    FrameTimes, Outputs,
-};
+use crate::core::ekf::Ekf;
+use crate::core::esc::{CycleKind, CycleRunner, EscDriver, EscPhase, StopReason};
+use crate::core::flight::ArmCheck;
+use crate::core::flight::drive::{Edges, EscAsk, EscEdges, Flight};
+use crate::core::flight::{Command, EscState, Estimate, FlightRecord, FrameTimes, Outputs};
 use crate::core::gps::LiveFix;
 use crate::core::imu::frame::{FrameDecoder, RawFrame};
 use crate::core::motor::FLIGHT_RAMP_STEPS;
@@ -115,9 +114,8 @@ struct FastSim<'a> {
     bytes: BytesMut,
     gps: SimGps,
     pending_fix: Option<LiveFix>,
-    estimator: EstimatorSide,
-    controller: ControllerSide,
-    feedback: Feedback,
+    /// Both sides of the flight and the feedback between them (`core::flight::drive`).
+    flight: Flight,
     escs: EscModel,
     driver: EscDriver,
     runner: CycleRunner,
@@ -249,9 +247,7 @@ impl<'a> FastSim<'a> {
             bytes: BytesMut::with_capacity(64),
             gps: SimGps::new(&cfg.sim, seed),
             pending_fix: None,
-            feedback: controller.first_feedback(),
-            estimator,
-            controller,
+            flight: Flight::new(estimator, controller),
             escs: EscModel::new(map),
             driver: EscDriver::new(map, cfg.esc_timing()),
             runner: CycleRunner::default(),
@@ -316,14 +312,15 @@ impl<'a> FastSim<'a> {
         self.execute_halt();
         self.sample_hover();
         if self.opts.progress && t % 5_000_000 == 0 {
-            let mode = self.estimator.mode().name();
-            let steps = self.estimator.counts().steps;
+            let mode = self.flight.estimator.mode().name();
+            let steps = self.flight.estimator.counts().steps;
             eprintln!("{}", progress_line(t, &self.plant, mode, steps));
         }
         // The run ends once the motors' stop has settled (confirmed, or out of retries): after
         // a halt, an error, or a landing once the script is done.
-        let landed =
-            self.armed_once && self.estimator.mode() == Mode::Disarmed && self.operator.done(t);
+        let landed = self.armed_once
+            && self.flight.estimator.mode() == Mode::Disarmed
+            && self.operator.done(t);
         let ended = self.trip.is_some() || self.fly.error.is_some() || landed || self.quit;
         !(ended && self.driver.stop_outcome().is_some())
     }
@@ -337,25 +334,22 @@ impl<'a> FastSim<'a> {
         }
         for (due_us, input) in std::mem::take(&mut self.inputs) {
             // Due while no frame came (a garbled IMU): past commander.input_expiry_s, refused.
-            let input = self.estimator.commander().aged(input, t - due_us);
+            let input = self.flight.estimator.commander().aged(input, t - due_us);
             let facts = if matches!(input, OperatorInput::Command(OperatorCommand::Arm, _)) {
                 self.arm_facts()
             } else {
                 ArmFacts::default()
             };
             let check = ArmCheck::Facts(&facts);
-            match self.estimator.operator(input, t, check, &mut self.out) {
-                OperatorAction::StopEscs => self.driver.stop("disarmed", t, &mut self.cycles),
-                OperatorAction::Quit => {
-                    self.quit = true;
-                    self.driver.stop("shutdown", t, &mut self.cycles);
-                }
-                OperatorAction::StartEscs => {
-                    self.armed_once = true;
-                    self.driver.start(t);
-                }
-                OperatorAction::Nothing => {}
-            }
+            let mut escs = SimEscs {
+                t_us: t,
+                driver: &mut self.driver,
+                cycles: &mut self.cycles,
+                armed_once: &mut self.armed_once,
+                quit: &mut self.quit,
+            };
+            self.flight
+                .operate(input, t, check, &mut escs, &mut self.out);
         }
         self.dispatch_events();
     }
@@ -366,10 +360,11 @@ impl<'a> FastSim<'a> {
         let t = self.t_us;
         self.operator.due(t, &mut self.inputs);
         for (due_us, input) in std::mem::take(&mut self.inputs) {
-            let input = self.estimator.commander().aged(input, t - due_us);
+            let input = self.flight.estimator.commander().aged(input, t - due_us);
             if matches!(input, OperatorInput::Expired { .. }) {
                 let facts = ArmFacts::default();
-                self.estimator
+                self.flight
+                    .estimator
                     .operator(input, t, ArmCheck::Facts(&facts), &mut self.out);
             }
         }
@@ -401,57 +396,41 @@ impl<'a> FastSim<'a> {
         }
     }
 
-    /// The flight step's order (`core::flight::sequence`), in lock-step.
+    /// The flight step (`core::flight::drive`), in lock-step: the operator's inputs due, then
+    /// the frame; an abort ends the run, the motors stopped.
     fn on_frame(&mut self, frame: &RawFrame, times: FrameTimes) {
         self.operate();
-        let esc = EscState {
-            phase: self.driver.phase(),
-            stop_reason: self.driver.stop_reason(),
+        let mut edges = SimEdges {
+            escs: SimEscs {
+                t_us: self.t_us,
+                driver: &mut self.driver,
+                cycles: &mut self.cycles,
+                armed_once: &mut self.armed_once,
+                quit: &mut self.quit,
+            },
+            pending_fix: &mut self.pending_fix,
+            judge: Judge {
+                watchdog: &mut self.watchdog,
+                trip: &mut self.trip,
+                safety: &mut self.safety,
+            },
+            plant: &self.plant,
+            truth: &mut self.truth,
+            truth_text: &mut self.truth_text,
+            receiver_bias_m: self.gps_live.then(|| self.gps.bias_m()),
         };
-        let sample = match self.estimator.on_frame(frame, times, esc, &mut self.out) {
-            FrameAction::Wait | FrameAction::Ended => return,
-            FrameAction::StartEscs => {
-                self.armed_once = true;
-                return self.driver.start(self.t_us);
-            }
-            FrameAction::Abort(why) => {
-                self.fly.error = Some(why.to_string());
-                return self.driver.stop("shutdown", self.t_us, &mut self.cycles);
-            }
-            FrameAction::StopEscs => {
-                return self.driver.stop("disarmed", self.t_us, &mut self.cycles);
-            }
-            FrameAction::Step(sample) => sample,
-        };
-        let live = self.pending_fix.take();
-        let Some(est) = self
-            .estimator
-            .estimate(sample, times, &self.feedback, live, &mut self.out)
-        else {
-            return;
-        };
-        if let Some(ekf) = self.estimator.ekf() {
-            let bias_m = self.gps_live.then(|| self.gps.bias_m());
-            let row = self.truth.sample(&est, ekf, &self.plant, bias_m);
-            crate::logs::format::write_values_row(&mut self.truth_text, Some(self.t_us), &row);
+        if let Err(why) = self.flight.frame(frame, times, &mut edges, &mut self.out) {
+            self.fly.error = Some(why.to_string());
+            self.driver
+                .stop(StopReason::Shutdown, self.t_us, &mut self.cycles);
         }
-        self.dispatch_events();
-        let (t, driver, cycles) = (self.t_us, &mut self.driver, &mut self.cycles);
-        let send = |c: &Command| {
-            if c.stop_escs {
-                driver.stop("disarmed", t, cycles)
-            } else {
-                driver.command(&c.w_rad_s, t, t, cycles)
-            }
-        };
-        self.feedback = self.controller.control(&est, send, &mut self.out).feedback;
     }
 
     /// The ESC driver's due work, executed on the simulated ESCs.
     fn run_escs(&mut self) {
         if let Some(trip) = self.trip {
             self.driver
-                .stop(trip.reason.name(), self.t_us, &mut self.cycles);
+                .stop(StopReason::Halt(trip.reason), self.t_us, &mut self.cycles);
         }
         self.driver.poll(self.t_us, &mut self.cycles);
         self.execute_cycles();
@@ -486,19 +465,22 @@ impl<'a> FastSim<'a> {
 
     /// The watchdog events the flight reported during this frame.
     fn dispatch_events(&mut self) {
-        for e in std::mem::take(&mut self.out.events) {
-            self.decide(|wd, t| wd.on_event(e, t));
-        }
+        let mut judge = Judge {
+            watchdog: &mut self.watchdog,
+            trip: &mut self.trip,
+            safety: &mut self.safety,
+        };
+        judge.dispatch(&mut self.out.events, &self.plant, self.t_us);
     }
 
     /// Asks the watchdog policy; a trip is kept (the first one decides).
     fn decide(&mut self, ask: impl FnOnce(&mut Watchdog, i64) -> Option<Trip>) {
-        if let Some(trip) = ask(&mut self.watchdog, self.t_us) {
-            if self.trip.is_none() {
-                self.safety.halt(&self.plant);
-            }
-            self.trip.get_or_insert(trip);
-        }
+        let mut judge = Judge {
+            watchdog: &mut self.watchdog,
+            trip: &mut self.trip,
+            safety: &mut self.safety,
+        };
+        judge.decide(&self.plant, self.t_us, ask);
     }
 
     /// A decided halt is executed in the same step: zero, then disable (retried by the driver
@@ -509,11 +491,11 @@ impl<'a> FastSim<'a> {
         };
         if self.driver.phase() != EscPhase::Stopped {
             self.driver
-                .stop(trip.reason.name(), self.t_us, &mut self.cycles);
+                .stop(StopReason::Halt(trip.reason), self.t_us, &mut self.cycles);
             self.execute_cycles();
         }
         if let Some(o) = self.driver.stop_outcome() {
-            self.estimator.on_halt(o.halt(trip), &mut self.out);
+            self.flight.estimator.on_halt(o.halt(trip), &mut self.out);
         }
     }
 
@@ -521,18 +503,19 @@ impl<'a> FastSim<'a> {
         if self.t_us % FRAME_US != 0 {
             return;
         }
-        let mode = self.estimator.mode();
+        let mode = self.flight.estimator.mode();
         let flight = FlightView {
-            ramp_done: self.controller.counts().flying_steps >= u64::from(FLIGHT_RAMP_STEPS),
-            setpoint_m: self.controller.setpoint_m().unwrap_or_default(),
+            ramp_done: self.flight.controller.counts().flying_steps >= u64::from(FLIGHT_RAMP_STEPS),
+            setpoint_m: self.flight.controller.setpoint_m().unwrap_or_default(),
             flying: self.trip.is_none() && matches!(mode, Mode::Takeoff | Mode::Hold),
         };
         let truth = TrueState::of(&self.plant);
         self.hover.sample(self.t_us, flight, truth);
-        let guidance = self.estimator.commander().guidance();
+        let guidance = self.flight.estimator.commander().guidance();
         self.trace
             .sample(self.t_us, mode, guidance.height_m, &self.plant);
         let est_m = self
+            .flight
             .estimator
             .ekf()
             .map_or([f64::NAN; 3], |e| [e.x[0], e.x[1], e.x[2]]);
@@ -540,7 +523,7 @@ impl<'a> FastSim<'a> {
         // The start-up (the ESCs' ramp, a calibration after it) is over once the flight's
         // phases begin: under an estimate that ran before arming, steps come earlier.
         let started_up = matches!(
-            self.estimator.phase(),
+            self.flight.estimator.phase(),
             crate::core::flight::Phase::FlightRamp | crate::core::flight::Phase::Flight
         );
         self.safety
@@ -551,7 +534,8 @@ impl<'a> FastSim<'a> {
     /// streams written into the run folder.
     fn finish(mut self) -> anyhow::Result<SimSummary> {
         self.expire_unapplied();
-        self.driver.stop("shutdown", self.t_us, &mut self.cycles);
+        self.driver
+            .stop(StopReason::Shutdown, self.t_us, &mut self.cycles);
         self.execute_cycles();
         // Its retries, on the simulated clock (the physics no longer matters).
         while self.driver.stop_outcome().is_none() {
@@ -562,25 +546,25 @@ impl<'a> FastSim<'a> {
             self.driver.poll(self.t_us, &mut self.cycles);
             self.execute_cycles();
         }
-        let est = self.estimator.counts();
+        let est = self.flight.estimator.counts();
         let fly = &mut self.fly;
         fly.steps = est.steps;
         fly.gps_updates = est.gps_updates;
         fly.ekf_errors = est.ekf_errors;
         fly.ekf_gated = est.gated;
-        fly.saturated_commands = self.controller.counts().saturated;
+        fly.saturated_commands = self.flight.controller.counts().saturated;
         fly.esc_writes = self.runner.writes;
         fly.esc_failed_writes = self.runner.failed_writes;
-        fly.esc_stop_reason = self.driver.stop_reason().map(str::to_string);
+        fly.esc_stop_reason = self.driver.stop_reason().map(|r| r.name().to_string());
         fly.deadline_misses = self.watchdog.deadline_misses();
         fly.halt = self
             .trip
             .zip(self.driver.stop_outcome())
             .map(|(trip, o)| o.halt(trip));
         fly.log_drops = self.out.drops;
-        fly.commander = self.estimator.summary(self.trace.figures());
+        fly.commander = self.flight.estimator.summary(self.trace.figures());
         if fly.error.is_none() {
-            fly.error = self.estimator.start_failure(self.t_us);
+            fly.error = self.flight.estimator.start_failure(self.t_us);
         }
         fly.discarded_bytes = self.decoder.stats().discarded_bytes;
         fly.rejected_frames = self.decoder.stats().rejected_frames;
@@ -590,7 +574,7 @@ impl<'a> FastSim<'a> {
         write_streams(fly, &self.out.text);
         write_truth(fly, &self.truth_text);
         fly.log_records = self.out.records;
-        let mission = self.estimator.commander().mission_figures();
+        let mission = self.flight.estimator.commander().mission_figures();
         let safety = self.safety.finish(&mut self.plant, self.step_us);
         Ok(SimSummary {
             safety: Some(safety),
@@ -601,5 +585,116 @@ impl<'a> FastSim<'a> {
             simulated_s: self.t_us as f64 / 1e6,
             esc_end: self.escs.end_state(),
         })
+    }
+}
+
+/// The watchdog policy, the halt it decided, and the safety trace that notes the vehicle at
+/// the decision.
+struct Judge<'b> {
+    watchdog: &'b mut Watchdog,
+    trip: &'b mut Option<Trip>,
+    safety: &'b mut SafetyTrace,
+}
+
+impl Judge<'_> {
+    /// Asks the watchdog policy at `t_us`; a trip is kept (the first one decides).
+    fn decide(
+        &mut self,
+        plant: &Plant,
+        t_us: i64,
+        ask: impl FnOnce(&mut Watchdog, i64) -> Option<Trip>,
+    ) {
+        if let Some(trip) = ask(self.watchdog, t_us) {
+            if self.trip.is_none() {
+                self.safety.halt(plant);
+            }
+            self.trip.get_or_insert(trip);
+        }
+    }
+
+    /// The watchdog events the flight reported, in order.
+    fn dispatch(&mut self, events: &mut Vec<Event>, plant: &Plant, t_us: i64) {
+        for e in std::mem::take(events) {
+            self.decide(plant, t_us, |wd, t| wd.on_event(e, t));
+        }
+    }
+}
+
+/// The simulated ESC driver as the flight's edges: what an input or a frame asks of it.
+struct SimEscs<'b> {
+    t_us: i64,
+    driver: &'b mut EscDriver,
+    cycles: &'b mut Vec<(CycleKind, crate::core::esc::Cycle)>,
+    armed_once: &'b mut bool,
+    quit: &'b mut bool,
+}
+
+impl EscEdges for SimEscs<'_> {
+    fn escs(&mut self, ask: EscAsk) {
+        match ask {
+            EscAsk::Start => {
+                *self.armed_once = true;
+                self.driver.start(self.t_us);
+            }
+            EscAsk::Stop(reason) => self.driver.stop(reason, self.t_us, self.cycles),
+        }
+    }
+
+    fn quit(&mut self) {
+        *self.quit = true;
+        self.driver
+            .stop(StopReason::Shutdown, self.t_us, self.cycles);
+    }
+}
+
+/// The simulator's edges for one frame: its ESCs, the fix simulated gpsd gave, its truth
+/// (sampled at each estimate) and its watchdog (the estimate's events, before the control).
+struct SimEdges<'b> {
+    escs: SimEscs<'b>,
+    pending_fix: &'b mut Option<LiveFix>,
+    judge: Judge<'b>,
+    plant: &'b Plant,
+    truth: &'b mut TruthTrace,
+    truth_text: &'b mut String,
+    /// The simulated receiver's bias, north, west, up (with a receiver), m.
+    receiver_bias_m: Option<[f64; 3]>,
+}
+
+impl EscEdges for SimEdges<'_> {
+    fn escs(&mut self, ask: EscAsk) {
+        self.escs.escs(ask);
+    }
+
+    fn quit(&mut self) {
+        self.escs.quit();
+    }
+}
+
+impl Edges<FastOutputs> for SimEdges<'_> {
+    fn esc_state(&self) -> EscState {
+        EscState {
+            phase: self.escs.driver.phase(),
+            stop_reason: self.escs.driver.stop_reason(),
+        }
+    }
+
+    fn take_fix(&mut self) -> Option<LiveFix> {
+        self.pending_fix.take()
+    }
+
+    fn estimated(&mut self, est: &Estimate, ekf: Option<&Ekf>, out: &mut FastOutputs) {
+        let t_us = self.escs.t_us;
+        if let Some(ekf) = ekf {
+            let row = self
+                .truth
+                .sample(est, ekf, self.plant, self.receiver_bias_m);
+            crate::logs::format::write_values_row(self.truth_text, Some(t_us), &row);
+        }
+        self.judge.dispatch(&mut out.events, self.plant, t_us);
+    }
+
+    fn command(&mut self, c: &Command) {
+        let t = self.escs.t_us;
+        self.escs.driver.command(&c.w_rad_s, t, t, self.escs.cycles);
     }
 }

@@ -106,6 +106,43 @@ pub struct EscTiming {
     pub halt_retry_us: i64,
 }
 
+/// Why the ESCs were stopped. [`StopReason::name`] is the one text of each, as err.log, the
+/// reports and the flight's refusals show it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StopReason {
+    /// Disarmed on the ground: a landing, a disarm, a failed start-up.
+    Disarmed,
+    /// The run ends: a signal, a quit, the program's end.
+    Shutdown,
+    /// A panic somewhere in the process.
+    Panic,
+    /// A motor command that is not a number.
+    NonFiniteCommand,
+    /// A flight command older than `esc.command_timeout_ms`.
+    StaleCommand,
+    /// The watchdog's halt, for its reason.
+    Halt(crate::core::watchdog::TripReason),
+}
+
+impl StopReason {
+    pub fn name(self) -> &'static str {
+        match self {
+            StopReason::Disarmed => "disarmed",
+            StopReason::Shutdown => "shutdown",
+            StopReason::Panic => "panic",
+            StopReason::NonFiniteCommand => "non-finite motor command",
+            StopReason::StaleCommand => "stale motor command",
+            StopReason::Halt(reason) => reason.name(),
+        }
+    }
+}
+
+impl std::fmt::Display for StopReason {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
 #[derive(Debug, Clone)]
 pub struct EscDriver {
     map: MotorMap,
@@ -120,7 +157,7 @@ pub struct EscDriver {
     next_resend_us: i64,
     /// Arrival of the frame of the newest flight command.
     command_frame_us: Option<i64>,
-    stop_reason: Option<String>,
+    stop_reason: Option<StopReason>,
     retry: Option<StopRetry>,
     outcome: Option<StopOutcome>,
     /// While disabled: when the next probe is due, and which ESCs acknowledged the last one.
@@ -167,8 +204,8 @@ impl EscDriver {
         self.phase
     }
 
-    pub fn stop_reason(&self) -> Option<&str> {
-        self.stop_reason.as_deref()
+    pub fn stop_reason(&self) -> Option<StopReason> {
+        self.stop_reason
     }
 
     /// When [`EscDriver::poll`] next has something to do; `None` when only a request can.
@@ -204,11 +241,11 @@ impl EscDriver {
 
     /// Zero, then disable every ESC, from `now_us`; retried (see [`EscDriver::poll`]) until
     /// each ESC acknowledged both or the retry time ran out; then nothing more.
-    pub fn stop(&mut self, reason: &str, now_us: i64, out: &mut Vec<(CycleKind, Cycle)>) {
+    pub fn stop(&mut self, reason: StopReason, now_us: i64, out: &mut Vec<(CycleKind, Cycle)>) {
         if self.phase == EscPhase::Stopped {
             return;
         }
-        self.stop_reason = Some(reason.to_string());
+        self.stop_reason = Some(reason);
         if self.phase == EscPhase::Disabled {
             // Never enabled: nothing spins, nothing to write.
             self.phase = EscPhase::Stopped;
@@ -284,7 +321,7 @@ impl EscDriver {
             return;
         }
         if w_rad_s.iter().any(|v| !v.is_finite()) {
-            return self.stop("non-finite motor command", now_us, out);
+            return self.stop(StopReason::NonFiniteCommand, now_us, out);
         }
         self.values = w_rad_s.map(i2c_from_rad_s);
         self.command_frame_us = Some(frame_us);
@@ -322,7 +359,7 @@ impl EscDriver {
                 if let Some(f) = self.command_frame_us
                     && now_us - f > self.command_timeout_us
                 {
-                    return self.stop("stale motor command", now_us, out);
+                    return self.stop(StopReason::StaleCommand, now_us, out);
                 }
                 if now_us >= self.next_resend_us {
                     out.push((CycleKind::Speeds, self.speeds(&self.values)));
@@ -459,6 +496,7 @@ impl CycleRunner {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::core::watchdog::TripReason;
 
     const TIMING: EscTiming = EscTiming {
         resend_us: 2_000,
@@ -544,7 +582,7 @@ mod tests {
         assert_eq!(out[0].0, CycleKind::StopZero);
         assert!(out[0].1.iter().all(|w| w.2 == 0));
         assert_eq!(out[1].0, CycleKind::StopDisable);
-        assert_eq!(d.stop_reason(), Some("stale motor command"));
+        assert_eq!(d.stop_reason(), Some(StopReason::StaleCommand));
         out.clear();
         d.poll(t + 100_000, &mut out);
         d.command(&[300.0; 4], 0, t + 100_000, &mut out);
@@ -633,7 +671,7 @@ mod tests {
         d.poll(10_000_000, &mut out);
         out.clear();
         let t0 = 10_000_000;
-        d.stop("imu-timeout", t0, &mut out);
+        d.stop(StopReason::Halt(TripReason::ImuTimeout), t0, &mut out);
         let mut writes = Vec::new();
         let mut t = t0;
         while d.stop_outcome().is_none() {
@@ -699,7 +737,7 @@ mod tests {
         d.start(0);
         d.poll(10_000_000, &mut out);
         out.clear();
-        d.stop("shutdown", 10_000_000, &mut out);
+        d.stop(StopReason::Shutdown, 10_000_000, &mut out);
         runner.execute(
             &mut d,
             &mut out,

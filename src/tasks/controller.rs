@@ -7,9 +7,10 @@
 //! Rate: one control step per estimate (100 Hz). Ends: when the estimator ends (on cancel or
 //! a quit command, which cancels), after the estimates it already sent.
 
+use crate::core::flight::drive::hand_off;
 use crate::core::flight::{Command, ControllerSide, Feedback};
 use crate::tasks::TaskOutputs;
-use crate::tasks::esc_writer::{EscMailbox, HaltOnPanic, MotorCommand};
+use crate::tasks::esc_writer::{EscMailbox, HaltOnPanic, MailboxEscs, MotorCommand};
 use crate::tasks::estimator::EstimateMsg;
 use crate::tasks::latency::Stamps;
 use std::sync::Arc;
@@ -62,10 +63,12 @@ impl ControllerTask {
                 panic!("injected controller panic at step {}", est.step);
             }
             let esc = &self.esc;
+            let mut escs = MailboxEscs {
+                esc,
+                cancel: &self.cancel,
+            };
             let send = |c: &Command| {
-                if c.stop_escs {
-                    esc.halt("disarmed");
-                } else {
+                if hand_off(c, &mut escs) {
                     esc.command(MotorCommand {
                         w_rad_s: c.w_rad_s,
                         stamps: Stamps {

@@ -14,7 +14,9 @@
 //! is a missed ack: counted, with the run of consecutive failures exposed for the watchdog.
 
 pub use crate::core::esc::EscPhase;
-use crate::core::esc::{Cycle, CycleKind, CycleRunner, EscDriver, EscTiming, StopOutcome};
+use crate::core::esc::{
+    Cycle, CycleKind, CycleRunner, EscDriver, EscTiming, StopOutcome, StopReason,
+};
 use crate::core::motor::MotorMap;
 use crate::hw::esc_bus::EscBus;
 use crate::tasks::heartbeats::{Event, Heartbeats};
@@ -36,7 +38,7 @@ struct Requests {
     start: bool,
     command: Option<MotorCommand>,
     new_command: bool,
-    halt: Option<String>,
+    halt: Option<StopReason>,
     shutdown: bool,
 }
 
@@ -119,19 +121,19 @@ impl EscMailbox {
     }
 
     /// Zero and disable now; `reason` is recorded.
-    pub fn halt(&self, reason: &str) {
+    pub fn halt(&self, reason: StopReason) {
         self.with(|r| {
             if r.halt.is_none() {
-                r.halt = Some(reason.to_string());
+                r.halt = Some(reason);
             }
         });
     }
 
     /// [`EscMailbox::halt`] unless the inbox is locked (the panic hook must not wait).
-    fn try_halt(&self, reason: &str) {
+    fn try_halt(&self, reason: StopReason) {
         if let Ok(mut r) = self.req.try_lock() {
             if r.halt.is_none() {
-                r.halt = Some(reason.to_string());
+                r.halt = Some(reason);
             }
             self.seq.fetch_add(1, Ordering::SeqCst);
             drop(r);
@@ -159,7 +161,7 @@ pub fn halt_on_any_panic(mailbox: &Arc<EscMailbox>) {
             // try_lock: the panicking thread may hold a lock; the guards halt then.
             if let Ok(runs) = RUNS.try_lock() {
                 for m in runs.iter().filter_map(std::sync::Weak::upgrade) {
-                    m.try_halt("panic");
+                    m.try_halt(StopReason::Panic);
                 }
             }
             report(info);
@@ -181,9 +183,30 @@ pub struct HaltOnPanic {
 impl Drop for HaltOnPanic {
     fn drop(&mut self) {
         if std::thread::panicking() {
-            self.mailbox.halt("panic");
+            self.mailbox.halt(StopReason::Panic);
             self.cancel.cancel();
         }
+    }
+}
+
+/// The ESC writer as the flight's edges (`core::flight::drive`): starts and stops through the
+/// mailbox, never waiting; the operator's quit ends the run (the shutdown stops the motors).
+pub struct MailboxEscs<'a> {
+    pub esc: &'a EscMailbox,
+    pub cancel: &'a tokio_util::sync::CancellationToken,
+}
+
+impl crate::core::flight::drive::EscEdges for MailboxEscs<'_> {
+    fn escs(&mut self, ask: crate::core::flight::drive::EscAsk) {
+        use crate::core::flight::drive::EscAsk;
+        match ask {
+            EscAsk::Start => self.esc.start(),
+            EscAsk::Stop(reason) => self.esc.halt(reason),
+        }
+    }
+
+    fn quit(&mut self) {
+        self.cancel.cancel();
     }
 }
 
@@ -198,7 +221,7 @@ pub struct EscStatus {
     /// Commands refused as stale or not finite.
     pub refused_commands: AtomicU64,
     /// Why the ESCs were stopped, once they were.
-    pub stop_reason: Mutex<Option<String>>,
+    pub stop_reason: Mutex<Option<StopReason>>,
     /// Frame-arrival → ESC-write latency of the flight commands, and its stages.
     pub latency: LatencyLog,
     /// How the stop ended (confirmed or not, and when), once it has.
@@ -222,8 +245,8 @@ impl EscStatus {
         self.phase.store(p as u8, Ordering::SeqCst);
     }
 
-    pub fn stop_reason(&self) -> Option<String> {
-        self.stop_reason.lock().ok().and_then(|g| g.clone())
+    pub fn stop_reason(&self) -> Option<StopReason> {
+        self.stop_reason.lock().ok().and_then(|g| *g)
     }
 
     /// The addresses that did not acknowledge the last probe (the pre-arm check).
@@ -338,7 +361,7 @@ pub fn spawn(
 
 enum Wake {
     Shutdown,
-    Halt(String),
+    Halt(StopReason),
     Start,
     Command(MotorCommand),
     Tick,
@@ -353,7 +376,7 @@ fn wait(mailbox: &EscMailbox, deadline: Option<Instant>, accept_start: bool, spi
         if g.shutdown {
             return Wake::Shutdown;
         }
-        if let Some(h) = g.halt.clone() {
+        if let Some(h) = g.halt {
             return Wake::Halt(h);
         }
         if accept_start && g.start {
@@ -416,10 +439,10 @@ fn run(mut w: Writer, mailbox: &EscMailbox) {
         let mut stamps = None;
         match wake {
             Wake::Shutdown => {
-                driver.stop("shutdown", now_us, &mut cycles);
+                driver.stop(StopReason::Shutdown, now_us, &mut cycles);
                 return settle_stop(&mut w, &mut driver, &mut cycles);
             }
-            Wake::Halt(reason) => driver.stop(&reason, now_us, &mut cycles),
+            Wake::Halt(reason) => driver.stop(reason, now_us, &mut cycles),
             Wake::Start => driver.start(now_us),
             Wake::Command(c) => {
                 if c.w_rad_s.iter().any(|v| !v.is_finite()) {
@@ -433,7 +456,7 @@ fn run(mut w: Writer, mailbox: &EscMailbox) {
         }
         let was_running = driver.phase() == EscPhase::Running;
         driver.poll(now_us, &mut cycles);
-        if was_running && driver.stop_reason() == Some("stale motor command") {
+        if was_running && driver.stop_reason() == Some(StopReason::StaleCommand) {
             w.status.refused_commands.fetch_add(1, Ordering::Relaxed);
         }
         w.execute(&mut driver, &mut cycles, stamps);
@@ -477,7 +500,7 @@ impl Writer {
             match phase {
                 EscPhase::Running => tracing::info!("ESC start-up ramp done; idling"),
                 EscPhase::Stopped => tracing::info!(
-                    reason = driver.stop_reason().unwrap_or(""),
+                    reason = driver.stop_reason().map_or("", StopReason::name),
                     "ESCs zeroed and disabled"
                 ),
                 EscPhase::Disabled | EscPhase::Ramping => {}
@@ -487,7 +510,7 @@ impl Writer {
             && let Ok(mut g) = self.status.stop_reason.lock()
             && g.is_none()
         {
-            *g = Some(r.to_string());
+            *g = Some(r);
         }
         self.status.set_phase(phase);
     }

@@ -16,13 +16,13 @@
 use crate::core::commander::Summary as CommanderSummary;
 use crate::core::commander::{ArmFacts, Command, LinkSource, OperatorInput, expiry_reason};
 use crate::core::esc::EscPhase;
+use crate::core::flight::drive::{Framed, act, frame_action};
 use crate::core::flight::{
-    ArmCheck, EscState, Estimate, EstimatorSide, Feedback, FrameAction, FrameTimes, GatedCounts,
-    OperatorAction,
+    ArmCheck, EscState, Estimate, EstimatorSide, Feedback, FrameTimes, GatedCounts,
 };
 use crate::core::gps::LiveFix;
 use crate::tasks::TaskOutputs;
-use crate::tasks::esc_writer::{EscMailbox, EscStatus};
+use crate::tasks::esc_writer::{EscMailbox, EscStatus, MailboxEscs};
 use crate::tasks::imu_reader::StampedFrame;
 use crate::tasks::notices::Notice;
 use crate::tasks::prearm::PreArm;
@@ -132,23 +132,17 @@ impl EstimatorTask {
             let stop_reason = (phase == EscPhase::Stopped)
                 .then(|| self.esc_status.stop_reason())
                 .flatten();
-            let esc = EscState {
-                phase,
-                stop_reason: stop_reason.as_deref(),
+            let esc = EscState { phase, stop_reason };
+            let action = self.side.on_frame(&f.frame, times, esc, &mut self.out);
+            let mut escs = MailboxEscs {
+                esc: &self.esc,
+                cancel: &self.cancel,
             };
-            let sample = match self.side.on_frame(&f.frame, times, esc, &mut self.out) {
-                FrameAction::Wait => continue,
-                FrameAction::StartEscs => {
-                    self.esc.start();
-                    continue;
-                }
-                FrameAction::Abort(why) => return Err(why.into()),
-                FrameAction::StopEscs => {
-                    self.esc.halt("disarmed");
-                    continue;
-                }
-                FrameAction::Ended => break,
-                FrameAction::Step(sample) => sample,
+            let sample = match frame_action(action, &mut escs) {
+                Framed::Step(sample) => sample,
+                Framed::Done => continue,
+                Framed::Aborted(why) => return Err(why.into()),
+                Framed::Ended => break,
             };
             if phase == EscPhase::Running {
                 // A command follows this step: the ESC writer wakes while it is computed.
@@ -328,12 +322,11 @@ impl EstimatorTask {
                 self.out.notices.send(n);
             }
         }
-        match action {
-            OperatorAction::StopEscs => self.esc.halt("disarmed"),
-            OperatorAction::Quit => self.cancel.cancel(),
-            OperatorAction::StartEscs => self.esc.start(),
-            OperatorAction::Nothing => {}
-        }
+        let mut escs = MailboxEscs {
+            esc: &self.esc,
+            cancel: &self.cancel,
+        };
+        act(action, &mut escs);
     }
 
     /// A live fix published since the previous frame (never waited for): the commander

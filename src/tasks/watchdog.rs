@@ -117,7 +117,8 @@ const WRITER_GRACE: Duration = Duration::from_millis(500);
 /// Halts through the ESC writer (zero, then disable, retried until acknowledged) and waits
 /// for the stop to settle. A writer that never answers leaves the stop unconfirmed by all.
 fn halt_motors(trip: Trip, path: &HaltPath, beats: &Heartbeats) -> Halt {
-    path.mailbox.halt(trip.reason.name());
+    path.mailbox
+        .halt(crate::core::esc::StopReason::Halt(trip.reason));
     let asked = Instant::now();
     loop {
         if let Some(o) = path.esc.stop_outcome() {

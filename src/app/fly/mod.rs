@@ -454,7 +454,7 @@ fn summarise(h: &RunHandles, r: control::Reports, error: Option<String>) -> FlyS
         esc_writes: load(&h.esc_status.writes),
         esc_failed_writes: load(&h.esc_status.failed_writes),
         esc_commands: load(&h.esc_status.commands),
-        esc_stop_reason: h.esc_status.stop_reason(),
+        esc_stop_reason: h.esc_status.stop_reason().map(|r| r.name().to_string()),
         log_drops: h.logs.dropped(),
         log_io_errors: h.logs.io_errors(),
         console_drops: load(&h.console_drops),

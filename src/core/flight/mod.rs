@@ -1,7 +1,9 @@
-//! The flight: its two halves (estimator, controller), the GPS feed between them, and the
+//! The flight: its two halves (estimator, controller), the GPS feed between them, the
 //! sequence that orders them into one flight step for every mode (spec 8.3; see
-//! [`sequence`] for the order, written once).
+//! [`sequence`] for the order, written once), and the driving loop's pieces every driver
+//! calls ([`drive`]).
 
+pub mod drive;
 pub mod gps_feed;
 pub mod halves;
 pub mod imu_watch;

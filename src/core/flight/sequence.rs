@@ -28,7 +28,7 @@ use crate::core::commander::{
 };
 use crate::core::control::ManualCommand;
 use crate::core::ekf::{Ekf, GatedGroups, Input, TestRatios, idx};
-use crate::core::esc::EscPhase;
+use crate::core::esc::{EscPhase, StopReason};
 use crate::core::gps::LiveFix;
 use crate::core::imu::calib::ImuSample;
 use crate::core::imu::frame::RawFrame;
@@ -113,15 +113,15 @@ impl FrameTimes {
 
 /// The ESC driver's state as the estimator side sees it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct EscState<'a> {
+pub struct EscState {
     pub phase: EscPhase,
     /// Why the ESCs stopped, once they did.
-    pub stop_reason: Option<&'a str>,
+    pub stop_reason: Option<StopReason>,
 }
 
-impl EscState<'_> {
+impl EscState {
     /// A run without ESCs (replay): nothing to wait for.
-    pub const ABSENT: EscState<'static> = EscState {
+    pub const ABSENT: EscState = EscState {
         phase: EscPhase::Running,
         stop_reason: None,
     };
@@ -669,7 +669,7 @@ impl EstimatorSide {
         &mut self,
         frame: &RawFrame,
         times: FrameTimes,
-        esc: EscState<'_>,
+        esc: EscState,
         out: &mut impl Outputs,
     ) -> FrameAction {
         if self.phase == Phase::Ended {
@@ -696,7 +696,7 @@ impl EstimatorSide {
         &mut self,
         frame: &RawFrame,
         times: FrameTimes,
-        esc: EscState<'_>,
+        esc: EscState,
         out: &mut impl Outputs,
     ) -> FrameAction {
         let record = FlightRecord::Frame {
@@ -794,7 +794,7 @@ impl EstimatorSide {
     /// `None`: the step goes on.
     fn escs_ramping(
         &mut self,
-        esc: EscState<'_>,
+        esc: EscState,
         t_us: i64,
         out: &mut impl Outputs,
     ) -> Option<FrameAction> {
@@ -818,7 +818,10 @@ impl EstimatorSide {
                 None
             }
             EscPhase::Stopped => {
-                let why = esc.stop_reason.unwrap_or("no reason given").to_string();
+                let why = esc
+                    .stop_reason
+                    .map_or("no reason given", StopReason::name)
+                    .to_string();
                 self.commander.on_esc_stopped(t_us, &why, &mut self.events);
                 self.record_events(out);
                 Some(self.abort(Abort::EscStopped(why)))
@@ -869,7 +872,7 @@ impl EstimatorSide {
     }
 
     /// Settled: start the ESCs once, calibrate when their ramp is done, abort if they stopped.
-    fn esc_start(&mut self, esc: EscState<'_>, t_us: i64, out: &mut impl Outputs) -> FrameAction {
+    fn esc_start(&mut self, esc: EscState, t_us: i64, out: &mut impl Outputs) -> FrameAction {
         if !self.esc_start_asked {
             self.esc_start_asked = true;
             out.record(FlightRecord::Note(
@@ -885,7 +888,10 @@ impl EstimatorSide {
                 FrameAction::Wait
             }
             EscPhase::Stopped => {
-                let why = esc.stop_reason.unwrap_or("no reason given").to_string();
+                let why = esc
+                    .stop_reason
+                    .map_or("no reason given", StopReason::name)
+                    .to_string();
                 self.commander.on_esc_stopped(t_us, &why, &mut self.events);
                 self.record_events(out);
                 self.abort(Abort::EscStopped(why))
