@@ -11,17 +11,10 @@ use crate::core::ekf::TestRatios;
 use crate::core::gps::LiveFix;
 use mavlink::dialects::common::*;
 
-/// The vehicle's mode as HEARTBEAT's custom mode: its index in this list.
-pub const CUSTOM_MODES: [Mode; 8] = [
-    Mode::Disarmed,
-    Mode::Armed,
-    Mode::Takeoff,
-    Mode::Hold,
-    Mode::Land,
-    Mode::Kill,
-    Mode::Mission,
-    Mode::Return,
-];
+/// The vehicle's mode as HEARTBEAT's custom mode: its index in this list, the commander's
+/// own order of its modes (a numbering ground stations and scripts rely on: a mode added
+/// goes at the end).
+pub const CUSTOM_MODES: [Mode; 8] = Mode::ALL;
 
 /// What the link reports, gathered by the task from the run's shared state.
 #[derive(Debug, Clone, Copy, PartialEq)]
