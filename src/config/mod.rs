@@ -18,6 +18,7 @@ mod gcs;
 mod load;
 mod mission;
 mod overrides;
+mod param_store;
 mod parameters;
 mod profile;
 mod schema;
@@ -31,6 +32,7 @@ pub use load::{
 };
 pub use mission::{LoadedMission, MissionConfig, load_mission, read_mission};
 pub use overrides::parse_set;
+pub use param_store::{Kept, ParamStore};
 pub use parameters::PARAMETERS;
 pub use profile::Profile;
 pub use schema::{

@@ -7,7 +7,7 @@ use crate::app::campaign::cases::Run;
 use crate::app::commander_report::CommanderReport;
 use crate::app::report::SimSummary;
 use crate::config::Config;
-use crate::core::commander::Params;
+use crate::core::commander::{Action, Failsafe, Mode, Params};
 use crate::core::flight::sequence::REFUSALS_MAX;
 use crate::core::watchdog::TripReason;
 use crate::sim::faults::Fault;
@@ -241,10 +241,14 @@ fn gps_loss_action_in_time(
     p: &Params,
     broken: &mut impl FnMut(u8, String),
 ) {
-    let Some(f) = r.failsafes.iter().find(|f| f.kind == "gps-loss") else {
+    let Some(f) = r
+        .failsafes
+        .iter()
+        .find(|f| f.kind == Failsafe::GpsLoss.name())
+    else {
         return;
     };
-    if f.action == "hold" {
+    if f.action == Action::Hold.name() {
         return;
     }
     let due_s = f.t_s + p.gps_loss_land_s + SLACK_S;
@@ -338,7 +342,7 @@ fn report_is_mode_log(
         let named = r
             .modes
             .iter()
-            .any(|m| m.mode == "kill" && m.why == h.trip.reason.name());
+            .any(|m| m.mode == Mode::Kill.name() && m.why == h.trip.reason.name());
         if !named {
             broken(7, format!("halt {} not in the modes", h.trip.reason.name()));
         }
@@ -354,10 +358,10 @@ pub fn outcome(s: &SimSummary) -> String {
     if let Some(e) = &s.fly.error {
         return format!("error: {}", e.chars().take(40).collect::<String>());
     }
-    if r.modes.iter().all(|m| m.mode == "disarmed") {
+    if r.modes.iter().all(|m| m.mode == Mode::Disarmed.name()) {
         return "not armed".to_string();
     }
-    let flew = r.modes.iter().any(|m| m.mode == "takeoff");
+    let flew = r.modes.iter().any(|m| m.mode == Mode::Takeoff.name());
     match (r.failsafes.first(), flew) {
         (Some(f), true) => format!("{} {}", f.kind, f.action),
         (Some(f), false) => format!("{} on ground", f.kind),

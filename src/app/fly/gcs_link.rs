@@ -2,10 +2,11 @@
 //! flies without it, as with the console) and starts its task on the main runtime.
 
 use super::{FlyOptions, RunHandles};
+use crate::config::ParamStore;
 use crate::config::Profile;
 use crate::core::commander::OperatorInput;
 use crate::gcs::params::Params;
-use crate::tasks::gcs::{self, GcsContext, Link, ParamStore};
+use crate::tasks::gcs::{self, GcsContext, Link};
 use crate::tasks::notices::{Notice, Notices};
 use crate::tasks::status::StatusSources;
 use tokio::sync::mpsc;
@@ -41,8 +42,8 @@ pub(super) fn spawn(
             run_config: h.run_dir.join("config.toml"),
             profile: profile.path.clone(),
             kept_file: crate::config::kept_params_path(cfg, opts.log_dir.as_deref()),
-            logs: h.logs.clone(),
         },
+        logs: h.logs.clone(),
         operator: i.operator,
         notices: i.notices,
         notices_tx: h.notices.clone(),

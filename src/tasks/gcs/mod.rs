@@ -12,12 +12,10 @@
 //! last heartbeat; or when the serial radio fails.
 
 mod link;
-mod store;
 
 pub use link::Link;
-pub use store::ParamStore;
 
-use crate::config::{GcsConfig, Profile};
+use crate::config::{GcsConfig, ParamStore, Profile};
 use crate::core::commander::OperatorInput;
 use crate::core::mission::MissionPlan;
 use crate::gcs::connection::{Connection, Counts, Effect, MissionSettings, Notice, Settings};
@@ -36,6 +34,8 @@ pub struct GcsContext {
     pub cfg: GcsConfig,
     pub params: Params,
     pub store: ParamStore,
+    /// The run's logs (err.log takes the link's lines).
+    pub logs: crate::tasks::logger::LogHub,
     pub operator: mpsc::Sender<OperatorInput>,
     /// The flight's notices, and their sending side's count of what a full queue dropped.
     pub notices: mpsc::Receiver<Notice>,
@@ -194,14 +194,19 @@ fn drive(conn: &mut Connection, link: &mut Link, ctx: &GcsContext, plans: &mpsc:
     }
     while let Some(effect) = conn.poll_effect() {
         match effect {
-            Effect::ErrLog(line) => ctx.store.logs.err(line),
+            Effect::ErrLog(line) => ctx.logs.err(line),
             Effect::KeepParam {
                 index,
                 param,
                 value,
                 t_s,
             } => {
-                let kept = ctx.store.set(&param, value.clone(), t_s);
+                let kept = ctx.store.set(param.id, param.key, value.clone(), t_s);
+                let kept = kept.map(|k| {
+                    k.note_failed.into_iter().for_each(|why| ctx.logs.err(why));
+                    tracing::info!("{}", k.line);
+                    ctx.logs.err(k.line);
+                });
                 conn.handle_param_kept(Instant::now(), index, &value, kept);
             }
             Effect::PlanMission { name, text } => plan(ctx.missions.as_ref(), name, text, plans),
