@@ -68,7 +68,7 @@ impl Commander {
     /// A takeoff (or a mission from the ground) with a receiver needs a fix delivered (and,
     /// once one was fused, fused) within `control.gps_hold_timeout_s`: the GPS failsafe's own
     /// freshness.
-    pub(super) fn fix_ready(&self, t_us: i64) -> Result<(), String> {
+    pub(super) fn fix_ready(&self, t_us: i64) -> Result<(), super::Refusal> {
         let p = &self.p;
         let fresh = self.fix_rx_us.is_some()
             && self
@@ -77,10 +77,9 @@ impl Commander {
         if !p.gps_live || fresh {
             return Ok(());
         }
-        Err(format!(
-            "gps: no fix within control.gps_hold_timeout_s = {} s",
-            p.gps_timeout_s
-        ))
+        Err(super::Refusal::NoFix {
+            timeout_s: p.gps_timeout_s,
+        })
     }
 
     /// In the air by its mode (hold, mission, return) but on the ground by its estimate

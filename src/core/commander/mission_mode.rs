@@ -4,7 +4,7 @@
 //! run, and the mission's figures (when it started and ended, its planned duration). Not in
 //! the original's spec, whose path planner (5.1) only hovered.
 
-use super::{Commander, Event, Mode, Observation};
+use super::{Commander, Event, Mode, Observation, Refusal};
 use crate::core::mission::{Item, MissionPlan, MissionRun, Next};
 use crate::core::path::PathPoint;
 use std::sync::Arc;
@@ -31,10 +31,7 @@ impl Commander {
             return out.push(Event::Refusal {
                 t_us,
                 command: format!("mission {}", plan.name),
-                why: format!(
-                    "{}: a mission is being flown: pause it first",
-                    self.mode.name()
-                ),
+                why: Refusal::MissionBeingFlown(self.mode).to_string(),
             });
         }
         if self.paused {
@@ -61,40 +58,35 @@ impl Commander {
     }
 
     /// Why `start` cannot be done now, if it cannot.
-    pub(super) fn check_start(&self, est: Option<&Observation>) -> Result<(), String> {
+    pub(super) fn check_start(&self, est: Option<&Observation>) -> Result<(), Refusal> {
         let Some(plan) = &self.mission else {
-            return Err(
-                "no mission loaded (uquad sim --mission FILE, uquad fly --mission FILE)".into(),
-            );
+            return Err(Refusal::NoMission);
         };
         match self.mode {
             Mode::Armed => match plan.mission.items.first() {
                 Some(Item::Takeoff { .. }) => self.estimator_ready(est),
-                _ => Err("the mission does not begin with a takeoff: take off, then start".into()),
+                _ => Err(Refusal::MissionWithoutTakeoff),
             },
             Mode::Hold => self.position_held(),
-            m => Err(format!(
-                "{}: start needs armed (on the ground) or hold",
-                m.name()
-            )),
+            m => Err(Refusal::StartNeedsArmedOrHold(m)),
         }
     }
 
     /// A path needs the horizontal position observed: a fix fused lately.
-    fn position_held(&self) -> Result<(), String> {
+    fn position_held(&self) -> Result<(), Refusal> {
         if self.hold_xy {
             Ok(())
         } else {
-            Err("gps: no fix lately (position hold is off): a path cannot be flown".into())
+            Err(Refusal::NoRecentFix)
         }
     }
 
     /// Why a paused mission cannot go on, if it cannot.
-    pub(super) fn check_resume(&self) -> Result<(), String> {
+    pub(super) fn check_resume(&self) -> Result<(), Refusal> {
         if self.mode == Mode::Hold && self.paused && self.run.is_some() {
             self.position_held()
         } else {
-            Err(format!("{}: no paused mission", self.mode.name()))
+            Err(Refusal::NoPausedMission(self.mode))
         }
     }
 

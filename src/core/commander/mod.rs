@@ -21,6 +21,7 @@ mod ground;
 mod input;
 mod mission_mode;
 mod profile;
+mod refusal;
 
 use blind::Blind;
 pub use checks::{ArmFacts, EstimatorHealth, calibration_problem, estimator_problem};
@@ -29,6 +30,7 @@ pub use figures::{ClimbTrace, DescentTrace, Figures, Takeoff, Touchdown};
 pub use input::{Command, KeyOutcome, LinkSource, OperatorInput};
 pub use mission_mode::MissionFigures;
 use profile::{BRAKE_SHARE, Profile};
+pub use refusal::Refusal;
 
 use crate::core::control::{Dir, ManualCommand};
 use crate::core::ekf::TestRatios;
@@ -102,10 +104,7 @@ pub enum Start {
 /// Why an operator's input that waited past `commander.input_expiry_s` is refused: the
 /// flight's answer and the ground station's, in the same words.
 pub fn expiry_reason(input_expiry_s: f64) -> String {
-    format!(
-        "not applied within commander.input_expiry_s = {input_expiry_s} s of its arrival: \
-         the flight was not taking inputs (no IMU frames)"
-    )
+    Refusal::Expired { input_expiry_s }.to_string()
 }
 
 /// The commander's parameters (`commander.*`, `failsafe.*`, `fence.*`).
@@ -544,11 +543,11 @@ impl Commander {
         });
     }
 
-    fn refuse(&self, cmd: Command, t_us: i64, why: String, out: &mut Vec<Event>) {
+    fn refuse(&self, cmd: Command, t_us: i64, why: Refusal, out: &mut Vec<Event>) {
         out.push(Event::Refusal {
             t_us,
             command: cmd.to_string(),
-            why,
+            why: why.to_string(),
         });
     }
 
@@ -584,7 +583,7 @@ impl Commander {
             out.push(Event::Refusal {
                 t_us,
                 command: "quit".into(),
-                why: format!("in the air ({}): land first, or kill", self.mode.name()),
+                why: Refusal::InTheAir(self.mode).to_string(),
             });
             return false;
         }
@@ -620,7 +619,7 @@ impl Commander {
     /// Why a takeoff's height or a hold's point is out of bounds, if it is: heights within
     /// `control.manual.z_min_m`..`z_max_m` and under `fence.alt_max_m`, points inside the
     /// fence (both above and around the takeoff point).
-    fn target_problem(&self, cmd: Command) -> Option<String> {
+    fn target_problem(&self, cmd: Command) -> Option<Refusal> {
         let p = &self.p;
         let (z_m, r_m) = match cmd {
             Command::Takeoff(Some(z)) => (z, 0.0),
@@ -629,18 +628,15 @@ impl Commander {
         };
         let heights = p.height_range_m();
         if !heights.contains(&z_m) {
-            return Some(format!(
-                "height {z_m} m outside {}..{} m (control.manual.z_min_m, z_max_m, \
-                 fence.alt_max_m)",
-                heights.start(),
-                heights.end()
-            ));
+            return Some(Refusal::HeightOutside {
+                z_m,
+                min_m: *heights.start(),
+                max_m: *heights.end(),
+            });
         }
-        (!p.inside_fence(r_m)).then(|| {
-            format!(
-                "{r_m:.1} m from the takeoff point: outside fence.radius_m = {} m",
-                p.fence_radius_m
-            )
+        (!p.inside_fence(r_m)).then_some(Refusal::OutsideFence {
+            r_m,
+            radius_m: p.fence_radius_m,
         })
     }
 
@@ -651,55 +647,49 @@ impl Commander {
         t_us: i64,
         arm_verdict: Result<(), String>,
         est: Option<&Observation>,
-    ) -> Result<(), String> {
+    ) -> Result<(), Refusal> {
+        use Refusal::*;
         let m = self.mode;
         if let Some(why) = self.target_problem(cmd) {
             return Err(why);
         }
         match cmd {
             Command::Kill => Ok(()),
-            _ if m == Mode::Kill => Err("killed: restart uquad to fly again".into()),
-            Command::Arm if m != Mode::Disarmed => Err(format!("already {}", m.name())),
-            Command::Arm if self.spent => Err("landed: restart uquad to fly again".into()),
-            Command::Arm => arm_verdict,
-            Command::Disarm if m.airborne() => {
-                Err(format!("in the air ({}): land first, or kill", m.name()))
-            }
-            Command::Disarm if m == Mode::Disarmed => Err("already disarmed".into()),
+            _ if m == Mode::Kill => Err(Killed),
+            Command::Arm if m != Mode::Disarmed => Err(Already(m)),
+            Command::Arm if self.spent => Err(Landed),
+            Command::Arm => arm_verdict.map_err(PreArm),
+            Command::Disarm if m.airborne() => Err(InTheAir(m)),
+            Command::Disarm if m == Mode::Disarmed => Err(Already(m)),
             Command::Disarm => Ok(()),
             Command::Hold(_) | Command::Start | Command::Resume
                 if m.airborne() && self.acting_failsafe().is_some() =>
             {
-                let k = self.acting_failsafe().map_or("?", |k| k.name());
-                Err(format!("failsafe {k} is acting and its cause persists"))
+                Err(FailsafeActing(self.acting_failsafe()))
             }
-            Command::Takeoff(_) if m != Mode::Armed => {
-                Err(format!("{}: takeoff needs armed", m.name()))
-            }
+            Command::Takeoff(_) if m != Mode::Armed => Err(TakeoffNeedsArmed(m)),
             // Without an estimate the estimator's refusal says more (after arming, the
             // calibration follows the ramp).
             Command::Takeoff(_) | Command::Start
                 if m == Mode::Armed && !self.escs_running && est.is_some() =>
             {
-                Err("armed: the ESCs' start-up ramp is not done yet".into())
+                Err(EscRampRunning)
             }
             Command::Takeoff(_) => self.estimator_ready(est).and(self.fix_ready(t_us)),
             Command::Start if m == Mode::Armed => self.check_start(est).and(self.fix_ready(t_us)),
             Command::Start => self.check_start(est),
-            Command::Pause if m != Mode::Mission => Err(format!("{}: no mission flying", m.name())),
+            Command::Pause if m != Mode::Mission => Err(NoMissionFlying(m)),
             Command::Resume => self.check_resume(),
-            Command::Return if m == Mode::Return => Err("already return".into()),
-            Command::Return if m == Mode::Land => Err("landing: a landing goes on".into()),
+            Command::Return if m == Mode::Return => Err(Already(m)),
+            Command::Return if m == Mode::Land => Err(LandingGoesOn),
             // Holding "here" on the ground (a takeoff still spooling up, a landing that has
             // come down) would hold the ground, motors running, with nothing to end it.
-            Command::Hold(None) if m.airborne() && self.below_hold(est) => Err(format!(
-                "{}: on the ground (under control.manual.z_min_m = {} m above the takeoff \
-                 point); hold X Y Z, land, or disarm",
-                m.name(),
-                self.p.z_min_m
-            )),
+            Command::Hold(None) if m.airborne() && self.below_hold(est) => Err(HoldOnGround {
+                mode: m,
+                z_min_m: self.p.z_min_m,
+            }),
             Command::Hold(_) | Command::Land | Command::Return if !m.airborne() => {
-                Err(format!("{}: not in the air", m.name()))
+                Err(NotInTheAir(m))
             }
             Command::Hold(_) | Command::Land | Command::Return | Command::Pause => Ok(()),
         }
@@ -712,15 +702,11 @@ impl Commander {
     }
 
     /// The estimator is running and inside its gates (a takeoff needs it).
-    fn estimator_ready(&self, est: Option<&Observation>) -> Result<(), String> {
+    fn estimator_ready(&self, est: Option<&Observation>) -> Result<(), Refusal> {
         match est {
-            None => Err("estimator: not running yet (the IMU calibration is not done)".into()),
-            Some(o) if o.gyro_lost => Err("estimator: gyro stuck (its counts repeat)".into()),
-            Some(o) if outside_gate(&o.ratios) => Err(format!(
-                "estimator: innovation test ratios outside the gate (attitude {:.2}, altitude \
-                 {:.2}, gps {:?})",
-                o.ratios.attitude, o.ratios.altitude, o.ratios.gps
-            )),
+            None => Err(Refusal::EstimatorNotRunning),
+            Some(o) if o.gyro_lost => Err(Refusal::GyroStuck),
+            Some(o) if outside_gate(&o.ratios) => Err(Refusal::EstimatorOutsideGate(o.ratios)),
             Some(_) => Ok(()),
         }
     }
@@ -849,7 +835,7 @@ impl Commander {
     /// The calibration that followed `arm` is not plausible: the arming is refused after all,
     /// the check named (the run's start-up fails with it).
     pub fn on_calibration_refused(&mut self, t_us: i64, why: &str, out: &mut Vec<Event>) {
-        self.refuse(Command::Arm, t_us, why.to_string(), out);
+        self.refuse(Command::Arm, t_us, Refusal::PreArm(why.to_string()), out);
         self.disarm(t_us, "calibration not plausible", out);
     }
 
