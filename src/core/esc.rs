@@ -107,7 +107,7 @@ pub struct EscTiming {
 }
 
 /// Why the ESCs were stopped. [`StopReason::name`] is the one text of each, as err.log, the
-/// reports and the flight's refusals show it.
+/// reports, the flight's abort on stopped ESCs and the commander's disarm show it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum StopReason {
     /// Disarmed on the ground: a landing, a disarm, a failed start-up.

@@ -2,7 +2,7 @@
 //! through the flight sequence, with what they ask of the ESCs. `sim --fast` and `replay` run
 //! both sides in one thread through [`Flight`]; `fly` splits the same step at the estimate
 //! between its estimator and controller tasks and calls the same pieces ([`act`],
-//! [`frame_action`]). What differs between drivers — where the ESCs are, where a live fix
+//! [`frame_action`], [`hand_off`]). What differs between drivers — where the ESCs are, where a live fix
 //! comes from, what a driver does after an estimate — is [`Edges`].
 
 use super::halves::Estimate;
