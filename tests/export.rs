@@ -100,6 +100,8 @@ fn a_sim_run_exports_to_ulog_and_csv() {
     ] {
         assert!(topics(&v).contains(&t), "{t}: {v}");
     }
+    // ulog2kml draws the fixes' track (latitude, longitude and altitude).
+    assert!(v["kml_bytes"].as_u64().is_some_and(|b| b > 1000), "{v}");
     // Disarmed, armed, takeoff, hold, land, disarmed.
     assert_eq!(v["rows"]["vehicle_status"], 6, "{v}");
     assert_eq!(v["params"], uquad::gcs::params::TABLE.len(), "{v}");

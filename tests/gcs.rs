@@ -136,6 +136,8 @@ fn a_ground_station_sets_a_parameter_arms_takes_off_and_lands() {
         measured["alt_err_max_m"].as_f64().unwrap() <= 0.2,
         "{measured}"
     );
+    // MAVLink FTP answered (a NAK: nothing served yet), its time measured, not judged.
+    assert!(measured["ftp_answer_ms"].as_f64().is_some(), "{measured}");
     let modes = report_modes(r);
     assert_eq!(
         modes,
@@ -149,8 +151,9 @@ fn a_ground_station_sets_a_parameter_arms_takes_off_and_lands() {
     assert_eq!(r["deadline_misses"], 0, "{r}");
     let g = &r["gcs"];
     // arm (refused), arm, takeoff, REQUEST_MESSAGE, SET_MESSAGE_INTERVAL twice, DO_SET_MODE,
-    // PX4's hold by DO_SET_MODE and by SET_MODE (both refused), land.
-    assert!(u(&g["commands"]) >= 10 && u(&g["param_sets"]) == 1, "{g}");
+    // PX4's hold by DO_SET_MODE and by SET_MODE (both refused), land. The sets kept: the
+    // climb rate, and an integer set bytewise (4), then C cast (3).
+    assert!(u(&g["commands"]) >= 10 && u(&g["param_sets"]) == 3, "{g}");
     assert!(u(&g["commands_refused"]) >= 3, "{g}");
     // System 42 announced itself as a quadrotor: its ARM and parameter set were denied (the
     // kept set below is the ground station's 0.4, not its 0.3).
@@ -158,6 +161,7 @@ fn a_ground_station_sets_a_parameter_arms_takes_off_and_lands() {
     // The set is kept for the next start and noted in the run, which keeps its values.
     let kept = std::fs::read_to_string(run.parent().unwrap().join("params.toml")).unwrap();
     assert!(kept.contains("climb_m_s = 0.4"), "{kept}");
+    assert!(kept.contains("max_missed_acks = 3"), "{kept}");
     let run_config = std::fs::read_to_string(run.join("config.toml")).unwrap();
     assert!(run_config.contains("climb_m_s = 0.5"), "{run_config}");
     assert!(run_config.contains("# parameter CMD_CLIMB_M_S (commander.climb_m_s) set to 0.4"));

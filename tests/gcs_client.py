@@ -17,6 +17,7 @@ import math
 import os
 import random
 import socket
+import struct
 import sys
 import time
 
@@ -276,6 +277,18 @@ def parameters(s, expected):
     if s.param("WD_MISSED_ACKS").param_value != 3:
         fail("a refused set changed the value")
     s.wait_text("WD_MISSED_ACKS not set: watchdog.max_missed_acks: 50 is out of range")
+    # An integer: announced REAL32 (what every encoding reads the same), and set in either
+    # encoding a client may use for INT32: its bytes (PX4's), or the number (ArduPilot's).
+    s.conn.mav.param_request_read_send(1, 1, b"WD_MISSED_ACKS", -1)
+    if s.param("WD_MISSED_ACKS").param_type != mav.MAV_PARAM_TYPE_REAL32:
+        fail("an integer parameter is not announced as REAL32")
+    bytewise = struct.unpack("<f", struct.pack("<i", 4))[0]
+    s.conn.mav.param_set_send(1, 1, b"WD_MISSED_ACKS", bytewise, mav.MAV_PARAM_TYPE_INT32)
+    if s.param("WD_MISSED_ACKS").param_value != 4:
+        fail("a bytewise INT32 set did not read as 4")
+    s.conn.mav.param_set_send(1, 1, b"WD_MISSED_ACKS", 3, mav.MAV_PARAM_TYPE_INT32)
+    if s.param("WD_MISSED_ACKS").param_value != 3:
+        fail("a C-cast INT32 set did not read as 3")
     return len(ids)
 
 
@@ -426,12 +439,29 @@ def signed(s):
     return {"unheard": unheard}
 
 
+def ftp(s):
+    """MAVLink FTP as a ground station opens it (the parameter file first): answered at once
+    with a NAK, file not found (no file is served yet); the time to the answer, ms."""
+    payload = bytearray(251)
+    struct.pack_into("<HBBBBBBI", payload, 0, 7, 0, 4, 16, 0, 0, 0, 0)
+    payload[12:28] = b"@PARAM/param.pck"
+    t0 = time.time()
+    s.conn.mav.file_transfer_protocol_send(0, 1, 1, payload)
+    m = s.wait("an FTP answer", lambda m: m.get_type() == "FILE_TRANSFER_PROTOCOL")
+    answer_ms = (time.time() - t0) * 1000.0
+    seq, _, opcode, size, req_opcode = struct.unpack_from("<HBBBB", bytes(m.payload), 0)
+    if (seq, opcode, size, req_opcode, m.payload[12]) != (8, 129, 1, 4, 10):
+        fail(f"FTP open answered {list(m.payload[:13])}")
+    return round(answer_ms, 1)
+
+
 def fly(s, run_dir, started, expected):
     hb = s.wait("a heartbeat", lambda m: m.get_type() == "HEARTBEAT", 5.0)
     heartbeat_s = time.time() - started
     if hb.type != mav.MAV_TYPE_QUADROTOR or hb.custom_mode != DISARMED:
         fail(f"first heartbeat {hb}")
     n = parameters(s, expected)
+    ftp_ms = ftp(s)
     stranger_denied(s)
     refused_arm(s, run_dir)
     arm_and_take_off(s, 1.5)
@@ -469,6 +499,7 @@ def fly(s, run_dir, started, expected):
     return {
         "heartbeat_s": round(heartbeat_s, 3),
         "params": n,
+        "ftp_answer_ms": ftp_ms,
         "alt_err_max_m": round(alt_err, 3),
         "alt_samples": samples,
         "attitude_interval_ms_default_then_asked_40": attitude_ms,

@@ -18,12 +18,12 @@ if [ "${#missing[@]}" -gt 0 ]; then
 fi
 
 # Python packages the tests need, in a virtual environment of the project's: pymavlink, the
-# ground station of tests/gcs.rs, and pyulog, the reader of tests/export.rs (both run the
-# python named by UQUAD_PYTHON).
+# ground station of tests/gcs.rs, and pyulog, the reader of tests/export.rs, with simplekml for
+# its ulog2kml (all run by the python named by UQUAD_PYTHON).
 venv=target/venv
-if ! "$venv/bin/python" -c "import pymavlink, pyulog" >/dev/null 2>&1; then
+if ! "$venv/bin/python" -c "import pymavlink, pyulog, simplekml" >/dev/null 2>&1; then
     [ -x "$venv/bin/python" ] || python3 -m venv "$venv"
-    "$venv/bin/python" -m pip install --quiet pymavlink==2.4.50 pyulog==1.3.0
+    "$venv/bin/python" -m pip install --quiet pymavlink==2.4.50 pyulog==1.3.0 simplekml==1.3.6
 fi
 export UQUAD_PYTHON="$PWD/$venv/bin/python"
 

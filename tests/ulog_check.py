@@ -85,7 +85,24 @@ def main():
     if sp:
         lps = data["vehicle_local_position_setpoint"]
         diff["local_position_setpoint.z"] = worst(list(lps["z"]), [-float(r[3]) for r in sp])
+    # A track for Google Earth from the fixes, as people make one (ulog2kml reads lat, lon
+    # and alt).
+    kml_bytes = None
+    if "vehicle_gps_position" in data:
+        kml = ulg + ".kml"
+        subprocess.run(
+            [os.path.join(os.path.dirname(sys.executable), "ulog2kml"), ulg, "-o", kml],
+            capture_output=True, text=True, check=True,
+        )
+        kml_bytes = os.path.getsize(kml)
+        gps = [
+            r for r in rows(os.path.join(run, "gps.log")) if len(r) > 5 and r[0] != "#"
+        ]
+        diff["vehicle_gps_position.altitude_msl_m"] = worst(
+            list(data["vehicle_gps_position"]["altitude_msl_m"]), [float(r[5]) for r in gps]
+        )
     out = {
+        "kml_bytes": kml_bytes,
         "topics": topics,
         "diff": diff,
         "rows": {t: len(d["timestamp"]) for t, d in data.items()},

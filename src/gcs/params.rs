@@ -19,14 +19,33 @@ pub enum Kind {
 }
 
 impl Kind {
-    /// The type announced in PARAM_VALUE; the value itself always travels as the float it is
-    /// (MAVLink's "C cast" encoding).
+    /// The type announced in PARAM_VALUE: REAL32 for every kind. An integer or a true/false
+    /// value announced as INT32 or UINT8 travels in the float field either as the number
+    /// (the "C cast" encoding, ArduPilot's) or as its bytes (the "bytewise" one, PX4's), and
+    /// a client that assumes the other shows 1077936128 for 3 or drops the parameter. A REAL32
+    /// reads the same under both; every integer parameter here is within ±2^24, which a REAL32
+    /// holds exactly.
     pub fn wire(self) -> MavParamType {
-        match self {
-            Kind::Int => MavParamType::MAV_PARAM_TYPE_INT32,
-            Kind::Float => MavParamType::MAV_PARAM_TYPE_REAL32,
-            Kind::Bool => MavParamType::MAV_PARAM_TYPE_UINT8,
-        }
+        MavParamType::MAV_PARAM_TYPE_REAL32
+    }
+}
+
+/// The number a PARAM_SET carries, whatever type its sender declared: REAL32 as it is; an
+/// integer type as the number when the float is a whole number (C cast), else as the
+/// integer its bytes hold (bytewise: small integers are tiny fractions as floats).
+pub fn set_value(value: f32, declared: MavParamType) -> f32 {
+    use MavParamType::*;
+    let whole = value.is_finite() && value.fract() == 0.0;
+    let bits = value.to_bits();
+    match declared {
+        MAV_PARAM_TYPE_REAL32 | MAV_PARAM_TYPE_REAL64 => value,
+        _ if whole => value,
+        MAV_PARAM_TYPE_UINT8 => f32::from(bits as u8),
+        MAV_PARAM_TYPE_INT8 => f32::from(bits as u8 as i8),
+        MAV_PARAM_TYPE_UINT16 => f32::from(bits as u16),
+        MAV_PARAM_TYPE_INT16 => f32::from(bits as u16 as i16),
+        MAV_PARAM_TYPE_UINT32 | MAV_PARAM_TYPE_UINT64 => bits as f32,
+        MAV_PARAM_TYPE_INT32 | MAV_PARAM_TYPE_INT64 => bits as i32 as f32,
     }
 }
 
@@ -180,6 +199,40 @@ mod tests {
         ids.dedup();
         assert_eq!(ids.len(), TABLE.len(), "ids are unique");
         assert_eq!(Params::of(&c).len(), TABLE.len());
+    }
+
+    /// Every integer parameter's value is exact as the REAL32 it is announced as.
+    #[test]
+    fn integers_travel_exactly_as_real32() {
+        let p = Params::of(&Config::default());
+        for i in 0..p.len() {
+            let q = *p.get(i).unwrap();
+            assert_eq!(q.kind.wire(), MavParamType::MAV_PARAM_TYPE_REAL32);
+            if q.kind == Kind::Int {
+                assert!(q.value.abs() <= 16_777_216.0, "{} = {}", q.id, q.value);
+                assert_eq!(f64::from(q.value as f32), q.value, "{}", q.id);
+            }
+        }
+    }
+
+    /// A set reads the same whichever encoding its sender used for an integer type.
+    #[test]
+    fn a_set_value_is_read_in_either_encoding() {
+        use MavParamType::*;
+        assert_eq!(set_value(0.4, MAV_PARAM_TYPE_REAL32), 0.4);
+        // C cast: the number itself.
+        assert_eq!(set_value(50.0, MAV_PARAM_TYPE_INT32), 50.0);
+        assert_eq!(set_value(1.0, MAV_PARAM_TYPE_UINT8), 1.0);
+        // Bytewise: the integer's bytes in the float.
+        assert_eq!(set_value(f32::from_bits(50), MAV_PARAM_TYPE_INT32), 50.0);
+        assert_eq!(
+            set_value(f32::from_bits(-3i32 as u32), MAV_PARAM_TYPE_INT32),
+            -3.0
+        );
+        assert_eq!(set_value(f32::from_bits(1), MAV_PARAM_TYPE_UINT8), 1.0);
+        assert_eq!(set_value(0.0, MAV_PARAM_TYPE_UINT8), 0.0);
+        // A fraction declared REAL32 stays a fraction (and is refused for an integer key).
+        assert_eq!(set_value(4.5, MAV_PARAM_TYPE_REAL32), 4.5);
     }
 
     #[test]

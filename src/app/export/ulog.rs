@@ -75,8 +75,10 @@ const TOPICS: &[(&str, Fields)] = &[
         &[
             ("lat", I32, 1),
             ("lon", I32, 1),
+            ("alt", I32, 1),
             ("latitude_deg", F64, 1),
             ("longitude_deg", F64, 1),
+            ("altitude_msl_m", F64, 1),
             ("fix_type", U8, 1),
             ("vel_n_m_s", F64, 1),
             ("vel_e_m_s", F64, 1),
@@ -403,6 +405,7 @@ fn gps(l: &mut LogLines, u: &Ulog, p: &mut Pending) -> anyhow::Result<bool> {
     let GpsLogRecord::Gpsd {
         t_us,
         fix_mode,
+        pos_m,
         vel_m_s,
         lat_deg,
         lon_deg,
@@ -413,11 +416,16 @@ fn gps(l: &mut LogLines, u: &Ulog, p: &mut Pending) -> anyhow::Result<bool> {
     };
     let e7 = |d: f64| (d * 1e7).round().clamp(-2.1e9, 2.1e9) as i32;
     let v = vel_m_s.unwrap_or([f64::NAN; 3]);
+    // The altitude as gps.log has it: the receiver's in the original's logs; in uquad's, up
+    // from the first fix (its local frame's z: no sea-level altitude is logged).
+    let alt_m = pos_m[2];
     let fix = [
         V::I32(e7(lat_deg)),
         V::I32(e7(lon_deg)),
+        V::I32((alt_m * 1e3).round().clamp(-2.1e9, 2.1e9) as i32),
         V::F64(lat_deg),
         V::F64(lon_deg),
+        V::F64(alt_m),
         V::U8(u8::try_from(fix_mode.clamp(0, 255)).unwrap_or(0)),
         V::F64(v[0]),
         V::F64(-v[1]),

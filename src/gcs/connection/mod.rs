@@ -14,9 +14,11 @@
 //! - `commands`: commands to the commander and their acknowledgements, a sender's rights;
 //! - `streams`: the periodic messages, a message on request, the vehicle's health;
 //! - `params`: the parameter protocol; `mission`: the mission protocol and its state;
+//! - `ftp`: MAVLink FTP, answered at once (nothing served yet);
 //! - `tests`: each rule on simulated time.
 
 mod commands;
+mod ftp;
 mod mission;
 mod params;
 mod streams;
@@ -163,6 +165,12 @@ pub const RECEIVED: &[(&str, &str)] = &[
     (
         "MISSION_CLEAR_ALL",
         "fence and rally: accepted (none kept); the mission: refused (upload another)",
+    ),
+    (
+        "FILE_TRANSFER_PROTOCOL",
+        "MAVLink FTP: no file is served yet; an open, a listing or a read is answered at once \
+         with a NAK (file not found), so a client asking for the parameter file falls back to \
+         PARAM_REQUEST_LIST without waiting",
     ),
 ];
 
@@ -571,7 +579,14 @@ impl Connection {
             }
             MavMessage::PARAM_SET(p) if self.for_us(p.target_system, p.target_component) => {
                 let id = p.param_id.to_str().unwrap_or("").to_string();
-                self.on_param_set(now, &id, p.param_value);
+                let value = crate::gcs::params::set_value(p.param_value, p.param_type);
+                self.on_param_set(now, &id, value);
+            }
+            MavMessage::FILE_TRANSFER_PROTOCOL(f)
+                if (f.target_system == 0 || f.target_system == self.s.cfg.system_id)
+                    && (f.target_component == 0 || f.target_component == COMPONENT_ID) =>
+            {
+                self.on_ftp(f, from)
             }
             m => self.on_mission_message(now, m, from),
         }
