@@ -141,18 +141,26 @@ fn a_ground_station_sets_a_parameter_arms_takes_off_and_lands() {
     let modes = report_modes(r);
     assert_eq!(
         modes,
-        // The second hold is DO_SET_MODE's.
+        // Hold asked for three ways (QGroundControl's SET_MODE, MAVSDK's DO_SET_MODE, a
+        // COMMAND_INT), then return and land by DO_SET_MODE in PX4's modes.
         [
-            "disarmed", "armed", "takeoff", "hold", "hold", "land", "disarmed"
+            "disarmed", "armed", "takeoff", "hold", "hold", "hold", "hold", "return", "land",
+            "disarmed"
         ],
         "{r}"
+    );
+    // The names pymavlink (and MAVProxy) give the modes it saw: hold, return, land.
+    assert_eq!(
+        measured["mode_names"],
+        serde_json::json!(["LOITER", "RTL", "LAND"]),
+        "{measured}"
     );
     assert_eq!(r["takeoff"]["target_m"], 1.5, "{r}");
     assert_eq!(r["deadline_misses"], 0, "{r}");
     let g = &r["gcs"];
-    // arm (refused), arm, takeoff, REQUEST_MESSAGE, SET_MESSAGE_INTERVAL twice, DO_SET_MODE,
-    // PX4's hold by DO_SET_MODE and by SET_MODE (both refused), land. The sets kept: the
-    // climb rate, and an integer set bytewise (4), then C cast (3).
+    // arm (refused), arm, takeoff, REQUEST_MESSAGE, SET_MESSAGE_INTERVAL twice, hold three
+    // ways, position (refused), AVAILABLE_MODES, return, land. The sets kept: the climb rate,
+    // and an integer set bytewise (4), then C cast (3).
     assert!(u(&g["commands"]) >= 10 && u(&g["param_sets"]) == 3, "{g}");
     assert!(u(&g["commands_refused"]) >= 3, "{g}");
     // System 42 announced itself as a quadrotor: its ARM and parameter set were denied (the

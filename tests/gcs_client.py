@@ -114,11 +114,38 @@ class Station:
         )
 
 
+def px4_mode(main, sub):
+    """A custom mode packed as PX4 packs it: main mode in bits 16-23, sub mode in 24-31."""
+    return (sub << 24) | (main << 16)
+
+
+# uquad's modes as HEARTBEAT tells them (PX4's AUTO sub modes): on the ground and in a hold
+# it is AUTO LOITER ("Hold"), told apart by the armed flag and the landed state.
+AUTO = 4
+LOITER, MISSION_SUB, RTL, LAND_SUB = 3, 4, 5, 6
+HOLD = px4_mode(AUTO, LOITER)
+DISARMED = HOLD
+RETURN = px4_mode(AUTO, RTL)
+LANDING = px4_mode(AUTO, LAND_SUB)
+
+
 def mode_is(custom):
     return lambda m: m.get_type() == "HEARTBEAT" and m.custom_mode == custom
 
 
-DISARMED, HOLD = 0, 3
+def holding_in_air(s):
+    """A heartbeat in hold, armed, and the landed state in the air."""
+    def test(m):
+        ext = s.last.get("EXTENDED_SYS_STATE")
+        return (
+            m.get_type() == "HEARTBEAT"
+            and m.custom_mode == HOLD
+            and m.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED
+            and ext is not None
+            and ext.landed_state == mav.MAV_LANDED_STATE_IN_AIR
+        )
+
+    return test
 
 
 def send_arm(s):
@@ -175,7 +202,7 @@ def arm_and_take_off(s, height_m):
     # order).
     s.wait("ATTITUDE", lambda m: m.get_type() == "ATTITUDE")
     take_off(s, height_m)
-    s.wait("hold after the takeoff", mode_is(HOLD))
+    s.wait("hold after the takeoff", holding_in_air(s))
 
 
 def before_arm(s):
@@ -455,10 +482,56 @@ def ftp(s):
     return round(answer_ms, 1)
 
 
+def mode_requests(s):
+    """In the air, in hold: hold asked for as each common client asks (QGroundControl's
+    SET_MODE with the packed custom mode; MAVSDK's DO_SET_MODE, base 1|128, main, sub; a
+    COMMAND_INT), a mode uquad lacks (PX4's position mode) refused with its name, the
+    standard modes listed; the mode names pymavlink shows so far."""
+    names = [mavutil.mode_string_v10(s.last["HEARTBEAT"])]
+    s.conn.mav.set_mode_send(1, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, HOLD)
+    ack = s.wait(
+        "COMMAND_ACK of SET_MODE",
+        lambda m: m.get_type() == "COMMAND_ACK" and m.command == mav.MAV_CMD_DO_SET_MODE,
+    )
+    if ack.result != mav.MAV_RESULT_ACCEPTED:
+        fail(f"SET_MODE hold (QGroundControl's): result {ack.result}; texts: {s.texts}")
+    s.command(mav.MAV_CMD_DO_SET_MODE, [129, AUTO, LOITER, 0, 0, 0, 0])
+    s.conn.mav.command_int_send(
+        1, 1, mav.MAV_FRAME_GLOBAL, mav.MAV_CMD_DO_SET_MODE, 0, 0,
+        mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, AUTO, LOITER, 0, 0, 0, 0,
+    )
+    ack = s.wait(
+        "COMMAND_ACK of DO_SET_MODE",
+        lambda m: m.get_type() == "COMMAND_ACK" and m.command == mav.MAV_CMD_DO_SET_MODE,
+    )
+    if ack.result != mav.MAV_RESULT_ACCEPTED:
+        fail(f"DO_SET_MODE hold by COMMAND_INT: result {ack.result}; texts: {s.texts}")
+    s.wait_text("mode hold: command hold")
+    s.command(mav.MAV_CMD_DO_SET_MODE, [1, 3, 0, 0, 0, 0, 0], mav.MAV_RESULT_DENIED)
+    s.wait_text("uquad has no position")
+    s.conn.mav.command_long_send(1, 1, mav.MAV_CMD_REQUEST_MESSAGE, 0, 435, 0, 0, 0, 0, 0, 0)
+    listed = {}
+    end = time.time() + LONG
+    while len(listed) < 5 and time.time() < end:
+        m = s.pump()
+        if m is not None and m.get_type() == "AVAILABLE_MODES":
+            listed[m.mode_index] = (m.mode_name, m.standard_mode, m.custom_mode)
+    if sorted(n for n, _, _ in listed.values()) != ["Hold", "Land", "Mission", "Return", "Takeoff"]:
+        fail(f"AVAILABLE_MODES: {listed}")
+    current = s.wait("CURRENT_MODE", lambda m: m.get_type() == "CURRENT_MODE")
+    if current.custom_mode != HOLD:
+        fail(f"CURRENT_MODE {current}")
+    return names
+
+
 def fly(s, run_dir, started, expected):
     hb = s.wait("a heartbeat", lambda m: m.get_type() == "HEARTBEAT", 5.0)
     heartbeat_s = time.time() - started
-    if hb.type != mav.MAV_TYPE_QUADROTOR or hb.custom_mode != DISARMED:
+    if (
+        hb.type != mav.MAV_TYPE_QUADROTOR
+        or hb.autopilot != mav.MAV_AUTOPILOT_PX4
+        or hb.custom_mode != DISARMED
+    ):
         fail(f"first heartbeat {hb}")
     n = parameters(s, expected)
     ftp_ms = ftp(s)
@@ -469,34 +542,20 @@ def fly(s, run_dir, started, expected):
     if alt_err > 0.2:
         fail(f"altitude {alt_err:.3f} m from 1.5 m while holding")
     attitude_ms = requests(s)
-    # DO_SET_MODE to hold (custom mode 3) by COMMAND_INT: the commander takes it again.
-    s.conn.mav.command_int_send(
-        1, 1, mav.MAV_FRAME_GLOBAL, mav.MAV_CMD_DO_SET_MODE, 0, 0,
-        mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, HOLD, 0, 0, 0, 0, 0,
-    )
-    ack = s.wait(
-        "COMMAND_ACK of DO_SET_MODE",
-        lambda m: m.get_type() == "COMMAND_ACK" and m.command == mav.MAV_CMD_DO_SET_MODE,
-    )
-    if ack.result != mav.MAV_RESULT_ACCEPTED:
-        fail(f"DO_SET_MODE hold: result {ack.result}; texts: {s.texts}")
-    s.wait_text("mode hold: command hold")
-    # Another autopilot's numbering is refused, never read as uquad's: PX4's hold (main mode
-    # 4, AUTO; sub mode 3, LOITER) by DO_SET_MODE, then by the superseded SET_MODE.
-    s.command(mav.MAV_CMD_DO_SET_MODE, [129, 4, 3, 0, 0, 0, 0], mav.MAV_RESULT_DENIED)
-    s.wait_text("no sub modes")
-    s.conn.mav.set_mode_send(1, 129, (3 << 24) | (4 << 16))
-    ack = s.wait(
-        "COMMAND_ACK of SET_MODE",
-        lambda m: m.get_type() == "COMMAND_ACK" and m.command == mav.MAV_CMD_DO_SET_MODE,
-    )
-    if ack.result != mav.MAV_RESULT_DENIED:
-        fail(f"SET_MODE in PX4's numbering: result {ack.result}; texts: {s.texts}")
+    names = mode_requests(s)
     load = s.last["SYS_STATUS"].load
     s.conn.mav.param_set_send(1, 1, b"CMD_LAND_M_S", 0.3, mav.MAV_PARAM_TYPE_REAL32)
     s.wait_text("CMD_LAND_M_S not set: commander.land_m_s: flight-critical, refused while hold")
-    land(s)
+    # Return, then land, each as pymavlink's PX4 map and MAVSDK encode it.
+    s.command(mav.MAV_CMD_DO_SET_MODE, [29, AUTO, RTL, 0, 0, 0, 0])
+    s.wait("the return in the heartbeat", mode_is(RETURN))
+    names.append(mavutil.mode_string_v10(s.last["HEARTBEAT"]))
+    s.command(mav.MAV_CMD_DO_SET_MODE, [129, AUTO, LAND_SUB, 0, 0, 0, 0])
+    s.wait("the landing in the heartbeat", mode_is(LANDING))
+    names.append(mavutil.mode_string_v10(s.last["HEARTBEAT"]))
+    landed_and_disarmed(s)
     return {
+        "mode_names": names,
         "heartbeat_s": round(heartbeat_s, 3),
         "params": n,
         "ftp_answer_ms": ftp_ms,

@@ -5,14 +5,14 @@
 //! - NAV_TAKEOFF: `takeoff` to param 7, the height above the takeoff point in m (as
 //!   ArduPilot reads it; NaN: `control.hover_z_m`); COMMAND_INT in a relative or local frame.
 //! - NAV_LAND → `land`; NAV_LOITER_UNLIM → `hold` where it is; DO_FLIGHTTERMINATION → `kill`.
-//! - DO_SET_MODE with a custom mode (HEARTBEAT's numbering): hold → `hold`, land → `land`;
-//!   the others are entered by their own commands. A sub mode, or base-mode flags other than
-//!   custom-mode-enabled and armed, are refused: never read as another mode.
+//! - DO_SET_MODE (and SET_MODE) in PX4's main and sub modes, DO_SET_STANDARD_MODE: the
+//!   commander's command of the same meaning (`gcs::modes`); a mode uquad does not have is
+//!   refused, named, never read as another.
 //! - REQUEST_MESSAGE, SET_MESSAGE_INTERVAL, REQUEST_AUTOPILOT_CAPABILITIES,
 //!   GET_HOME_POSITION: answered by the link.
 
-use super::telemetry::mode_of_custom;
-use crate::core::commander::{Command, Mode};
+use super::modes;
+use crate::core::commander::Command;
 use mavlink::MessageData;
 use mavlink::dialects::common::{
     AUTOPILOT_VERSION_DATA, HOME_POSITION_DATA, MavCmd, MavFrame, MavModeFlag, MavResult,
@@ -73,9 +73,14 @@ pub const HANDLED: &[(MavCmd, &str)] = &[
     ),
     (
         MavCmd::MAV_CMD_DO_SET_MODE,
-        "a custom mode in HEARTBEAT's numbering (base mode: custom-mode flag, optionally \
-         armed; no sub mode): hold, land, mission (`start`) or return; the others are \
-         entered by their own commands",
+        "param 1 with the custom-mode flag; param 2 PX4's main mode and param 3 its sub mode \
+         (or param 2 a packed custom mode): AUTO with LOITER `hold`, TAKEOFF `takeoff`, LAND \
+         `land`, MISSION `start`, RTL `return`; a mode uquad does not have is refused, named",
+    ),
+    (
+        MavCmd::MAV_CMD_DO_SET_STANDARD_MODE,
+        "param 1 a standard mode: TAKEOFF `takeoff`, LAND `land`, MISSION `start`, \
+         SAFE_RECOVERY `return`",
     ),
     (
         MavCmd::MAV_CMD_REQUEST_MESSAGE,
@@ -111,6 +116,9 @@ pub fn map(cmd: MavCmd, a: Args) -> Result<Request, Refusal> {
         MavCmd::MAV_CMD_DO_PAUSE_CONTINUE if p[0] == 1.0 => Ok(Commander(Command::Resume)),
         MavCmd::MAV_CMD_DO_FLIGHTTERMINATION if p[0] > 0.5 => Ok(Commander(Command::Kill)),
         MavCmd::MAV_CMD_DO_SET_MODE => set_mode(p[0], p[1], p[2]),
+        MavCmd::MAV_CMD_DO_SET_STANDARD_MODE => modes::command_of_standard(whole(p[0])?)
+            .map(Request::Commander)
+            .map_err(denied),
         MavCmd::MAV_CMD_REQUEST_MESSAGE => Ok(Message(whole(p[0])?)),
         MavCmd::MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES => Ok(Message(AUTOPILOT_VERSION_DATA::ID)),
         MavCmd::MAV_CMD_GET_HOME_POSITION => Ok(Message(HOME_POSITION_DATA::ID)),
@@ -171,47 +179,35 @@ fn takeoff(a: Args) -> Result<Request, Refusal> {
     Ok(Request::Commander(Command::Takeoff(height)))
 }
 
-/// DO_SET_MODE (and SET_MODE): a custom mode in HEARTBEAT's numbering, with no sub mode and
-/// no base-mode flag but custom-mode-enabled (and the armed flag, which states the vehicle's
-/// state rather than asks for one). Anything else would be guessing at another numbering (a
-/// PX4 main and sub mode, a base mode's manual or guided flags): refused, never mapped.
+/// DO_SET_MODE (and SET_MODE): param 1 the base mode, which must have the custom-mode flag
+/// (clients add others: armed, guided, auto... — they state the vehicle's state, and are not
+/// read); param 2 PX4's main mode and param 3 its sub mode, or param 2 a whole packed custom
+/// mode (SET_MODE's, as HEARTBEAT sends it). `gcs::modes` says which command each mode is;
+/// a mode uquad does not have is refused, named.
 fn set_mode(base: f32, custom: f32, sub: f32) -> Result<Request, Refusal> {
     let asked = format!("set mode (base {base}, custom {custom}, sub {sub})");
     let custom_bit = u32::from(MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED.bits());
-    let armed_bit = u32::from(MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED.bits());
-    let whole = |v: f32| (0.0..=16_777_215.0).contains(&v) && v.fract() == 0.0;
-    if !whole(base) || !whole(custom) {
+    let whole = |v: f32| v.is_finite() && (0.0..=4_294_967_295.0).contains(&v) && v.fract() == 0.0;
+    // An unused sub mode may come as NaN.
+    let sub = if sub.is_nan() { 0.0 } else { sub };
+    if !whole(base) || !whole(custom) || !whole(sub) {
         return Err(denied(format!("{asked}: not whole numbers")));
     }
-    // The base mode is a bit field sent as a float.
-    let base_bits = base as u32;
-    if base_bits & custom_bit == 0 {
+    if (base as u32) & custom_bit == 0 {
         return Err(denied(format!(
-            "{asked}: only custom modes (HEARTBEAT's numbering) are taken"
+            "{asked}: only custom modes (PX4's main and sub modes) are taken"
         )));
     }
-    if base_bits & !(custom_bit | armed_bit) != 0 {
-        return Err(denied(format!(
-            "{asked}: base-mode flags other than custom mode and armed are not handled"
-        )));
-    }
-    // An unused parameter may be sent as NaN.
-    if !(sub == 0.0 || sub.is_nan()) {
-        return Err(denied(format!(
-            "{asked}: uquad's modes have no sub modes (is this another autopilot's numbering?)"
-        )));
-    }
-    match mode_of_custom(custom as u32) {
-        Some(Mode::Hold) => Ok(Request::Commander(Command::Hold(None))),
-        Some(Mode::Land) => Ok(Request::Commander(Command::Land)),
-        Some(Mode::Mission) => Ok(Request::Commander(Command::Start)),
-        Some(Mode::Return) => Ok(Request::Commander(Command::Return)),
-        Some(m) => Err(denied(format!(
-            "{asked}: {} is entered by its own command (arm, takeoff, disarm, kill)",
-            m.name()
-        ))),
-        None => Err(denied(format!("{asked}: no custom mode {custom}"))),
-    }
+    let (main, sub) = if custom >= 65_536.0 {
+        modes::unpack(custom as u32)
+    } else if custom <= 255.0 && sub <= 255.0 {
+        (custom as u8, sub as u8)
+    } else {
+        return Err(denied(format!("{asked}: no such main or sub mode")));
+    };
+    modes::command_of(main, sub)
+        .map(Request::Commander)
+        .map_err(|why| denied(format!("{asked}: {why}")))
 }
 
 #[cfg(test)]
@@ -287,60 +283,48 @@ mod tests {
         );
     }
 
+    /// DO_SET_MODE as the common clients send it: QGroundControl's SET_MODE (read as a packed
+    /// custom mode), MAVSDK's (base 1 | 128 armed, main, sub) and pymavlink's PX4 map (base
+    /// 29: custom, stabilize, guided, auto).
     #[test]
-    fn set_mode_takes_hold_and_land_by_custom_mode() {
-        let set = |custom| {
-            map(
-                MavCmd::MAV_CMD_DO_SET_MODE,
-                long([1.0, custom, 0., 0., 0., 0., 0.]),
-            )
-        };
-        assert_eq!(set(3.0), Ok(Request::Commander(Command::Hold(None))));
-        assert_eq!(set(4.0), Ok(Request::Commander(Command::Land)));
-        assert!(set(1.0).is_err());
-        assert!(set(99.0).is_err());
-        let no_custom = map(
-            MavCmd::MAV_CMD_DO_SET_MODE,
-            long([0.0, 3.0, 0., 0., 0., 0., 0.]),
-        );
-        assert!(no_custom.is_err());
-    }
-
-    #[test]
-    fn set_mode_in_another_numbering_is_refused_not_mapped() {
+    fn set_mode_takes_px4_modes_as_clients_send_them() {
         let set = |p: [f32; 3]| {
             map(
                 MavCmd::MAV_CMD_DO_SET_MODE,
                 long([p[0], p[1], p[2], 0., 0., 0., 0.]),
             )
         };
-        // PX4's AUTO (main 4) with sub mode LOITER (3): uquad's 4 is land; it must not land.
-        let (result, why) = set([129.0, 4.0, 3.0]).unwrap_err();
-        assert_eq!(result, MavResult::MAV_RESULT_DENIED);
-        assert!(
-            why.contains("sub 3") && why.contains("no sub modes"),
-            "{why}"
-        );
-        // Base-mode flags uquad does not handle (guided, auto, stabilize, manual input).
-        for base in [
-            1.0 + 8.0,
-            1.0 + 4.0,
-            1.0 + 16.0,
-            1.0 + 64.0,
-            1.0 + 2.0,
-            1.0 + 32.0,
-        ] {
-            assert!(set([base, 3.0, 0.0]).is_err(), "base {base}");
-        }
-        // Not whole numbers: refused rather than truncated.
-        assert!(set([1.0, 3.5, 0.0]).is_err());
-        assert!(set([1.5, 3.0, 0.0]).is_err());
-        assert!(set([1.0, f32::NAN, 0.0]).is_err());
-        // The armed flag states the vehicle's state; an unused sub mode may come as NaN.
+        let hold = Ok(Request::Commander(Command::Hold(None)));
+        assert_eq!(set([129.0, 4.0, 3.0]), hold);
+        assert_eq!(set([29.0, 4.0, 3.0]), hold);
+        assert_eq!(set([1.0, 0x0304_0000 as f32, 0.0]), hold);
+        assert_eq!(set([1.0, 4.0, 4.0]), Ok(Request::Commander(Command::Start)));
         assert_eq!(
-            set([129.0, 3.0, f32::NAN]),
-            Ok(Request::Commander(Command::Hold(None)))
+            set([1.0, 4.0, 5.0]),
+            Ok(Request::Commander(Command::Return))
         );
+        assert_eq!(set([1.0, 4.0, 6.0]), Ok(Request::Commander(Command::Land)));
+        assert_eq!(
+            set([1.0, 4.0, f32::NAN]).unwrap_err().0,
+            MavResult::MAV_RESULT_DENIED
+        );
+        // Modes uquad does not have, and requests it cannot read: refused, never guessed.
+        let (result, why) = set([1.0, 3.0, 0.0]).unwrap_err();
+        assert_eq!(result, MavResult::MAV_RESULT_DENIED);
+        assert!(why.contains("no position"), "{why}");
+        assert!(set([0.0, 4.0, 3.0]).is_err(), "no custom-mode flag");
+        assert!(set([1.0, 4.5, 3.0]).is_err());
+        assert!(set([1.5, 4.0, 3.0]).is_err());
+        assert!(set([1.0, f32::NAN, 3.0]).is_err());
+        assert!(set([1.0, 300.0, 3.0]).is_err());
+        let standard = |mode: f32| {
+            map(
+                MavCmd::MAV_CMD_DO_SET_STANDARD_MODE,
+                long([mode, 0., 0., 0., 0., 0., 0.]),
+            )
+        };
+        assert_eq!(standard(5.0), Ok(Request::Commander(Command::Return)));
+        assert_eq!(standard(1.0).unwrap_err().0, MavResult::MAV_RESULT_DENIED);
     }
 
     #[test]

@@ -9,12 +9,8 @@
 use crate::core::commander::Mode;
 use crate::core::ekf::TestRatios;
 use crate::core::gps::LiveFix;
+use crate::gcs::modes;
 use mavlink::dialects::common::*;
-
-/// The vehicle's mode as HEARTBEAT's custom mode: its index in this list, the commander's
-/// own order of its modes (a numbering ground stations and scripts rely on: a mode added
-/// goes at the end).
-pub const CUSTOM_MODES: [Mode; 8] = Mode::ALL;
 
 /// What the link reports, gathered by the task from the run's shared state.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -72,15 +68,6 @@ pub struct Health {
     pub logging: bool,
 }
 
-fn custom_mode(mode: Mode) -> u32 {
-    CUSTOM_MODES.iter().position(|&m| m == mode).unwrap_or(0) as u32
-}
-
-/// The mode a HEARTBEAT's or DO_SET_MODE's custom mode names.
-pub fn mode_of_custom(custom: u32) -> Option<Mode> {
-    CUSTOM_MODES.get(usize::try_from(custom).ok()?).copied()
-}
-
 fn armed(mode: Mode) -> bool {
     matches!(mode, Mode::Armed) || mode.airborne()
 }
@@ -94,19 +81,50 @@ pub fn heartbeat(s: &Snapshot) -> MavMessage {
         base |= MavModeFlag::MAV_MODE_FLAG_STABILIZE_ENABLED
             | MavModeFlag::MAV_MODE_FLAG_GUIDED_ENABLED;
     }
+    // A kill is told as PX4 tells a flight termination.
     let system_status = match s.mode {
         Mode::Disarmed => MavState::MAV_STATE_STANDBY,
-        Mode::Kill => MavState::MAV_STATE_EMERGENCY,
+        Mode::Kill => MavState::MAV_STATE_FLIGHT_TERMINATION,
         _ => MavState::MAV_STATE_ACTIVE,
     };
     MavMessage::HEARTBEAT(HEARTBEAT_DATA {
-        custom_mode: custom_mode(s.mode),
+        custom_mode: modes::custom_mode(s.mode),
         mavtype: MavType::MAV_TYPE_QUADROTOR,
-        autopilot: MavAutopilot::MAV_AUTOPILOT_GENERIC,
+        // The modes' encoding is PX4's (`gcs::modes` says why).
+        autopilot: MavAutopilot::MAV_AUTOPILOT_PX4,
         base_mode: base,
         system_status,
         mavlink_version: 3,
     })
+}
+
+/// CURRENT_MODE: the mode as the standard modes and PX4's custom mode say it.
+pub fn current_mode(s: &Snapshot) -> MavMessage {
+    let custom = modes::custom_mode(s.mode);
+    MavMessage::CURRENT_MODE(CURRENT_MODE_DATA {
+        custom_mode: custom,
+        intended_custom_mode: custom,
+        standard_mode: modes::standard_mode(s.mode),
+    })
+}
+
+/// AVAILABLE_MODES: every mode a ground station may ask for, one message each.
+pub fn available_modes() -> Vec<MavMessage> {
+    let n = modes::SELECTABLE.len() as u8;
+    modes::SELECTABLE
+        .iter()
+        .enumerate()
+        .map(|(i, m)| {
+            MavMessage::AVAILABLE_MODES(AVAILABLE_MODES_DATA {
+                custom_mode: m.custom_mode,
+                properties: m.properties,
+                number_modes: n,
+                mode_index: i as u8 + 1,
+                standard_mode: m.standard,
+                mode_name: m.name.into(),
+            })
+        })
+        .collect()
 }
 
 pub fn sys_status(s: &Snapshot) -> MavMessage {
@@ -394,7 +412,8 @@ mod tests {
             h.base_mode
                 .contains(MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED)
         );
-        assert_eq!(mode_of_custom(h.custom_mode), Some(Mode::Hold));
+        assert_eq!(h.custom_mode, modes::custom_mode(Mode::Hold));
+        assert_eq!(h.autopilot, MavAutopilot::MAV_AUTOPILOT_PX4);
         s.mode = Mode::Disarmed;
         let MavMessage::HEARTBEAT(h) = heartbeat(&s) else {
             panic!()

@@ -6,7 +6,8 @@
 //! time as the file is written: memory does not grow with the run's length.
 
 use crate::app::log_lines::{EstimateTimes, LogLines};
-use crate::gcs::telemetry::{CUSTOM_MODES, ned, wrap_pi};
+use crate::core::commander::Mode;
+use crate::gcs::telemetry::{ned, wrap_pi};
 use crate::logs::ulog::{Fields, Level, Type::*, Ulog, Value as V};
 use crate::logs::{self, GpsLogRecord, ImuRawRecord, InnovRecord, KalmanInRecord};
 use anyhow::Context;
@@ -438,9 +439,9 @@ fn gps(l: &mut LogLines, u: &Ulog, p: &mut Pending) -> anyhow::Result<bool> {
 }
 
 /// PX4's navigation state nearest each of uquad's modes (vehicle_status.nav_state); uquad's
-/// own is `custom_mode` (HEARTBEAT's numbering).
+/// own is `custom_mode` (its index in `Mode::ALL`, uquad's own numbering).
 fn nav_state(custom: usize) -> u8 {
-    match CUSTOM_MODES.get(custom).map(|m| m.name()) {
+    match Mode::ALL.get(custom).map(|m| m.name()) {
         Some("takeoff") => 17,
         Some("land") => 18,
         Some("kill") => 13,
@@ -469,10 +470,7 @@ fn modes() -> Read {
         let level = match kind {
             "mode" => {
                 let name = rest.split(' ').next().unwrap_or("");
-                custom = CUSTOM_MODES
-                    .iter()
-                    .position(|m| m.name() == name)
-                    .unwrap_or(0);
+                custom = Mode::ALL.iter().position(|m| m.name() == name).unwrap_or(0);
                 // A failsafe lasts until the vehicle is back on the ground, disarmed.
                 failsafe &= custom != 0;
                 Level::Info
@@ -491,7 +489,7 @@ fn modes() -> Read {
         if matches!(kind, "mode" | "failsafe") {
             // Standby (1) when disarmed or killed, else armed (2).
             let on_ground = matches!(
-                CUSTOM_MODES.get(custom).map(|m| m.name()),
+                Mode::ALL.get(custom).map(|m| m.name()),
                 Some("disarmed" | "kill")
             );
             let status = [
@@ -520,8 +518,8 @@ mod tests {
 
     #[test]
     fn modes_map_onto_px4_navigation_states() {
-        let names: Vec<(&str, u8)> = (0..CUSTOM_MODES.len())
-            .map(|i| (CUSTOM_MODES[i].name(), nav_state(i)))
+        let names: Vec<(&str, u8)> = (0..Mode::ALL.len())
+            .map(|i| (Mode::ALL[i].name(), nav_state(i)))
             .collect();
         assert!(names.contains(&("mission", 3)) && names.contains(&("return", 5)));
         assert!(names.contains(&("land", 18)) && names.contains(&("hold", 4)));

@@ -394,6 +394,7 @@ impl Connection {
             self.told_mode = mode;
             let snap = self.snapshot(now);
             self.send(&tm::heartbeat(&snap));
+            self.send(&tm::current_mode(&snap));
             self.send(&tm::extended_sys_state(&snap));
         }
         self.mission_changed(now);

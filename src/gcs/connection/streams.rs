@@ -10,7 +10,9 @@ use mavlink::dialects::common::*;
 use std::time::{Duration, Instant};
 
 /// The messages the link can send on request (REQUEST_MESSAGE), by id.
-pub const REQUESTABLE: [u32; 11] = [
+pub const REQUESTABLE: [u32; 13] = [
+    CURRENT_MODE_DATA::ID,
+    AVAILABLE_MODES_DATA::ID,
     HEARTBEAT_DATA::ID,
     SYS_STATUS_DATA::ID,
     GPS_RAW_INT_DATA::ID,
@@ -63,14 +65,16 @@ fn build(id: u32, s: &Snapshot, system_id: u8) -> Option<MavMessage> {
         ESTIMATOR_STATUS_DATA::ID => tm::estimator_status(s),
         AUTOPILOT_VERSION_DATA::ID => Some(tm::autopilot_version(system_id)),
         MISSION_CURRENT_DATA::ID => s.mission.as_ref().map(tm::mission_current),
+        CURRENT_MODE_DATA::ID => Some(tm::current_mode(s)),
         _ => None,
     }
 }
 
 /// The periodic messages by id, with their default interval in seconds (0: every
 /// 1/`gcs.telemetry_hz` s).
-pub const PERIODIC_SENT: [(u32, f64); 10] = [
+pub const PERIODIC_SENT: [(u32, f64); 11] = [
     (HEARTBEAT_DATA::ID, 1.0),
+    (CURRENT_MODE_DATA::ID, 1.0),
     (SYS_STATUS_DATA::ID, 1.0),
     (EXTENDED_SYS_STATE_DATA::ID, 1.0),
     (ESTIMATOR_STATUS_DATA::ID, 1.0),
@@ -182,6 +186,13 @@ impl Connection {
     pub(super) fn send_by_id(&mut self, now: Instant, id: u32) -> MavResult {
         if !REQUESTABLE.contains(&id) {
             return MavResult::MAV_RESULT_DENIED;
+        }
+        // Every mode, one message each (param 2's index is not read: all of them answer).
+        if id == AVAILABLE_MODES_DATA::ID {
+            for m in tm::available_modes() {
+                self.send(&m);
+            }
+            return MavResult::MAV_RESULT_ACCEPTED;
         }
         match build(id, &self.snapshot(now), self.s.cfg.system_id) {
             Some(m) => {

@@ -632,14 +632,20 @@ fn a_mode_change_is_told_at_once_and_a_halt_once() {
     b.sent();
     b.status(Mode::Armed);
     let out = b.sent();
-    let modes: Vec<u32> = out
+    let modes: Vec<(u32, bool)> = out
         .iter()
         .filter_map(|m| match m {
-            MavMessage::HEARTBEAT(h) => Some(h.custom_mode),
+            MavMessage::HEARTBEAT(h) => Some((
+                h.custom_mode,
+                h.base_mode
+                    .contains(MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED),
+            )),
             _ => None,
         })
         .collect();
-    assert_eq!(modes, [1], "armed is custom mode 1");
+    // Armed on the ground: PX4's hold with the armed flag.
+    assert_eq!(modes, [(crate::gcs::modes::custom_mode(Mode::Armed), true)]);
+    assert!(out.iter().any(|m| matches!(m, MavMessage::CURRENT_MODE(_))));
     assert!(
         out.iter()
             .any(|m| matches!(m, MavMessage::EXTENDED_SYS_STATE(_)))
@@ -708,8 +714,9 @@ fn the_commanders_mode_is_told_when_no_step_follows_it() {
     b.conn.handle_status(b.now, armed.clone());
     let out = b.sent();
     let armed_bit = MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED;
+    let armed_mode = crate::gcs::modes::custom_mode(Mode::Armed);
     let told = out.iter().any(|m| {
-        matches!(m, MavMessage::HEARTBEAT(h) if h.custom_mode == 1 && h.base_mode.contains(armed_bit))
+        matches!(m, MavMessage::HEARTBEAT(h) if h.custom_mode == armed_mode && h.base_mode.contains(armed_bit))
     });
     assert!(told, "{out:?}");
     // A flight-critical parameter is not changed while armed, step or no step.
@@ -725,10 +732,15 @@ fn the_commanders_mode_is_told_when_no_step_follows_it() {
     b.conn.handle_end(b.now);
     let out = b.sent();
     let last = out.iter().rev().find_map(|m| match m {
-        MavMessage::HEARTBEAT(h) => Some(h.custom_mode),
+        MavMessage::HEARTBEAT(h) => Some((h.custom_mode, h.system_status)),
         _ => None,
     });
-    assert_eq!(last, Some(5), "kill is custom mode 5: {out:?}");
+    let kill = crate::gcs::modes::custom_mode(Mode::Kill);
+    assert_eq!(
+        last,
+        Some((kill, MavState::MAV_STATE_FLIGHT_TERMINATION)),
+        "{out:?}"
+    );
     assert!(Bench::texts(&out).contains(&"halt imu-timeout: motors stopped".to_string()));
 }
 
