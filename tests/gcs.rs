@@ -136,6 +136,14 @@ fn a_ground_station_sets_a_parameter_arms_takes_off_and_lands() {
         measured["alt_err_max_m"].as_f64().unwrap() <= 0.2,
         "{measured}"
     );
+    // Before arming a ground station sees a global position, the home and the pre-arm bit
+    // (their times measured, not judged).
+    for k in ["position_s", "home_s", "prearm_s"] {
+        assert!(
+            measured["before_arming"][k].as_f64().is_some(),
+            "{measured}"
+        );
+    }
     // MAVLink FTP answered (a NAK: nothing served yet), its time measured, not judged.
     assert!(measured["ftp_answer_ms"].as_f64().is_some(), "{measured}");
     let modes = report_modes(r);

@@ -524,6 +524,33 @@ def mode_requests(s):
     return names
 
 
+def health_times(s, started):
+    """Seconds from the start until a ground station sees, before arming: a global position,
+    the home position, and SYS_STATUS's pre-arm bit healthy (what a client waits for before
+    it lets its user arm)."""
+    bit = mav.MAV_SYS_STATUS_PREARM_CHECK
+    seen = {}
+    end = time.time() + LONG
+    while len(seen) < 3 and time.time() < end:
+        m = s.pump()
+        if m is None:
+            continue
+        kind, t = m.get_type(), round(time.time() - started, 2)
+        if kind == "GLOBAL_POSITION_INT" and m.lat != 0:
+            seen.setdefault("position_s", t)
+        elif kind == "HOME_POSITION" and m.latitude != 0:
+            seen.setdefault("home_s", t)
+        elif (
+            kind == "SYS_STATUS"
+            and m.onboard_control_sensors_present & bit
+            and m.onboard_control_sensors_health & bit
+        ):
+            seen.setdefault("prearm_s", t)
+    if len(seen) < 3:
+        fail(f"before arming, only {seen} within {LONG} s")
+    return seen
+
+
 def fly(s, run_dir, started, expected):
     hb = s.wait("a heartbeat", lambda m: m.get_type() == "HEARTBEAT", 5.0)
     heartbeat_s = time.time() - started
@@ -533,6 +560,7 @@ def fly(s, run_dir, started, expected):
         or hb.custom_mode != DISARMED
     ):
         fail(f"first heartbeat {hb}")
+    health = health_times(s, started)
     n = parameters(s, expected)
     ftp_ms = ftp(s)
     stranger_denied(s)
@@ -555,6 +583,7 @@ def fly(s, run_dir, started, expected):
     names.append(mavutil.mode_string_v10(s.last["HEARTBEAT"]))
     landed_and_disarmed(s)
     return {
+        "before_arming": health,
         "mode_names": names,
         "heartbeat_s": round(heartbeat_s, 3),
         "params": n,

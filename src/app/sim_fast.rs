@@ -202,6 +202,7 @@ fn prearm(cfg: &crate::config::Config) -> (PreArm, tokio::sync::watch::Sender<Op
         gps_max_eph_m: cfg.commander.gps_max_eph_m,
         gps_timeout_us: (cfg.control.gps_hold_timeout_s * 1e6).round() as i64,
         addresses: cfg.esc.addresses,
+        verdict: Default::default(),
     };
     (prearm, tx)
 }

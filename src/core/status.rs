@@ -52,6 +52,8 @@ pub struct VehicleStatus {
     pub log_problem: Option<String>,
     /// The control thread's CPU time so far, ns (none where it is not measured).
     pub control_cpu_ns: Option<u64>,
+    /// Whether an `arm` would pass the pre-arm checks now (none before the first check).
+    pub prearm_ok: Option<bool>,
 }
 
 impl Default for VehicleStatus {
@@ -66,6 +68,7 @@ impl Default for VehicleStatus {
             halt: None,
             log_problem: None,
             control_cpu_ns: None,
+            prearm_ok: None,
         }
     }
 }

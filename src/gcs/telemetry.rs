@@ -26,6 +26,11 @@ pub struct Snapshot {
     pub fix_fresh: bool,
     /// The takeoff point in the local frame, m.
     pub home_m: Option<[f64; 3]>,
+    /// Before a takeoff point: where the vehicle stood by the first good fix on the ground,
+    /// taken again at each arming (local frame, m).
+    pub ground_home_m: Option<[f64; 3]>,
+    /// Whether an `arm` would pass the pre-arm checks now (none: not checked yet).
+    pub prearm: Option<bool>,
     pub health: Health,
     /// The control path's busy share of its period, in tenths of a percent.
     pub load_permille: u16,
@@ -142,9 +147,13 @@ pub fn sys_status(s: &Snapshot) -> MavMessage {
     let motors = S::MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS;
     let fence = S::MAV_SYS_STATUS_GEOFENCE;
     let logging = S::MAV_SYS_STATUS_LOGGING;
+    let prearm = S::MAV_SYS_STATUS_PREARM_CHECK;
     let mut present = imu | control | motors | fence | logging;
     if h.gps_used {
         present |= gps;
+    }
+    if s.prearm.is_some() {
+        present |= prearm;
     }
     let mut health = S::empty();
     let mut set = |ok: bool, bits: S| {
@@ -158,6 +167,7 @@ pub fn sys_status(s: &Snapshot) -> MavMessage {
     set(h.estimator && h.imu, control);
     set(h.fence, fence);
     set(h.logging, logging);
+    set(s.prearm == Some(true), prearm);
     MavMessage::SYS_STATUS(SYS_STATUS_DATA {
         onboard_control_sensors_present: present,
         onboard_control_sensors_enabled: present,
@@ -228,7 +238,9 @@ fn mm(m: f64) -> i32 {
 }
 
 pub fn global_position(s: &Snapshot) -> Option<MavMessage> {
-    let x = s.state?;
+    let Some(x) = s.state else {
+        return fix_position(s);
+    };
     let fix = s.fix?;
     let (_, v) = ned(&x);
     let ([lat, lon], alt) = global_of(&fix, [x[0], x[1], x[2]]);
@@ -245,6 +257,29 @@ pub fn global_position(s: &Snapshot) -> Option<MavMessage> {
         vy: cm_s(v[1]),
         vz: cm_s(v[2]),
         hdg: ((yaw_deg * 100.0).round() as u16) % 36_000,
+    }))
+}
+
+/// GLOBAL_POSITION_INT before the estimate runs: the fresh 3-D fix itself, its height
+/// relative to where the vehicle stood (it is on the ground), its velocity if it gives one,
+/// the heading unknown.
+fn fix_position(s: &Snapshot) -> Option<MavMessage> {
+    let fix = s.fix.filter(|f| s.fix_fresh && f.fix.mode >= 3)?;
+    let z = fix.sample.z_m?;
+    let ground_z = s.ground_home_m.map_or(z, |h| h[2]);
+    let v = fix.sample.vel_m_s.unwrap_or([0.0; 3]);
+    let cm_s = |v: f64| (v * 100.0).round().clamp(-32_767.0, 32_767.0) as i16;
+    Some(MavMessage::GLOBAL_POSITION_INT(GLOBAL_POSITION_INT_DATA {
+        time_boot_ms: s.t_boot_ms,
+        lat: e7(fix.fix.lat_deg),
+        lon: e7(fix.fix.lon_deg),
+        alt: fix.fix.alt_m.map_or(0, mm),
+        relative_alt: mm(z - ground_z),
+        // North, west, up to north, east, down.
+        vx: cm_s(v[0]),
+        vy: cm_s(-v[1]),
+        vz: cm_s(-v[2]),
+        hdg: u16::MAX,
     }))
 }
 
@@ -275,7 +310,7 @@ pub fn gps_raw(s: &Snapshot) -> Option<MavMessage> {
 /// The takeoff point, once it and a fix are known (a home without a place on the Earth
 /// would be drawn at 0° 0°).
 pub fn home_position(s: &Snapshot) -> Option<MavMessage> {
-    let h = s.home_m?;
+    let h = s.home_m.or(s.ground_home_m)?;
     let (deg, alt) = global_of(&s.fix?, h);
     Some(MavMessage::HOME_POSITION(HOME_POSITION_DATA {
         latitude: e7(deg[0]),
@@ -396,6 +431,8 @@ mod tests {
             fix: None,
             fix_fresh: false,
             home_m: None,
+            ground_home_m: None,
+            prearm: None,
             health: Health::default(),
             load_permille: 0,
             mission: None,
@@ -471,6 +508,8 @@ mod tests {
             state: Some(x),
             fix: Some(fix),
             home_m: Some([0.0, 0.0, 0.5]),
+            ground_home_m: None,
+            prearm: None,
             ..snapshot()
         };
         let Some(MavMessage::GLOBAL_POSITION_INT(g)) = global_position(&s) else {

@@ -101,7 +101,12 @@ pub struct EstimatorTask {
     pub held: VecDeque<Held>,
     /// `commander.input_expiry_s`.
     pub input_expiry: Duration,
+    /// When the pre-arm verdict is next checked and published, µs (0 at start).
+    pub next_prearm_us: i64,
 }
+
+/// The pre-arm verdict is published this often, µs (SYS_STATUS goes out each second).
+const PREARM_EVERY_US: i64 = 1_000_000;
 
 impl EstimatorTask {
     pub async fn run(mut self) -> anyhow::Result<EstimatorReport> {
@@ -128,6 +133,7 @@ impl EstimatorTask {
             let times = FrameTimes::at(f.stamp_us);
             self.operate(f.stamp_us);
             self.poll_fix(f.stamp_us);
+            self.publish_prearm(f.stamp_us);
             let phase = self.esc_status.phase();
             let stop_reason = (phase == EscPhase::Stopped)
                 .then(|| self.esc_status.stop_reason())
@@ -272,6 +278,25 @@ impl EstimatorTask {
         }
     }
 
+    /// Once a second: what an `arm` would be told now, for a ground station's pre-arm bit
+    /// (the facts as an `arm` gathers them; nothing is recorded).
+    fn publish_prearm(&mut self, t_us: i64) {
+        if t_us < self.next_prearm_us {
+            return;
+        }
+        self.next_prearm_us = t_us + PREARM_EVERY_US;
+        let facts = self.arm_facts(t_us);
+        let pass = self.side.prearm_verdict(&facts, t_us).is_ok();
+        self.prearm.verdict.set(pass);
+    }
+
+    /// The pre-arm facts as an `arm` at `t_us` sees them.
+    fn arm_facts(&self, t_us: i64) -> ArmFacts {
+        let silent = self.esc_status.silent_addresses(&self.prearm.addresses);
+        let fix = self.gps_live.as_ref().and_then(|rx| *rx.borrow());
+        self.prearm.facts(silent, fix.as_ref(), t_us)
+    }
+
     /// The operator's inputs that arrived since the previous frame, never waited for; `fly
     /// --arm` arms once the flight side is ready.
     fn operate(&mut self, t_us: i64) {
@@ -305,9 +330,7 @@ impl EstimatorTask {
 
     fn apply(&mut self, input: OperatorInput, t_us: i64) {
         let facts = if matches!(input, OperatorInput::Command(Command::Arm, _)) {
-            let silent = self.esc_status.silent_addresses(&self.prearm.addresses);
-            let fix = self.gps_live.as_ref().and_then(|rx| *rx.borrow());
-            self.prearm.facts(silent, fix.as_ref(), t_us)
+            self.arm_facts(t_us)
         } else {
             ArmFacts::default()
         };

@@ -6,6 +6,8 @@
 use crate::core::commander::ArmFacts;
 use crate::core::gps::LiveFix;
 use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU8, Ordering};
 use std::time::Duration;
 use tokio::sync::watch;
 use tokio_util::sync::CancellationToken;
@@ -22,6 +24,27 @@ pub struct PreArm {
     /// A fix older than this does not count, µs.
     pub gps_timeout_us: i64,
     pub addresses: [u8; 4],
+    /// Where the verdict an `arm` would get now is published (the estimator task checks
+    /// once a second), for SYS_STATUS's pre-arm bit.
+    pub verdict: Arc<PrearmVerdict>,
+}
+
+/// Whether the pre-arm checks pass now, as last checked: none before the first check.
+#[derive(Debug, Default)]
+pub struct PrearmVerdict(AtomicU8);
+
+impl PrearmVerdict {
+    pub fn set(&self, pass: bool) {
+        self.0.store(if pass { 1 } else { 2 }, Ordering::Relaxed);
+    }
+
+    pub fn get(&self) -> Option<bool> {
+        match self.0.load(Ordering::Relaxed) {
+            1 => Some(true),
+            2 => Some(false),
+            _ => None,
+        }
+    }
 }
 
 impl PreArm {

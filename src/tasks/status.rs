@@ -28,6 +28,8 @@ pub struct StatusSources {
     pub esc_addresses: [u8; 4],
     /// The control thread's CPU clock, where it can be read.
     pub control_cpu: Option<libc::clockid_t>,
+    /// The pre-arm checks' verdict as the estimator task last checked it.
+    pub prearm: Arc<crate::tasks::prearm::PrearmVerdict>,
 }
 
 impl StatusSources {
@@ -43,6 +45,7 @@ impl StatusSources {
             halt: self.watchdog.halt().map(|h| h.trip.reason),
             log_problem: self.log_problem.borrow().clone(),
             control_cpu_ns: self.control_cpu.map(crate::hw::cpu_clock::clock_ns),
+            prearm_ok: self.prearm.get(),
         }
     }
 }

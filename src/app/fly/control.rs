@@ -51,6 +51,7 @@ pub(super) fn spawn(
         gps_max_eph_m: profile.config.commander.gps_max_eph_m,
         gps_timeout_us: (profile.config.control.gps_hold_timeout_s * 1e6).round() as i64,
         addresses: profile.motor_map().addresses,
+        verdict: h.prearm_verdict.clone(),
     };
     let h = h.clone();
     let input_expiry_s = profile.config.commander.input_expiry_s;
@@ -125,6 +126,7 @@ pub(super) fn spawn(
                     pending_fix: None,
                     held: Default::default(),
                     input_expiry: std::time::Duration::from_secs_f64(input_expiry_s),
+                    next_prearm_us: 0,
                 }
                 .run()
                 .instrument(tracing::info_span!("estimator"))

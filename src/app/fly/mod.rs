@@ -107,6 +107,8 @@ struct RunHandles {
     /// The commander's events and commands' outcomes, for the ground-station link.
     notices: Notices,
     gcs_stats: Option<GcsStats>,
+    /// The pre-arm checks' verdict as the estimator task last checked it.
+    prearm_verdict: Arc<crate::tasks::prearm::PrearmVerdict>,
     /// systemd's notification socket, when run as a `Type=notify` service.
     notifier: Option<Arc<crate::hw::notify::Notifier>>,
     cancel: CancellationToken,
@@ -134,6 +136,7 @@ impl RunHandles {
             console_drops: Arc::default(),
             notices,
             gcs_stats: gcs.then(GcsStats::default),
+            prearm_verdict: Arc::default(),
             notifier: crate::hw::notify::Notifier::from_env().map(Arc::new),
             cancel,
         }
@@ -193,6 +196,7 @@ pub async fn run(
         esc: h.esc_status.clone(),
         esc_addresses: profile.motor_map().addresses,
         control_cpu: crate::hw::cpu_clock::thread_clock(&control),
+        prearm: h.prearm_verdict.clone(),
     };
     serve_operator(profile, &opts, &h, &operator_tx, &status);
     let gcs = notices_rx.map(|notices| {

@@ -593,20 +593,25 @@ impl EstimatorSide {
         }
         Some(match arm {
             ArmCheck::Recorded(v) => v.clone(),
-            ArmCheck::Facts(f) => {
-                let mut f = f.clone();
-                if self.at_rest {
-                    f.imu_stable = self.phase != Phase::Settle;
-                    f.estimator = self.estimator_problem();
-                } else {
-                    f.imu_stable = self.phase == Phase::EscStart;
-                }
-                match self.imu.stale(t_us) {
-                    Some(why) if f.imu_stable => Err(why),
-                    _ => f.verdict(),
-                }
-            }
+            ArmCheck::Facts(f) => self.prearm_verdict(f, t_us),
         })
+    }
+
+    /// The pre-arm checks' verdict at `t_us` on the driver's `facts` and this side's own
+    /// (the IMU's settling and its frames, the estimate's health): what an `arm` would be
+    /// told now.
+    pub fn prearm_verdict(&self, facts: &ArmFacts, t_us: i64) -> Result<(), String> {
+        let mut f = facts.clone();
+        if self.at_rest {
+            f.imu_stable = self.phase != Phase::Settle;
+            f.estimator = self.estimator_problem();
+        } else {
+            f.imu_stable = self.phase == Phase::EscStart;
+        }
+        match self.imu.stale(t_us) {
+            Some(why) if f.imu_stable => Err(why),
+            _ => f.verdict(),
+        }
     }
 
     /// A manual key: the commander's (the hold's height, noted here) or the planner's (queued

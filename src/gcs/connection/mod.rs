@@ -30,6 +30,7 @@ pub use streams::{PERIODIC_SENT, REQUESTABLE};
 
 use crate::config::GcsConfig;
 use crate::core::commander::{Command, Event, Failsafe, LinkSource, Mode, OperatorInput};
+use crate::core::gps::LiveFix;
 use crate::core::status::VehicleStatus;
 use crate::gcs::commands::Args;
 use crate::gcs::params::{Param, Params};
@@ -238,6 +239,8 @@ pub struct Connection {
     text_id: u16,
     /// The newest `now` the protocol was given.
     latest: Instant,
+    /// Where the vehicle stood on the ground by a fix (see `note_ground_home`).
+    ground_home_m: Option<[f64; 3]>,
     /// The signing clock as the owner last read it.
     signing_time: Option<u64>,
     /// A serial stream's held bytes are looked at again then (see [`STALL`]).
@@ -280,6 +283,7 @@ impl Connection {
             last_beat: None,
             text_id: 0,
             latest: now,
+            ground_home_m: None,
             signing_time: None,
             stall_check_at: None,
             counts: Counts::default(),
@@ -390,6 +394,12 @@ impl Connection {
         self.tell_time(now);
         self.status = status;
         let mode = self.status.mode;
+        if self.note_ground_home(now, mode) {
+            // A new home is told at once, not at the next 5-s HOME_POSITION.
+            if let Some(home) = tm::home_position(&self.snapshot(now)) {
+                self.send(&home);
+            }
+        }
         if mode != self.told_mode {
             self.told_mode = mode;
             let snap = self.snapshot(now);
@@ -410,6 +420,30 @@ impl Connection {
         self.send_params(now);
         self.send_due(now);
         self.unstick_stream(now);
+    }
+
+    /// Where the vehicle stands by a fresh 3-D fix, on the ground: the first such fix, and
+    /// again at each arming (the takeoff point, once the estimate has one, is HOME_POSITION's
+    /// instead).
+    /// True when it changed.
+    fn note_ground_home(&mut self, now: Instant, mode: Mode) -> bool {
+        let on_ground = matches!(mode, Mode::Disarmed | Mode::Armed);
+        let arming = mode == Mode::Armed && self.told_mode != Mode::Armed;
+        if !on_ground || (self.ground_home_m.is_some() && !arming) {
+            return false;
+        }
+        let now_us = now.saturating_duration_since(self.s.boot).as_micros() as i64;
+        let fresh = |f: &LiveFix| now_us - f.stamp_us <= self.s.gps_timeout_us;
+        let fix = self.status.fix.filter(|f| f.fix.mode >= 3 && fresh(f));
+        if let Some(f) = fix
+            && let Some(z) = f.sample.z_m
+        {
+            let home = Some([f.sample.xy_m[0], f.sample.xy_m[1], z]);
+            let changed = home != self.ground_home_m;
+            self.ground_home_m = home;
+            return changed;
+        }
+        false
     }
 
     /// The run is over: a halt told, a last heartbeat.
@@ -648,6 +682,8 @@ impl Connection {
             fix,
             fix_fresh: fix.is_some_and(|f| now_us - f.stamp_us <= self.s.gps_timeout_us),
             home_m: live.and_then(|l| l.home_m),
+            ground_home_m: self.ground_home_m,
+            prearm: st.prearm_ok,
             health: self.streams.health,
             load_permille: self.streams.load_permille,
             // A mission flies in `mission`, and its last item in `land`.

@@ -762,3 +762,76 @@ fn a_late_timer_does_not_send_a_periodic_message_twice() {
     assert_eq!(count(&b.sent()), 0, "{first:?}");
     assert!(b.conn.poll_timeout().is_some_and(|t| t > b.now));
 }
+
+#[test]
+fn before_the_estimate_a_fix_gives_the_home_and_the_position_and_the_prearm_bit_is_told() {
+    use crate::core::gps::{Fix, GpsSample, LiveFix};
+    let mut b = Bench::new();
+    b.beat(GCS);
+    b.pass_ms(1);
+    b.sent();
+    let fix = LiveFix {
+        seq: 1,
+        fix: Fix {
+            mode: 3,
+            lat_deg: -34.9,
+            lon_deg: -56.16,
+            alt_m: Some(40.0),
+            eph_m: Some(1.0),
+        },
+        sample: GpsSample::at([2.0, 1.0, 0.5]),
+        stamp_us: 1_000,
+    };
+    let status = VehicleStatus {
+        fix: Some(fix),
+        gps_used: true,
+        prearm_ok: Some(false),
+        ..VehicleStatus::default()
+    };
+    b.conn.handle_status(b.now, status.clone());
+    b.pass_ms(1_100);
+    let out = b.sent();
+    let position = out.iter().find_map(|m| match m {
+        MavMessage::GLOBAL_POSITION_INT(p) => Some(p.clone()),
+        _ => None,
+    });
+    let p = position.expect("GLOBAL_POSITION_INT from the fix");
+    assert_eq!(
+        (p.lat, p.lon, p.alt, p.relative_alt),
+        (-349_000_000, -561_600_000, 40_000, 0)
+    );
+    let prearm = MavSysStatusSensor::MAV_SYS_STATUS_PREARM_CHECK;
+    let bit = |out: &[MavMessage]| {
+        out.iter().find_map(|m| match m {
+            MavMessage::SYS_STATUS(s) => Some((
+                s.onboard_control_sensors_present.contains(prearm),
+                s.onboard_control_sensors_health.contains(prearm),
+            )),
+            _ => None,
+        })
+    };
+    assert_eq!(bit(&out), Some((true, false)));
+    // HOME_POSITION on request, from where the vehicle stands.
+    b.hear(GCS, command(MavCmd::MAV_CMD_REQUEST_MESSAGE, 242.0));
+    let out = b.sent();
+    assert_eq!(
+        acks(&out),
+        [(
+            MavCmd::MAV_CMD_REQUEST_MESSAGE,
+            MavResult::MAV_RESULT_ACCEPTED
+        )]
+    );
+    let home = out.iter().find_map(|m| match m {
+        MavMessage::HOME_POSITION(h) => Some((h.latitude, h.altitude, h.x, h.y)),
+        _ => None,
+    });
+    assert_eq!(home, Some((-349_000_000, 40_000, 2.0, -1.0)));
+    // The checks pass: the bit is healthy.
+    let passing = VehicleStatus {
+        prearm_ok: Some(true),
+        ..status
+    };
+    b.conn.handle_status(b.now, passing);
+    b.pass_ms(1_000);
+    assert_eq!(bit(&b.sent()), Some((true, true)));
+}
