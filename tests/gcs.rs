@@ -368,7 +368,8 @@ fn the_link_runs_over_a_serial_radio() {
 }
 
 /// A mission uploaded by a ground station (MISSION_COUNT, MISSION_REQUEST_INT,
-/// MISSION_ITEM_INT, MISSION_ACK), downloaded back, started with MISSION_START and followed
+/// MISSION_ITEM_INT, MISSION_ACK), downloaded back, started by asking for the Mission mode
+/// (DO_SET_MODE AUTO MISSION, as MAVSDK sends it) and followed
 /// with MISSION_CURRENT and MISSION_ITEM_REACHED; the upload is a file in the run folder,
 /// and the run replays to the same bytes.
 #[test]

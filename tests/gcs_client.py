@@ -6,10 +6,12 @@ folder) on stdin. The script flies a scenario, prints one JSON line of what it m
 exits 0; on a failed expectation it prints why and exits 1.
 
 Scenarios:
-  fly PARAM_COUNT  heartbeat, parameters, a refused arm, arm, takeoff to 1.5 m, land.
+  fly PARAM_COUNT  heartbeat, health before arming, parameters, FTP, a refused arm, arm,
+                   takeoff to 1.5 m, mode requests as the common clients send them, return,
+                   land.
   link-loss        arm, takeoff, noise and a flood, then silence: the vehicle must land.
-  mission          a refused upload, an upload, its download, arm, MISSION_START: the items
-                   reached in order, MISSION_CURRENT following them, landed at the end.
+  mission          a refused upload, an upload, its download, arm, the Mission mode asked
+                   for: the items reached in order, MISSION_CURRENT following them, landed.
 """
 
 import json
@@ -729,7 +731,9 @@ def mission(s):
         fail(f"missing items told {len(told)} times: {told}")
     arm(s)
     s.wait("ATTITUDE", lambda m: m.get_type() == "ATTITUDE")
-    after_ramp(s, mav.MAV_CMD_MISSION_START, [0] * 7)
+    # Started as QGroundControl and MAVSDK start a mission on PX4: the Mission mode (AUTO,
+    # MISSION) asked for, here as MAVSDK's DO_SET_MODE with the armed flag.
+    after_ramp(s, mav.MAV_CMD_DO_SET_MODE, [129, AUTO, MISSION_SUB, 0, 0, 0, 0])
     reached, current, states = [], [], set()
     end = time.time() + 120
     while time.time() < end:

@@ -53,8 +53,10 @@ pub const HANDLED: &[(MavCmd, &str)] = &[
     ),
     (
         MavCmd::MAV_CMD_NAV_TAKEOFF,
-        "`takeoff` to param 7 m above the takeoff point (COMMAND_INT: z in a relative frame, \
-         or -z in a local one; NaN: the profile's height); altitudes above sea level refused",
+        "`takeoff` to param 7 m above the takeoff point (NaN: the profile's height; COMMAND_INT: \
+         z in a relative frame, or -z in a local one, a global frame refused); param 7 as an \
+         altitude above sea level (PX4's clients) when the ground's is known and only that \
+         reading is a height a takeoff may go to, refused when both are",
     ),
     (MavCmd::MAV_CMD_NAV_LAND, "`land`"),
     (
@@ -74,8 +76,9 @@ pub const HANDLED: &[(MavCmd, &str)] = &[
     (
         MavCmd::MAV_CMD_DO_SET_MODE,
         "param 1 with the custom-mode flag; param 2 PX4's main mode and param 3 its sub mode \
-         (or param 2 a packed custom mode): AUTO with LOITER `hold`, TAKEOFF `takeoff`, LAND \
-         `land`, MISSION `start`, RTL `return`; a mode uquad does not have is refused, named",
+         (or param 2 a packed custom mode): AUTO with LOITER `hold` (`pause` while a mission \
+         flies), TAKEOFF `takeoff`, LAND `land`, MISSION `start` (`resume` a paused mission), \
+         RTL `return`; a mode uquad does not have is refused, named",
     ),
     (
         MavCmd::MAV_CMD_DO_SET_STANDARD_MODE,

@@ -31,21 +31,26 @@ impl Kind {
 }
 
 /// The number a PARAM_SET carries, whatever type its sender declared: REAL32 as it is; an
-/// integer type as the number when the float is a whole number (C cast), else as the
-/// integer its bytes hold (bytewise: small integers are tiny fractions as floats).
+/// integer type as the number (C cast), unless the float is what an integer's bytes look
+/// like (bytewise): a subnormal (a small positive integer) or a NaN whose bytes are a small
+/// negative one. A fraction stays a fraction (an integer key refuses it, named).
 pub fn set_value(value: f32, declared: MavParamType) -> f32 {
     use MavParamType::*;
-    let whole = value.is_finite() && value.fract() == 0.0;
+    const EXACT: i64 = 1 << 24;
     let bits = value.to_bits();
-    match declared {
-        MAV_PARAM_TYPE_REAL32 | MAV_PARAM_TYPE_REAL64 => value,
-        _ if whole => value,
-        MAV_PARAM_TYPE_UINT8 => f32::from(bits as u8),
-        MAV_PARAM_TYPE_INT8 => f32::from(bits as u8 as i8),
-        MAV_PARAM_TYPE_UINT16 => f32::from(bits as u16),
-        MAV_PARAM_TYPE_INT16 => f32::from(bits as u16 as i16),
-        MAV_PARAM_TYPE_UINT32 | MAV_PARAM_TYPE_UINT64 => bits as f32,
-        MAV_PARAM_TYPE_INT32 | MAV_PARAM_TYPE_INT64 => bits as i32 as f32,
+    let bytewise = match declared {
+        MAV_PARAM_TYPE_REAL32 | MAV_PARAM_TYPE_REAL64 => None,
+        MAV_PARAM_TYPE_UINT8 => Some(i64::from(bits as u8)),
+        MAV_PARAM_TYPE_INT8 => Some(i64::from(bits as u8 as i8)),
+        MAV_PARAM_TYPE_UINT16 => Some(i64::from(bits as u16)),
+        MAV_PARAM_TYPE_INT16 => Some(i64::from(bits as u16 as i16)),
+        MAV_PARAM_TYPE_UINT32 | MAV_PARAM_TYPE_UINT64 => Some(i64::from(bits)),
+        MAV_PARAM_TYPE_INT32 | MAV_PARAM_TYPE_INT64 => Some(i64::from(bits as i32)),
+    };
+    let looks_bytewise = value.is_subnormal() || value.is_nan();
+    match bytewise {
+        Some(i) if looks_bytewise && i.abs() <= EXACT => i as f32,
+        _ => value,
     }
 }
 
@@ -231,8 +236,13 @@ mod tests {
         );
         assert_eq!(set_value(f32::from_bits(1), MAV_PARAM_TYPE_UINT8), 1.0);
         assert_eq!(set_value(0.0, MAV_PARAM_TYPE_UINT8), 0.0);
-        // A fraction declared REAL32 stays a fraction (and is refused for an integer key).
+        // A fraction stays a fraction whatever the declared type (an integer key refuses
+        // it); so does a NaN that is not an integer's bytes, and an infinity.
         assert_eq!(set_value(4.5, MAV_PARAM_TYPE_REAL32), 4.5);
+        assert_eq!(set_value(0.4, MAV_PARAM_TYPE_INT32), 0.4);
+        assert_eq!(set_value(0.5, MAV_PARAM_TYPE_UINT8), 0.5);
+        assert!(set_value(f32::NAN, MAV_PARAM_TYPE_INT32).is_nan());
+        assert!(set_value(f32::INFINITY, MAV_PARAM_TYPE_INT32).is_infinite());
     }
 
     #[test]

@@ -167,7 +167,12 @@ pub fn sys_status(s: &Snapshot) -> MavMessage {
     set(h.estimator && h.imu, control);
     set(h.fence, fence);
     set(h.logging, logging);
-    set(s.prearm == Some(true), prearm);
+    // Healthy while the checks pass, the IMU's frames arrive (the check runs at a frame: with
+    // none, its last word is stale) and the vehicle stands disarmed.
+    set(
+        s.prearm == Some(true) && h.imu && s.mode == Mode::Disarmed,
+        prearm,
+    );
     MavMessage::SYS_STATUS(SYS_STATUS_DATA {
         onboard_control_sensors_present: present,
         onboard_control_sensors_enabled: present,

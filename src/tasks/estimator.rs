@@ -14,7 +14,7 @@
 //! refused at once and recorded refused at the next frame or the run's end, never applied.
 
 use crate::core::commander::Summary as CommanderSummary;
-use crate::core::commander::{ArmFacts, Command, LinkSource, OperatorInput, expiry_reason};
+use crate::core::commander::{ArmFacts, Command, LinkSource, Mode, OperatorInput, expiry_reason};
 use crate::core::esc::EscPhase;
 use crate::core::flight::drive::{Framed, act, frame_action};
 use crate::core::flight::{
@@ -280,8 +280,9 @@ impl EstimatorTask {
 
     /// Once a second: what an `arm` would be told now, for a ground station's pre-arm bit
     /// (the facts as an `arm` gathers them; nothing is recorded).
+    /// Only while disarmed: in flight the control path spends nothing on it.
     fn publish_prearm(&mut self, t_us: i64) {
-        if t_us < self.next_prearm_us {
+        if t_us < self.next_prearm_us || self.side.mode() != Mode::Disarmed {
             return;
         }
         self.next_prearm_us = t_us + PREARM_EVERY_US;

@@ -53,6 +53,10 @@ pub(super) fn spawn(
         stats: h.gcs_stats.clone().unwrap_or_default(),
         cancel: h.cancel.clone(),
         signing_key: profile.signing_key,
+        takeoff_heights_m: {
+            let heights = cfg.commander_params().height_range_m();
+            (*heights.start(), *heights.end())
+        },
         missions: Some(gcs::MissionDesk {
             profile: std::sync::Arc::new(profile.clone()),
             run_dir: h.run_dir.clone(),

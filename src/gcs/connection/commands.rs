@@ -3,8 +3,8 @@
 //! sender that may not command denied.
 
 use super::{Connection, Window};
-use crate::core::commander::{Command, LinkSource, OperatorInput};
-use crate::gcs::commands::{self, Args, Request};
+use crate::core::commander::{Command, LinkSource, Mode, OperatorInput};
+use crate::gcs::commands::{self, Args, Refusal, Request};
 use mavlink::dialects::common::*;
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
@@ -48,7 +48,7 @@ impl Commands {
 impl Connection {
     pub(super) fn on_command(&mut self, now: Instant, cmd: MavCmd, args: Args, from: (u8, u8)) {
         self.counts.commands += 1;
-        match commands::map(cmd, args) {
+        match commands::map(cmd, args).and_then(|r| self.in_context(cmd, args, r)) {
             Ok(Request::Commander(c)) => self.forward_command(now, c, cmd, from),
             Ok(Request::Message(id)) => {
                 let result = self.send_by_id(now, id);
@@ -69,6 +69,70 @@ impl Connection {
             }
             Err((result, why)) => self.refuse(cmd, result, &why, from),
         }
+    }
+
+    /// A request read in the vehicle's situation, where the same words mean different things:
+    /// a NAV_TAKEOFF's param 7 given above sea level (PX4's clients: the ground's altitude
+    /// plus the height) or above the takeoff point (ArduPilot's); a hold asked for as a mode
+    /// while a mission flies (PX4's pause), the Mission mode asked for while one is paused
+    /// (PX4's resume).
+    fn in_context(&self, cmd: MavCmd, args: Args, r: Request) -> Result<Request, Refusal> {
+        let mode_request = matches!(
+            cmd,
+            MavCmd::MAV_CMD_DO_SET_MODE | MavCmd::MAV_CMD_DO_SET_STANDARD_MODE
+        );
+        let c = match r {
+            Request::Commander(c) => c,
+            other => return Ok(other),
+        };
+        let c = match c {
+            Command::Takeoff(Some(h))
+                if cmd == MavCmd::MAV_CMD_NAV_TAKEOFF && args.frame.is_none() =>
+            {
+                Command::Takeoff(Some(self.takeoff_height(h)?))
+            }
+            Command::Hold(None) if mode_request && self.status.mode == Mode::Mission => {
+                Command::Pause
+            }
+            Command::Start if mode_request && self.mission_paused() => Command::Resume,
+            c => c,
+        };
+        Ok(Request::Commander(c))
+    }
+
+    /// NAV_TAKEOFF's param 7 as a height above the takeoff point: as it is, or, when the
+    /// ground's altitude above sea level is known and only the difference is a height a
+    /// takeoff may go to, that difference. Both readings possible (a site near sea level):
+    /// refused, rather than guessed.
+    fn takeoff_height(&self, p7: f64) -> Result<f64, Refusal> {
+        let (lo, hi) = self.s.takeoff_heights_m;
+        let height = |h: f64| (lo..=hi).contains(&h);
+        let Some(ground) = self.ground_alt_m else {
+            return Ok(p7);
+        };
+        let above_ground = p7 - ground;
+        match (height(p7), height(above_ground)) {
+            (true, true) => Err((
+                MavResult::MAV_RESULT_DENIED,
+                format!(
+                    "takeoff {p7} m: a height above the takeoff point, or an altitude {:.1} m \
+                     above the ground here ({ground:.1} m above sea level)? Send NaN for the \
+                     profile's height, or COMMAND_INT in a relative frame",
+                    above_ground
+                ),
+            )),
+            (false, true) => Ok(above_ground),
+            _ => Ok(p7),
+        }
+    }
+
+    /// A mission is paused where it got to (hold, its item kept).
+    fn mission_paused(&self) -> bool {
+        self.status.live.is_some_and(|l| {
+            let flying = matches!(l.mode, Mode::Mission | Mode::Land);
+            self.mission_status(l.mission_item, flying)
+                .is_some_and(|m| m.state == MissionState::MISSION_STATE_PAUSED)
+        })
     }
 
     fn ack(&mut self, cmd: MavCmd, result: MavResult, to: (u8, u8)) {

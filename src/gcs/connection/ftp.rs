@@ -50,6 +50,10 @@ pub fn answer(req: &[u8; 251]) -> [u8; 251] {
 impl Connection {
     /// A FILE_TRANSFER_PROTOCOL request for this vehicle: answered at once, to its sender.
     pub(super) fn on_ftp(&mut self, f: FILE_TRANSFER_PROTOCOL_DATA, from: (u8, u8)) {
+        // A reply (ACK or NAK) is not a request: never answered, or two ends would loop.
+        if f.payload[3] >= RSP_ACK {
+            return;
+        }
         let msg = MavMessage::FILE_TRANSFER_PROTOCOL(FILE_TRANSFER_PROTOCOL_DATA {
             target_network: 0,
             target_system: from.0,

@@ -93,6 +93,8 @@ pub struct Settings {
     pub params_per_pace: usize,
     /// Planning uploads (none: uploads are refused).
     pub missions: Option<MissionSettings>,
+    /// The heights a takeoff may go to above the takeoff point, m (the commander's).
+    pub takeoff_heights_m: (f64, f64),
 }
 
 /// The link's counters, as the run's report gives them.
@@ -239,8 +241,10 @@ pub struct Connection {
     text_id: u16,
     /// The newest `now` the protocol was given.
     latest: Instant,
-    /// Where the vehicle stood on the ground by a fix (see `note_ground_home`).
+    /// Where the vehicle stood on the ground by a fix (see `note_ground_home`), and that
+    /// fix's altitude above sea level, m.
     ground_home_m: Option<[f64; 3]>,
+    ground_alt_m: Option<f64>,
     /// The signing clock as the owner last read it.
     signing_time: Option<u64>,
     /// A serial stream's held bytes are looked at again then (see [`STALL`]).
@@ -284,6 +288,7 @@ impl Connection {
             text_id: 0,
             latest: now,
             ground_home_m: None,
+            ground_alt_m: None,
             signing_time: None,
             stall_check_at: None,
             counts: Counts::default(),
@@ -441,6 +446,7 @@ impl Connection {
             let home = Some([f.sample.xy_m[0], f.sample.xy_m[1], z]);
             let changed = home != self.ground_home_m;
             self.ground_home_m = home;
+            self.ground_alt_m = f.fix.alt_m;
             return changed;
         }
         false
@@ -592,13 +598,18 @@ impl Connection {
                 };
                 self.on_command(now, c.command, args, from);
             }
-            // The superseded SET_MODE is read as DO_SET_MODE (and answered so): one reading
-            // of a mode request, refusing what uquad's numbering cannot say.
+            // The superseded SET_MODE (QGroundControl's way to set a PX4 mode) is read as
+            // DO_SET_MODE with its main and sub mode, and answered so.
             #[allow(deprecated)]
             MavMessage::SET_MODE(m) if self.for_us(m.target_system, 0) => {
                 let mut p = [0.0; 7];
                 p[0] = f32::from(m.base_mode.bits());
-                p[1] = m.custom_mode as f32;
+                // PX4's packing, read from the integer (a float would round away low bits,
+                // which must be 0: anything else is not a PX4 mode, and is refused).
+                let (main, sub) = crate::gcs::modes::unpack(m.custom_mode);
+                let packed = m.custom_mode & 0xffff == 0;
+                p[1] = if packed { f32::from(main) } else { f32::NAN };
+                p[2] = f32::from(sub);
                 let args = Args { p, frame: None };
                 self.on_command(now, MavCmd::MAV_CMD_DO_SET_MODE, args, from);
             }

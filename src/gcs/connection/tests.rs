@@ -34,6 +34,7 @@ fn settings(boot: Instant) -> Settings {
             hover_z_m: 1.0,
             loaded_items: None,
         }),
+        takeoff_heights_m: (0.2, 3.0),
     }
 }
 
@@ -786,6 +787,7 @@ fn before_the_estimate_a_fix_gives_the_home_and_the_position_and_the_prearm_bit_
         fix: Some(fix),
         gps_used: true,
         prearm_ok: Some(false),
+        imu_frames: 100,
         ..VehicleStatus::default()
     };
     b.conn.handle_status(b.now, status.clone());
@@ -829,9 +831,124 @@ fn before_the_estimate_a_fix_gives_the_home_and_the_position_and_the_prearm_bit_
     // The checks pass: the bit is healthy.
     let passing = VehicleStatus {
         prearm_ok: Some(true),
-        ..status
+        imu_frames: 200,
+        ..status.clone()
     };
-    b.conn.handle_status(b.now, passing);
+    b.conn.handle_status(b.now, passing.clone());
     b.pass_ms(1_000);
     assert_eq!(bit(&b.sent()), Some((true, true)));
+    // No frames since: the check's last word is stale, and not told as healthy.
+    b.conn.handle_status(b.now, passing);
+    b.pass_ms(1_000);
+    assert_eq!(bit(&b.sent()), Some((true, false)));
+}
+
+/// A vehicle standing still at `alt_m` above sea level, by a fresh 3-D fix.
+fn standing_at(b: &mut Bench, alt_m: f64) {
+    use crate::core::gps::{Fix, GpsSample, LiveFix};
+    let stamp_us = b.now.saturating_duration_since(b.conn.s.boot).as_micros() as i64;
+    let fix = LiveFix {
+        seq: 1,
+        fix: Fix {
+            mode: 3,
+            lat_deg: -34.9,
+            lon_deg: -56.16,
+            alt_m: Some(alt_m),
+            eph_m: Some(1.0),
+        },
+        sample: GpsSample::at([0.0, 0.0, 0.0]),
+        stamp_us,
+    };
+    let status = VehicleStatus {
+        fix: Some(fix),
+        gps_used: true,
+        ..VehicleStatus::default()
+    };
+    b.conn.handle_status(b.now, status);
+}
+
+fn takeoff_to(p7: f32) -> MavMessage {
+    MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
+        target_system: 1,
+        target_component: 1,
+        command: MavCmd::MAV_CMD_NAV_TAKEOFF,
+        param7: p7,
+        ..COMMAND_LONG_DATA::DEFAULT
+    })
+}
+
+#[test]
+fn a_takeoff_altitude_above_sea_level_is_read_as_the_height_it_means() {
+    let mut b = Bench::new();
+    b.beat(GCS);
+    standing_at(&mut b, 40.0);
+    b.operator();
+    // PX4's clients: the ground's altitude plus the height; ArduPilot's: the height.
+    b.hear(GCS, takeoff_to(42.5));
+    b.hear(GCS, takeoff_to(1.5));
+    assert_eq!(
+        b.operator(),
+        [
+            OperatorInput::Command(Command::Takeoff(Some(2.5)), LinkSource::Gcs),
+            OperatorInput::Command(Command::Takeoff(Some(1.5)), LinkSource::Gcs)
+        ]
+    );
+    // Near sea level both readings are heights: refused, not guessed.
+    let mut b = Bench::new();
+    b.beat(GCS);
+    standing_at(&mut b, 1.0);
+    b.operator();
+    b.sent();
+    b.hear(GCS, takeoff_to(2.5));
+    assert!(b.operator().is_empty());
+    let out = b.sent();
+    assert_eq!(
+        acks(&out),
+        [(MavCmd::MAV_CMD_NAV_TAKEOFF, MavResult::MAV_RESULT_DENIED)]
+    );
+    assert!(Bench::texts(&out)[0].contains("above sea level"), "{out:?}");
+}
+
+#[test]
+fn hold_asked_as_a_mode_pauses_a_mission_and_the_mission_mode_resumes_it() {
+    let mut b = Bench::with(|s| {
+        if let Some(m) = s.missions.as_mut() {
+            m.loaded_items = Some(3);
+        }
+    });
+    b.beat(GCS);
+    b.status(Mode::Mission);
+    b.operator();
+    b.hear(GCS, command_p(MavCmd::MAV_CMD_DO_SET_MODE, [1.0, 4.0, 3.0]));
+    assert_eq!(
+        b.operator(),
+        [OperatorInput::Command(Command::Pause, LinkSource::Gcs)]
+    );
+    // Paused at item 1, holding: the Mission mode resumes it.
+    let mut live = b.conn.status.live.unwrap();
+    live.mode = Mode::Hold;
+    live.mission_item = Some(1);
+    let paused = VehicleStatus {
+        mode: Mode::Hold,
+        live: Some(live),
+        ..b.conn.status.clone()
+    };
+    b.conn.handle_status(b.now, paused);
+    b.hear(GCS, command_p(MavCmd::MAV_CMD_DO_SET_MODE, [1.0, 4.0, 4.0]));
+    assert_eq!(
+        b.operator(),
+        [OperatorInput::Command(Command::Resume, LinkSource::Gcs)]
+    );
+}
+
+fn command_p(cmd: MavCmd, p: [f32; 3]) -> MavMessage {
+    MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
+        target_system: 1,
+        target_component: 1,
+        command: cmd,
+        param1: p[0],
+        param2: p[1],
+        param3: p[2],
+        ..COMMAND_LONG_DATA::DEFAULT
+    })
 }

@@ -51,6 +51,8 @@ pub struct GcsContext {
     pub missions: Option<MissionDesk>,
     /// MAVLink 2 signing's key (`gcs.signing_key_file`; none: off).
     pub signing_key: Option<crate::config::SigningKey>,
+    /// The heights a takeoff may go to above the takeoff point, m.
+    pub takeoff_heights_m: (f64, f64),
 }
 
 /// What the link needs to plan an upload: the profile (its checks, weights and speeds) and
@@ -94,6 +96,7 @@ fn settings(ctx: &GcsContext, link: &Link, now: Instant) -> Settings {
         gps_timeout_us: ctx.gps_timeout_us,
         datagrams: !link.is_serial(),
         params_per_pace: link.params_per_tick(),
+        takeoff_heights_m: ctx.takeoff_heights_m,
         missions: ctx.missions.as_ref().map(|d| MissionSettings {
             speed_m_s: d.profile.config.mission.speed_m_s,
             hover_z_m: d.profile.config.control.hover_z_m,
