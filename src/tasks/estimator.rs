@@ -278,9 +278,9 @@ impl EstimatorTask {
         }
     }
 
-    /// Once a second: what an `arm` would be told now, for a ground station's pre-arm bit
+    /// Once a second while disarmed (in flight the control path spends nothing on it): what
+    /// an `arm` would be told now by the pre-arm checks, for a ground station's pre-arm bit
     /// (the facts as an `arm` gathers them; nothing is recorded).
-    /// Only while disarmed: in flight the control path spends nothing on it.
     fn publish_prearm(&mut self, t_us: i64) {
         if t_us < self.next_prearm_us || self.side.mode() != Mode::Disarmed {
             return;

@@ -56,8 +56,7 @@ pub enum Mode {
 
 impl Mode {
     /// Every mode, in a fixed order: a mode's index in it is how a mode crosses a thread in
-    /// an atomic, and HEARTBEAT's custom mode (`gcs::telemetry::CUSTOM_MODES`; a mode added
-    /// goes at the end).
+    /// an atomic, and the ULog export's `custom_mode` (a mode added goes at the end).
     pub const ALL: [Mode; 8] = [
         Mode::Disarmed,
         Mode::Armed,
