@@ -514,11 +514,14 @@ def mode_requests(s):
     s.conn.mav.command_long_send(1, 1, mav.MAV_CMD_REQUEST_MESSAGE, 0, 435, 0, 0, 0, 0, 0, 0)
     listed = {}
     end = time.time() + LONG
-    while len(listed) < 5 and time.time() < end:
+    while len(listed) < 6 and time.time() < end:
         m = s.pump()
         if m is not None and m.get_type() == "AVAILABLE_MODES":
-            listed[m.mode_index] = (m.mode_name, m.standard_mode, m.custom_mode)
-    if sorted(n for n, _, _ in listed.values()) != ["Hold", "Land", "Mission", "Return", "Takeoff"]:
+            listed[m.mode_index] = (m.mode_name, m.properties, m.number_modes)
+    selectable = sorted(
+        n for n, p, _ in listed.values() if not p & mav.MAV_MODE_PROPERTY_NOT_USER_SELECTABLE
+    )
+    if selectable != ["Hold", "Land", "Mission", "Return", "Takeoff"] or len(listed) != 6:
         fail(f"AVAILABLE_MODES: {listed}")
     current = s.wait("CURRENT_MODE", lambda m: m.get_type() == "CURRENT_MODE")
     if current.custom_mode != HOLD:

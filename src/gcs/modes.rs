@@ -73,60 +73,72 @@ pub fn standard_mode(mode: Mode) -> MavStandardMode {
     }
 }
 
-/// A mode a ground station may ask for: its name, its custom mode, its standard mode, and
-/// the commander's command that enters it.
+/// A mode AVAILABLE_MODES lists: its name, its custom mode, its standard mode, and the
+/// commander's command that enters it (none: a ground station may not ask for it).
 pub struct Selectable {
     pub name: &'static str,
     pub custom_mode: u32,
     pub standard: MavStandardMode,
-    pub command: Command,
+    pub command: Option<Command>,
     pub properties: MavModeProperty,
 }
 
-/// The modes AVAILABLE_MODES lists, in its order (1-based there).
-pub const SELECTABLE: [Selectable; 5] = [
+/// The modes AVAILABLE_MODES lists, in its order (1-based there): those a ground station may
+/// ask for, and the kill's, which CURRENT_MODE may name but no request enters.
+pub const SELECTABLE: [Selectable; 6] = [
     Selectable {
         name: "Hold",
         custom_mode: pack(MAIN_AUTO, SUB_LOITER),
         standard: MavStandardMode::MAV_STANDARD_MODE_NON_STANDARD,
-        command: Command::Hold(None),
+        command: Some(Command::Hold(None)),
         properties: MavModeProperty::MAV_MODE_PROPERTY_AUTO_MODE,
     },
     Selectable {
         name: "Takeoff",
         custom_mode: pack(MAIN_AUTO, SUB_TAKEOFF),
         standard: MavStandardMode::MAV_STANDARD_MODE_TAKEOFF,
-        command: Command::Takeoff(None),
+        command: Some(Command::Takeoff(None)),
         properties: MavModeProperty::MAV_MODE_PROPERTY_AUTO_MODE,
     },
     Selectable {
         name: "Land",
         custom_mode: pack(MAIN_AUTO, SUB_LAND),
         standard: MavStandardMode::MAV_STANDARD_MODE_LAND,
-        command: Command::Land,
+        command: Some(Command::Land),
         properties: MavModeProperty::MAV_MODE_PROPERTY_AUTO_MODE,
     },
     Selectable {
         name: "Mission",
         custom_mode: pack(MAIN_AUTO, SUB_MISSION),
         standard: MavStandardMode::MAV_STANDARD_MODE_MISSION,
-        command: Command::Start,
+        command: Some(Command::Start),
         properties: MavModeProperty::MAV_MODE_PROPERTY_AUTO_MODE,
     },
     Selectable {
         name: "Return",
         custom_mode: pack(MAIN_AUTO, SUB_RTL),
         standard: MavStandardMode::MAV_STANDARD_MODE_SAFE_RECOVERY,
-        command: Command::Return,
+        command: Some(Command::Return),
         properties: MavModeProperty::MAV_MODE_PROPERTY_AUTO_MODE,
+    },
+    Selectable {
+        name: "Terminated",
+        custom_mode: pack(MAIN_MANUAL, 0),
+        standard: MavStandardMode::MAV_STANDARD_MODE_NON_STANDARD,
+        command: None,
+        properties: MavModeProperty::MAV_MODE_PROPERTY_NOT_USER_SELECTABLE,
     },
 ];
 
 /// The command entering PX4 mode (`main`, `sub`), or why uquad has no such mode.
 pub fn command_of(main: u8, sub: u8) -> Result<Command, String> {
     let custom = pack(main, sub);
-    if let Some(s) = SELECTABLE.iter().find(|s| s.custom_mode == custom) {
-        return Ok(s.command);
+    if let Some(c) = SELECTABLE
+        .iter()
+        .find(|s| s.custom_mode == custom)
+        .and_then(|s| s.command)
+    {
+        return Ok(c);
     }
     let name = match (main, sub) {
         (MAIN_AUTO, SUB_READY) => "ready (entered by arming, or by landing)",
@@ -150,7 +162,7 @@ pub fn command_of_standard(mode: u32) -> Result<Command, String> {
     SELECTABLE
         .iter()
         .find(|s| s.standard as u32 == mode && mode != 0)
-        .map(|s| s.command)
+        .and_then(|s| s.command)
         .ok_or_else(|| {
             format!(
                 "standard mode {mode}: uquad takes takeoff (8), land (7), mission (6) and safe \

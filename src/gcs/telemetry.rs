@@ -113,7 +113,8 @@ pub fn current_mode(s: &Snapshot) -> MavMessage {
     })
 }
 
-/// AVAILABLE_MODES: every mode a ground station may ask for, one message each.
+/// AVAILABLE_MODES: every mode a ground station may ask for, and the kill's (not
+/// selectable), one message each.
 pub fn available_modes() -> Vec<MavMessage> {
     let n = modes::SELECTABLE.len() as u8;
     modes::SELECTABLE

@@ -287,7 +287,8 @@ impl EstimatorTask {
         }
         self.next_prearm_us = t_us + PREARM_EVERY_US;
         let facts = self.arm_facts(t_us);
-        let pass = self.side.prearm_verdict(&facts, t_us).is_ok();
+        let pass =
+            self.side.commander().may_arm() && self.side.prearm_verdict(&facts, t_us).is_ok();
         self.prearm.verdict.set(pass);
     }
 

@@ -596,6 +596,12 @@ impl Commander {
         }
     }
 
+    /// An `arm` would get past the commander's own rules now (disarmed, never landed or
+    /// killed in this run); the pre-arm checks are the driver's.
+    pub fn may_arm(&self) -> bool {
+        self.mode == Mode::Disarmed && !self.spent
+    }
+
     /// An operator's command at `t_us`; `arm_verdict` is the pre-arm checks' (only `arm`
     /// reads it). `est` is the newest estimate, if any.
     pub fn command(
