@@ -134,7 +134,8 @@ pub const RECEIVED: &[(&str, &str)] = &[
     ),
     (
         "SET_MODE",
-        "read as DO_SET_MODE (base mode, custom mode) and answered so",
+        "QGroundControl's way to set a PX4 mode: read as DO_SET_MODE with the custom mode's \
+         main and sub mode (its low 16 bits must be 0), and answered so",
     ),
     (
         "PARAM_REQUEST_LIST",
