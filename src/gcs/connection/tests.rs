@@ -151,14 +151,42 @@ impl Bench {
     }
 }
 
-fn command(cmd: MavCmd, p1: f32) -> MavMessage {
+/// COMMAND_LONG `cmd` to this vehicle with params 1 to 7.
+fn command_long(cmd: MavCmd, p: [f32; 7]) -> MavMessage {
     MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
         target_system: 1,
         target_component: 1,
         command: cmd,
-        param1: p1,
+        param1: p[0],
+        param2: p[1],
+        param3: p[2],
+        param4: p[3],
+        param5: p[4],
+        param6: p[5],
+        param7: p[6],
         ..COMMAND_LONG_DATA::DEFAULT
     })
+}
+
+fn command(cmd: MavCmd, p1: f32) -> MavMessage {
+    command_long(cmd, [p1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+}
+
+/// A fresh 3-D fix at `alt_m` above sea level, at `local_m` in the local frame.
+fn fix_at(alt_m: f64, local_m: [f64; 3], stamp_us: i64) -> crate::core::gps::LiveFix {
+    use crate::core::gps::{Fix, GpsSample, LiveFix};
+    LiveFix {
+        seq: 1,
+        fix: Fix {
+            mode: 3,
+            lat_deg: -34.9,
+            lon_deg: -56.16,
+            alt_m: Some(alt_m),
+            eph_m: Some(1.0),
+        },
+        sample: GpsSample::at(local_m),
+        stamp_us,
+    }
 }
 
 fn acks(msgs: &[MavMessage]) -> Vec<(MavCmd, MavResult)> {
@@ -766,23 +794,11 @@ fn a_late_timer_does_not_send_a_periodic_message_twice() {
 
 #[test]
 fn before_the_estimate_a_fix_gives_the_home_and_the_position_and_the_prearm_bit_is_told() {
-    use crate::core::gps::{Fix, GpsSample, LiveFix};
     let mut b = Bench::new();
     b.beat(GCS);
     b.pass_ms(1);
     b.sent();
-    let fix = LiveFix {
-        seq: 1,
-        fix: Fix {
-            mode: 3,
-            lat_deg: -34.9,
-            lon_deg: -56.16,
-            alt_m: Some(40.0),
-            eph_m: Some(1.0),
-        },
-        sample: GpsSample::at([2.0, 1.0, 0.5]),
-        stamp_us: 1_000,
-    };
+    let fix = fix_at(40.0, [2.0, 1.0, 0.5], 1_000);
     let status = VehicleStatus {
         fix: Some(fix),
         gps_used: true,
@@ -845,20 +861,8 @@ fn before_the_estimate_a_fix_gives_the_home_and_the_position_and_the_prearm_bit_
 
 /// A vehicle standing still at `alt_m` above sea level, by a fresh 3-D fix.
 fn standing_at(b: &mut Bench, alt_m: f64) {
-    use crate::core::gps::{Fix, GpsSample, LiveFix};
     let stamp_us = b.now.saturating_duration_since(b.conn.s.boot).as_micros() as i64;
-    let fix = LiveFix {
-        seq: 1,
-        fix: Fix {
-            mode: 3,
-            lat_deg: -34.9,
-            lon_deg: -56.16,
-            alt_m: Some(alt_m),
-            eph_m: Some(1.0),
-        },
-        sample: GpsSample::at([0.0, 0.0, 0.0]),
-        stamp_us,
-    };
+    let fix = fix_at(alt_m, [0.0; 3], stamp_us);
     let status = VehicleStatus {
         fix: Some(fix),
         gps_used: true,
@@ -868,13 +872,10 @@ fn standing_at(b: &mut Bench, alt_m: f64) {
 }
 
 fn takeoff_to(p7: f32) -> MavMessage {
-    MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
-        target_system: 1,
-        target_component: 1,
-        command: MavCmd::MAV_CMD_NAV_TAKEOFF,
-        param7: p7,
-        ..COMMAND_LONG_DATA::DEFAULT
-    })
+    command_long(
+        MavCmd::MAV_CMD_NAV_TAKEOFF,
+        [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, p7],
+    )
 }
 
 #[test]
@@ -919,7 +920,7 @@ fn hold_asked_as_a_mode_pauses_a_mission_and_the_mission_mode_resumes_it() {
     b.beat(GCS);
     b.status(Mode::Mission);
     b.operator();
-    b.hear(GCS, command_p(MavCmd::MAV_CMD_DO_SET_MODE, [1.0, 4.0, 3.0]));
+    b.hear(GCS, set_mode([1.0, 4.0, 3.0]));
     assert_eq!(
         b.operator(),
         [OperatorInput::Command(Command::Pause, LinkSource::Gcs)]
@@ -934,21 +935,17 @@ fn hold_asked_as_a_mode_pauses_a_mission_and_the_mission_mode_resumes_it() {
         ..b.conn.status.clone()
     };
     b.conn.handle_status(b.now, paused);
-    b.hear(GCS, command_p(MavCmd::MAV_CMD_DO_SET_MODE, [1.0, 4.0, 4.0]));
+    b.hear(GCS, set_mode([1.0, 4.0, 4.0]));
     assert_eq!(
         b.operator(),
         [OperatorInput::Command(Command::Resume, LinkSource::Gcs)]
     );
 }
 
-fn command_p(cmd: MavCmd, p: [f32; 3]) -> MavMessage {
-    MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
-        target_system: 1,
-        target_component: 1,
-        command: cmd,
-        param1: p[0],
-        param2: p[1],
-        param3: p[2],
-        ..COMMAND_LONG_DATA::DEFAULT
-    })
+/// DO_SET_MODE with base mode, main mode and sub mode.
+fn set_mode(p: [f32; 3]) -> MavMessage {
+    command_long(
+        MavCmd::MAV_CMD_DO_SET_MODE,
+        [p[0], p[1], p[2], 0.0, 0.0, 0.0, 0.0],
+    )
 }

@@ -144,7 +144,9 @@ pub async fn run(mut link: Link, mut ctx: GcsContext) {
             },
         };
         let t0 = thread_cpu_ns();
-        conn.set_signing_time(crate::gcs::signing::now());
+        if ctx.signing_key.is_some() {
+            conn.set_signing_time(crate::gcs::signing::now());
+        }
         match wake {
             Wake::Timer => {
                 fresh_status(&mut conn, &mut ctx);
@@ -171,7 +173,9 @@ pub async fn run(mut link: Link, mut ctx: GcsContext) {
     }
     // The run ends: what the flight said last (a halt, the kill) still reaches the ground
     // station, with a last heartbeat.
-    conn.set_signing_time(crate::gcs::signing::now());
+    if ctx.signing_key.is_some() {
+        conn.set_signing_time(crate::gcs::signing::now());
+    }
     fresh_status(&mut conn, &mut ctx);
     conn.handle_end(Instant::now());
     drive(&mut conn, &mut link, &ctx, &plans_tx);
