@@ -93,6 +93,50 @@ fn the_main_job_flies_the_whole_cycle_and_lands_softly() {
     assert!(r["simulated_s"].as_f64().unwrap() < 55.0, "{r}");
 }
 
+/// Three flights in one run: each armed, flown and landed, each in the report with its own
+/// figures, and the run replayed to identical bytes. A profile that calibrates after arming
+/// flies once and says why a second arm is refused.
+#[test]
+fn a_run_flies_three_flights_each_reported_and_replays_them_exactly() {
+    let script = "arm@7,takeoff@10,land@22,arm@40,takeoff@43,land@55,arm@72,takeoff@75,land@87";
+    let (ok, r, logs) = fast(&["--script", script, "--duration", "120"]);
+    let cycle = ["armed", "takeoff", "hold", "land", "disarmed"];
+    let mut want = vec!["disarmed"];
+    for _ in 0..3 {
+        want.extend(cycle);
+    }
+    assert_eq!(report_modes(&r), want, "{r}");
+    let flights = r["flights"].as_array().expect("flights");
+    assert_eq!(flights.len(), 3, "{r}");
+    for (f, armed_s) in flights.iter().zip([7.0, 40.0, 72.0]) {
+        assert_eq!(f["armed_s"].as_f64(), Some(armed_s), "{f}");
+        assert_eq!(f["end_mode"], "disarmed", "{f}");
+        assert_eq!(f["end_why"], "touchdown", "{f}");
+        let v = f["touchdown"]["v_m_s"].as_f64().unwrap_or(f64::NAN);
+        assert!(v <= 0.5, "touchdown at {v} m/s: {f}");
+        let over = f["takeoff"]["overshoot_m"].as_f64().unwrap_or(f64::NAN);
+        assert!(over <= 0.05, "overshoot {over} m: {f}");
+        assert!(f["touchdown"]["t_s"].as_f64().unwrap() > armed_s, "{f}");
+    }
+    assert_landed(ok, &r, 0.5);
+    let run = run_dir(logs.path());
+    assert_replays_same(&run, &["mode.log", "x_hat.log", "w.log", "int.log"]);
+
+    let (_, r, _logs) = fast(&[
+        "--set",
+        "imu.calibrate=\"after-arm\"",
+        "--script",
+        "arm@2,takeoff@6,land@14,arm@30",
+        "--duration",
+        "40",
+    ]);
+    assert!(
+        refusal(&r, "arm").starts_with("landed: one flight per run in this profile"),
+        "{r}"
+    );
+    assert_eq!(r["flights"].as_array().map(Vec::len), Some(1), "{r}");
+}
+
 #[test]
 fn a_lost_link_lands_without_a_cut() {
     let (ok, r, _logs) = fast(&["--inject", "link-loss@30"]);

@@ -96,6 +96,7 @@ fn params() -> Params {
         crash_s: 0.5,
         takeoff_timeout_s: 4.0,
         input_expiry_s: 1.0,
+        rearm: true,
         z_min_m: 0.2,
         z_max_m: 3.0,
         mission: uquad::core::mission::Limits {

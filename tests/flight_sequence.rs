@@ -108,6 +108,7 @@ impl Bench {
         let esc = EscState {
             phase: self.esc,
             stop_reason: self.esc_reason,
+            starts: self.start_requests,
         };
         let action = self.estimator.on_frame(&frame, times, esc, &mut self.out);
         match &action {

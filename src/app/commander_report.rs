@@ -2,8 +2,8 @@
 //! `refusals` (the JSON fields both `fly --report` and `sim --report` carry), and its line in
 //! the exit summary.
 
-use crate::core::commander::Event;
 pub use crate::core::commander::Summary as CommanderSummary;
+use crate::core::commander::{Event, Figures, Mode};
 use crate::core::flight::sequence::REFUSALS_MAX;
 use serde::Serialize;
 
@@ -45,10 +45,77 @@ pub struct TakeoffEntry {
     pub overshoot_m: f64,
 }
 
+/// One flight of the run: from an arming to the disarm (or the kill) that ended it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FlightEntry {
+    pub armed_s: f64,
+    /// The first takeoff of the flight; none when it never took off.
+    pub takeoff_s: Option<f64>,
+    /// When and why it ended (`disarmed` or `kill`); none while it went on at the run's end.
+    pub end_s: Option<f64>,
+    pub end_mode: Option<&'static str>,
+    pub end_why: Option<String>,
+    pub takeoff: Option<TakeoffEntry>,
+    pub touchdown: Option<TouchdownEntry>,
+}
+
+fn takeoff_entry(f: &Figures) -> Option<TakeoffEntry> {
+    f.takeoff.map(|t| TakeoffEntry {
+        target_m: t.target_m,
+        overshoot_m: t.overshoot_m,
+    })
+}
+
+fn touchdown_entry(f: &Figures) -> Option<TouchdownEntry> {
+    f.touchdown.map(|t| TouchdownEntry {
+        t_s: secs(t.t_us),
+        v_m_s: t.v_m_s,
+        from_takeoff_m: t.from_takeoff_m,
+    })
+}
+
+/// The run's flights from its mode changes (an arming begins one, a disarm or a kill ends
+/// it), each with its figures (`flights`, one per arming in order).
+fn flights(events: &[Event], figures: &[Figures]) -> Vec<FlightEntry> {
+    let mut out: Vec<FlightEntry> = Vec::new();
+    for e in events {
+        let Event::Mode { t_us, mode, why } = e else {
+            continue;
+        };
+        let open = out.last_mut().filter(|f| f.end_s.is_none());
+        match (mode, open) {
+            (Mode::Armed, _) => {
+                let f = figures.get(out.len()).copied().unwrap_or_default();
+                out.push(FlightEntry {
+                    armed_s: secs(*t_us),
+                    takeoff_s: None,
+                    end_s: None,
+                    end_mode: None,
+                    end_why: None,
+                    takeoff: takeoff_entry(&f),
+                    touchdown: touchdown_entry(&f),
+                });
+            }
+            (Mode::Takeoff, Some(f)) => {
+                f.takeoff_s.get_or_insert(secs(*t_us));
+            }
+            (Mode::Disarmed | Mode::Kill, Some(f)) => {
+                f.end_s = Some(secs(*t_us));
+                f.end_mode = Some(mode.name());
+                f.end_why = Some(why.clone());
+            }
+            _ => {}
+        }
+    }
+    out
+}
+
 /// The report's commander fields.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct CommanderReport {
     pub modes: Vec<ModeEntry>,
+    /// Each flight of the run (one per arming); `takeoff` and `touchdown` are the first's.
+    pub flights: Vec<FlightEntry>,
     pub touchdown: Option<TouchdownEntry>,
     pub takeoff: Option<TakeoffEntry>,
     pub failsafes: Vec<FailsafeEntry>,
@@ -71,15 +138,9 @@ impl CommanderSummary {
     pub fn report(&self) -> CommanderReport {
         let mut r = CommanderReport {
             modes: Vec::new(),
-            touchdown: self.figures.touchdown.map(|t| TouchdownEntry {
-                t_s: secs(t.t_us),
-                v_m_s: t.v_m_s,
-                from_takeoff_m: t.from_takeoff_m,
-            }),
-            takeoff: self.figures.takeoff.map(|t| TakeoffEntry {
-                target_m: t.target_m,
-                overshoot_m: t.overshoot_m,
-            }),
+            flights: flights(&self.events, &self.flights),
+            touchdown: touchdown_entry(&self.figures),
+            takeoff: takeoff_entry(&self.figures),
             failsafes: Vec::new(),
             refusals: Vec::new(),
             refusals_total: self.refusals_total,
@@ -145,6 +206,11 @@ impl CommanderSummary {
                 t.t_s, t.v_m_s, t.from_takeoff_m
             );
         }
+        if r.flights.len() > 1 {
+            for (n, f) in r.flights.iter().enumerate() {
+                s += &flight_line(n + 1, f);
+            }
+        }
         for f in &r.failsafes {
             s += &format!("\n  failsafe {} at {:.1} s: {}", f.kind, f.t_s, f.action);
         }
@@ -167,4 +233,20 @@ impl CommanderSummary {
         }
         s
     }
+}
+
+/// The exit summary's line of one flight of several.
+fn flight_line(n: usize, f: &FlightEntry) -> String {
+    let mut s = format!("\n  flight {n}: armed {:.1} s", f.armed_s);
+    if let Some(t) = f.takeoff_s {
+        s += &format!(", takeoff {t:.1} s");
+    }
+    if let Some(t) = &f.touchdown {
+        s += &format!(", touchdown {:.1} s at {:.2} m/s", t.t_s, t.v_m_s);
+    }
+    match (f.end_s, f.end_mode) {
+        (Some(t), Some(m)) => s += &format!(", {m} {t:.1} s"),
+        _ => s += ", still armed at the end",
+    }
+    s
 }

@@ -137,6 +137,8 @@ struct FastSim<'a> {
     quit: bool,
     /// The ESCs were started once: a disarmed vehicle has flown.
     armed_once: bool,
+    /// The ESC start (its count) whose flight's start-up is over.
+    started_up_at: Option<u32>,
     trace: CycleTrace,
     track: TrackTrace,
     safety: SafetyTrace,
@@ -267,6 +269,7 @@ impl<'a> FastSim<'a> {
             prearm: prearm(cfg),
             quit: false,
             armed_once: false,
+            started_up_at: None,
             trace: CycleTrace::default(),
             track: TrackTrace::default(),
             safety: SafetyTrace::default(),
@@ -522,11 +525,18 @@ impl<'a> FastSim<'a> {
             .map_or([f64::NAN; 3], |e| [e.x[0], e.x[1], e.x[2]]);
         self.track.sample(&guidance, self.plant.position_m(), est_m);
         // The start-up (the ESCs' ramp, a calibration after it) is over once the flight's
-        // phases begin: under an estimate that ran before arming, steps come earlier.
-        let started_up = matches!(
+        // phases begin: under an estimate that ran before arming, steps come earlier. It
+        // stays over until the next flight's ESC start (the motors spin down after a
+        // disarm).
+        let flying_phase = matches!(
             self.flight.estimator.phase(),
             crate::core::flight::Phase::FlightRamp | crate::core::flight::Phase::Flight
         );
+        let starts = self.driver.starts();
+        if flying_phase {
+            self.started_up_at = Some(starts);
+        }
+        let started_up = self.started_up_at == Some(starts);
         self.safety
             .sample(self.t_us, &mut self.plant, mode, started_up);
     }
@@ -563,7 +573,7 @@ impl<'a> FastSim<'a> {
             .zip(self.driver.stop_outcome())
             .map(|(trip, o)| o.halt(trip));
         fly.log_drops = self.out.drops;
-        fly.commander = self.flight.estimator.summary(self.trace.figures());
+        fly.commander = self.flight.estimator.summary(self.trace.flight_figures());
         if fly.error.is_none() {
             fly.error = self.flight.estimator.start_failure(self.t_us);
         }
@@ -676,6 +686,7 @@ impl Edges<FastOutputs> for SimEdges<'_> {
         EscState {
             phase: self.escs.driver.phase(),
             stop_reason: self.escs.driver.stop_reason(),
+            starts: self.escs.driver.starts(),
         }
     }
 

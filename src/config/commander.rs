@@ -146,6 +146,7 @@ impl super::Config {
             crash_s: c.crash_s,
             takeoff_timeout_s: c.takeoff_timeout_s,
             input_expiry_s: c.input_expiry_s,
+            rearm: self.calibrates_before_arm(),
             z_min_m: self.control.manual.z_min_m,
             z_max_m: self.control.manual.z_max_m,
             mission: self.mission.limits(),

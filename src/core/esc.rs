@@ -163,6 +163,8 @@ pub struct EscDriver {
     /// While disabled: when the next probe is due, and which ESCs acknowledged the last one.
     next_probe_us: i64,
     probe_acked: Option<[bool; 4]>,
+    /// Start requests taken, this run (the driver's caller waits for its own to be taken).
+    starts: u32,
 }
 
 impl EscDriver {
@@ -184,6 +186,7 @@ impl EscDriver {
             stop_reason: None,
             next_probe_us: 0,
             probe_acked: None,
+            starts: 0,
         }
     }
 
@@ -216,6 +219,7 @@ impl EscDriver {
                 .get(self.ramp_next)
                 .map(|(at, _)| self.ramp_start_us + *at as i64),
             EscPhase::Running => Some(self.next_resend_us),
+            EscPhase::Stopped if self.restartable() => Some(self.next_probe_us),
             EscPhase::Stopped => self.retry.map(|r| r.next_us.min(r.deadline_us)),
             EscPhase::Disabled => Some(self.next_probe_us),
         }
@@ -226,13 +230,34 @@ impl EscDriver {
         self.outcome
     }
 
-    /// Start request: enable and ramp, from `now_us`.
+    /// Start requests taken so far (one per flight).
+    pub fn starts(&self) -> u32 {
+        self.starts
+    }
+
+    /// Stopped by a disarm, and the stop has settled: a start may follow (the next flight of
+    /// the run). Every other stop is final: a halt, a bad command, the run's end.
+    pub fn restartable(&self) -> bool {
+        self.phase == EscPhase::Stopped
+            && self.stop_reason == Some(StopReason::Disarmed)
+            && self.outcome.is_some()
+    }
+
+    /// Start request: enable and ramp, from `now_us`, from disabled or after a disarm's stop
+    /// (the same start-up as the first flight; ignored otherwise).
     pub fn start(&mut self, now_us: i64) {
-        if self.phase == EscPhase::Disabled {
-            self.phase = EscPhase::Ramping;
-            self.ramp_start_us = now_us;
-            self.ramp_next = 0;
+        if self.phase != EscPhase::Disabled && !self.restartable() {
+            return;
         }
+        self.starts += 1;
+        self.phase = EscPhase::Ramping;
+        self.ramp_start_us = now_us;
+        self.ramp_next = 0;
+        self.values = [I2C_IDLE; 4];
+        self.command_frame_us = None;
+        self.stop_reason = None;
+        self.retry = None;
+        self.outcome = None;
     }
 
     fn speeds(&self, values: &[u8; 4]) -> Cycle {
@@ -306,6 +331,12 @@ impl EscDriver {
             unconfirmed,
             settled_us: at_us,
         });
+        if self.stop_reason == Some(StopReason::Disarmed) {
+            // Between flights the pre-arm check asks again whether each ESC answers: the
+            // stop's own acknowledgements are the first answer, probes the next.
+            self.probe_acked = Some(r.disable_acked);
+            self.next_probe_us = at_us + PROBE_PERIOD_US;
+        }
     }
 
     /// A flight command for the frame that arrived at `frame_us`: written at once when running;
@@ -369,13 +400,19 @@ impl EscDriver {
                     }
                 }
             }
+            EscPhase::Stopped if self.restartable() => self.probe(now_us, out),
             EscPhase::Stopped => self.retry_stop(now_us, out),
-            EscPhase::Disabled if now_us >= self.next_probe_us => {
-                self.next_probe_us = now_us + PROBE_PERIOD_US;
-                let disable = self.map.addresses.map(|a| (a, REG_DISABLE, 0));
-                out.push((CycleKind::Probe, disable));
-            }
-            EscPhase::Disabled => {}
+            EscPhase::Disabled => self.probe(now_us, out),
+        }
+    }
+
+    /// Disabled ESCs (before the first flight, between flights) are probed every
+    /// [`PROBE_PERIOD_US`]: the pre-arm check asks whether each one answers.
+    fn probe(&mut self, now_us: i64, out: &mut Vec<(CycleKind, Cycle)>) {
+        if now_us >= self.next_probe_us {
+            self.next_probe_us = now_us + PROBE_PERIOD_US;
+            let disable = self.map.addresses.map(|a| (a, REG_DISABLE, 0));
+            out.push((CycleKind::Probe, disable));
         }
     }
 
@@ -591,6 +628,84 @@ mod tests {
                 .all(|c| matches!(c.0, CycleKind::StopZero | CycleKind::StopDisable)),
             "stopped stays stopped: only the stop is written again (not acknowledged here)"
         );
+    }
+
+    /// Runs `d`'s cycles, every write acknowledged, at `t_us`.
+    fn run_all(d: &mut EscDriver, cycles: &mut Vec<(CycleKind, Cycle)>, t_us: i64) {
+        CycleRunner::default().execute(d, cycles, |_, _, _| Ok::<(), ()>(()), || t_us, |_, _| {});
+    }
+
+    /// A driver started at `t_us` and run until its ramp is done; returns the time then.
+    fn ramp_up(d: &mut EscDriver, mut t_us: i64) -> i64 {
+        let mut cycles = Vec::new();
+        d.start(t_us);
+        while d.phase() == EscPhase::Ramping {
+            d.poll(t_us, &mut cycles);
+            run_all(d, &mut cycles, t_us);
+            t_us += 1_000;
+        }
+        t_us
+    }
+
+    #[test]
+    fn a_disarm_stop_lets_the_next_flight_start_and_every_other_stop_is_final() {
+        let mut d = driver();
+        let mut cycles = Vec::new();
+        let t = ramp_up(&mut d, 0);
+        assert_eq!((d.phase(), d.starts()), (EscPhase::Running, 1));
+        d.stop(StopReason::Disarmed, t, &mut cycles);
+        d.start(t);
+        assert_eq!(
+            d.phase(),
+            EscPhase::Stopped,
+            "no start before the stop settled"
+        );
+        run_all(&mut d, &mut cycles, t);
+        assert!(d.restartable() && d.stop_outcome().is_some_and(|o| o.confirmed()));
+        assert_eq!(
+            d.silent_mask(),
+            0,
+            "the stop's acknowledgements answer for them"
+        );
+        // Probed between flights, then started again: the same ramp, from idle.
+        d.poll(t + PROBE_PERIOD_US - 1, &mut cycles);
+        assert!(cycles.is_empty(), "the next probe a period after the stop");
+        d.poll(t + PROBE_PERIOD_US, &mut cycles);
+        assert_eq!(cycles.first().map(|c| c.0), Some(CycleKind::Probe));
+        CycleRunner::default().execute(
+            &mut d,
+            &mut cycles,
+            |a, _, _| {
+                if a == MotorMap::UQUAD.addresses[1] {
+                    Err(())
+                } else {
+                    Ok(())
+                }
+            },
+            || t + PROBE_PERIOD_US,
+            |_, _| {},
+        );
+        assert_eq!(
+            d.silent_mask(),
+            0b0010,
+            "an ESC silent between flights is named"
+        );
+        let t = ramp_up(&mut d, t + PROBE_PERIOD_US + 1);
+        assert_eq!((d.phase(), d.starts()), (EscPhase::Running, 2));
+        assert_eq!((d.stop_reason(), d.stop_outcome()), (None, None));
+        for reason in [
+            StopReason::Halt(TripReason::Kill),
+            StopReason::StaleCommand,
+            StopReason::Shutdown,
+        ] {
+            let mut d = driver();
+            let t = ramp_up(&mut d, t);
+            d.stop(reason, t, &mut cycles);
+            run_all(&mut d, &mut cycles, t);
+            d.start(t + 1);
+            assert_eq!(d.phase(), EscPhase::Stopped, "{reason} is final");
+            assert!(!d.restartable());
+        }
     }
 
     #[test]

@@ -200,9 +200,6 @@ pub struct Watchdog {
     disarmed: bool,
     /// When the ESCs were enabled (the IMU timeout applies from then on).
     motors_on_us: Option<i64>,
-    /// The motors were enabled (or commanded) once: estimates before that (calibrated at
-    /// rest, disarmed) are the pre-arm check's, not the sanity rules'.
-    motors_ever_on: bool,
     sanity_counter: u32,
     /// Consecutive refused measurement updates.
     refused_updates: u32,
@@ -219,7 +216,6 @@ impl Watchdog {
             flying: false,
             disarmed: false,
             motors_on_us: None,
-            motors_ever_on: false,
             sanity_counter: 0,
             refused_updates: 0,
             deadline_misses: 0,
@@ -262,7 +258,6 @@ impl Watchdog {
         self.flying = !self.disarmed;
         // A flight command spins the motors, whether or not their enable was reported.
         self.motors_on_us.get_or_insert(frame_us);
-        self.motors_ever_on = true;
         while self.uncommanded_us.front().is_some_and(|&f| f <= frame_us) {
             self.uncommanded_us.pop_front();
         }
@@ -339,7 +334,8 @@ impl Watchdog {
             }
             Event::MotorsEnabled(at) => {
                 self.motors_on_us.get_or_insert(at);
-                self.motors_ever_on = true;
+                // The next flight of the run: its commands are expected again.
+                self.disarmed = false;
                 None
             }
             Event::Kill(at) => self.decide(TripReason::Kill, at, now_us),
@@ -360,10 +356,11 @@ impl Watchdog {
                 frame_us,
                 written_us,
             } => self.on_command(frame_us, written_us),
-            // An estimate before the motors were ever enabled (calibrated at rest, disarmed)
-            // is the pre-arm check's: a vehicle carried tilted spins nothing to halt. After
-            // they were, the rules judge every estimate as they always did.
-            Event::Estimate { .. } if !self.motors_ever_on => None,
+            // An estimate while the motors are off (calibrated at rest before the first arm,
+            // or between flights) is the pre-arm check's: a vehicle carried tilted spins
+            // nothing to halt. From the enable to the stop's settling the rules judge every
+            // estimate.
+            Event::Estimate { .. } if self.motors_on_us.is_none() => None,
             Event::Estimate {
                 step_us,
                 temp_c,
@@ -511,6 +508,35 @@ mod tests {
         assert_eq!(trip.reason, TripReason::ImuTimeout);
         w.on_event(Event::MotorsStopped(46_000), 46_000);
         assert_eq!(w.tick(1_000_000), None, "nothing spins: no IMU timeout");
+    }
+
+    #[test]
+    fn the_next_flight_is_judged_again_and_the_ground_between_flights_is_not() {
+        let tilted = |step_us| Event::Estimate {
+            step_us,
+            temp_c: 30.0,
+            psi_rad: 1.2,
+            phi_rad: 0.0,
+            refused: false,
+        };
+        let mut w = wd();
+        w.on_event(Event::MotorsEnabled(0), 0);
+        w.on_event(Event::Disarming(10_000), 10_000);
+        w.on_event(Event::MotorsStopped(12_000), 12_000);
+        // Carried tilted between flights, motors off: nothing to halt.
+        for k in 0..100 {
+            assert_eq!(w.on_event(tilted(20_000 + k), 20_000 + k), None);
+        }
+        // The next flight: enabled, commanded, and its deadline watched again.
+        w.on_event(Event::MotorsEnabled(1_000_000), 1_000_000);
+        w.on_frame(1_010_000);
+        assert_eq!(w.on_command(1_010_000, 1_010_100), None);
+        w.on_frame(1_020_000);
+        let trip = w.tick(1_030_001).unwrap();
+        assert_eq!(
+            (trip.reason, trip.event_us),
+            (TripReason::Deadline, 1_020_000)
+        );
     }
 
     #[test]

@@ -74,6 +74,10 @@ pub struct CycleTrace {
     descent: DescentTrace,
     was_on_ground: bool,
     touchdown: Option<Touchdown>,
+    /// The mode at the last sample; the run's earlier flights' figures; armings seen.
+    last_mode: Option<Mode>,
+    past: Vec<Figures>,
+    flights: u32,
 }
 
 impl CycleTrace {
@@ -82,6 +86,10 @@ impl CycleTrace {
     pub fn sample(&mut self, t_us: i64, mode: Mode, height_m: f64, plant: &Plant) {
         let p = plant.position_m();
         let vz = plant.velocity_m_s()[2];
+        if mode == Mode::Armed && self.last_mode.replace(mode) != Some(Mode::Armed) {
+            self.begin_flight();
+        }
+        self.last_mode = Some(mode);
         if mode == Mode::Takeoff && self.home_xy_m.is_none() {
             self.home_xy_m = Some([p[0], p[1]]);
             self.climb.begin(p[2], height_m);
@@ -100,12 +108,35 @@ impl CycleTrace {
         self.was_on_ground = plant.on_ground;
     }
 
-    /// The figures for the report; the touchdown's time is the contact's.
+    /// An arming: the run's next flight (an earlier one keeps its figures).
+    fn begin_flight(&mut self) {
+        if self.flights > 0 {
+            self.past.push(self.figures());
+            self.home_xy_m = None;
+            self.climb = ClimbTrace::default();
+            self.touchdown = None;
+        }
+        self.flights += 1;
+    }
+
+    /// The figures of the flight flown last for the report; the touchdown's time is the
+    /// contact's.
     pub fn figures(&self) -> Figures {
         Figures {
             takeoff: self.climb.takeoff(),
             touchdown: self.touchdown,
         }
+    }
+
+    /// Every flight's figures, one per arming in order.
+    pub fn flight_figures(&self) -> Vec<Figures> {
+        let mut all = self.past.clone();
+        // A flight that started armed (`commander.start = "flying"`) may never be sampled
+        // in `armed`: its figures still count.
+        if self.flights > 0 || self.figures() != Figures::default() {
+            all.push(self.figures());
+        }
+        all
     }
 }
 

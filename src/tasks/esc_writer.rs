@@ -120,9 +120,11 @@ impl EscMailbox {
         });
     }
 
-    /// Zero and disable now; `reason` is recorded.
+    /// Zero and disable now; `reason` is recorded. A start not yet taken is dropped: a
+    /// disarm right after an arm leaves the motors off.
     pub fn halt(&self, reason: StopReason) {
         self.with(|r| {
+            r.start = false;
             if r.halt.is_none() {
                 r.halt = Some(reason);
             }
@@ -229,6 +231,8 @@ pub struct EscStatus {
     /// The ESCs that did not acknowledge the last probe while disabled, bit m = motor m
     /// (the writer probes as it starts).
     silent: AtomicU8,
+    /// Start requests the writer has taken (one per flight).
+    starts: std::sync::atomic::AtomicU32,
 }
 
 impl EscStatus {
@@ -247,6 +251,12 @@ impl EscStatus {
 
     pub fn stop_reason(&self) -> Option<StopReason> {
         self.stop_reason.lock().ok().and_then(|g| *g)
+    }
+
+    /// Start requests taken so far; read before [`EscStatus::phase`], the phase is at least
+    /// as new as the start counted.
+    pub fn starts(&self) -> u32 {
+        self.starts.load(Ordering::SeqCst)
     }
 
     /// The addresses that did not acknowledge the last probe (the pre-arm check).
@@ -376,7 +386,9 @@ fn wait(mailbox: &EscMailbox, deadline: Option<Instant>, accept_start: bool, spi
         if g.shutdown {
             return Wake::Shutdown;
         }
-        if let Some(h) = g.halt {
+        // Taken: the driver holds the stop from then on (a disarm's, after which the next
+        // flight may start; any other is final).
+        if let Some(h) = g.halt.take() {
             return Wake::Halt(h);
         }
         if accept_start && g.start {
@@ -432,7 +444,7 @@ fn run(mut w: Writer, mailbox: &EscMailbox) {
         let wake = wait(
             mailbox,
             deadline,
-            phase == EscPhase::Disabled,
+            phase == EscPhase::Disabled || driver.restartable(),
             may_spin && phase == EscPhase::Running,
         );
         let now_us = w.beats.us(Instant::now());
@@ -461,8 +473,12 @@ fn run(mut w: Writer, mailbox: &EscMailbox) {
         }
         w.execute(&mut driver, &mut cycles, stamps);
         w.finish(&driver);
-        if driver.phase() == EscPhase::Stopped {
+        if driver.phase() == EscPhase::Stopped && driver.stop_outcome().is_none() {
             settle_stop(&mut w, &mut driver, &mut cycles);
+        }
+        // A disarm's stop waits for the next flight's start, probing the ESCs; any other
+        // stop is final.
+        if driver.phase() == EscPhase::Stopped && !driver.restartable() {
             return park_until_shutdown(mailbox);
         }
     }
@@ -493,9 +509,21 @@ fn settle_stop(w: &mut Writer, driver: &mut EscDriver, cycles: &mut Vec<(CycleKi
 }
 
 impl Writer {
-    /// Publishes the driver's phase (and why it stopped).
+    /// Publishes the driver's phase (and why it stopped); a new flight's start clears the
+    /// last stop, and its count is published last (a reader that sees it sees the phase
+    /// after it).
     fn finish(&mut self, driver: &EscDriver) {
         let phase = driver.phase();
+        let starts = driver.starts();
+        let restarted = starts != self.status.starts.load(Ordering::SeqCst);
+        if restarted {
+            if let Ok(mut g) = self.status.stop_reason.lock() {
+                *g = None;
+            }
+            if let Ok(mut g) = self.status.stop_outcome.lock() {
+                *g = None;
+            }
+        }
         if phase != self.status.phase() {
             match phase {
                 EscPhase::Running => tracing::info!("ESC start-up ramp done; idling"),
@@ -513,6 +541,10 @@ impl Writer {
             *g = Some(r);
         }
         self.status.set_phase(phase);
+        if restarted {
+            tracing::info!(flight = starts, "ESC start-up ramp");
+            self.status.starts.store(starts, Ordering::SeqCst);
+        }
     }
 }
 

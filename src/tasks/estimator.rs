@@ -134,11 +134,16 @@ impl EstimatorTask {
             self.operate(f.stamp_us);
             self.poll_fix(f.stamp_us);
             self.publish_prearm(f.stamp_us);
+            let starts = self.esc_status.starts();
             let phase = self.esc_status.phase();
             let stop_reason = (phase == EscPhase::Stopped)
                 .then(|| self.esc_status.stop_reason())
                 .flatten();
-            let esc = EscState { phase, stop_reason };
+            let esc = EscState {
+                phase,
+                stop_reason,
+                starts,
+            };
             let action = self.side.on_frame(&f.frame, times, esc, &mut self.out);
             let mut escs = MailboxEscs {
                 esc: &self.esc,
@@ -187,7 +192,7 @@ impl EstimatorTask {
             late_feedback,
             ekf_errors: c.ekf_errors,
             gps_updates: c.gps_updates,
-            commander: self.side.summary(self.side.commander().figures()),
+            commander: self.side.summary(self.side.commander().flight_figures()),
             ekf_gated: c.gated,
             start_failure,
         })

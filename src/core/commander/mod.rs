@@ -149,6 +149,10 @@ pub struct Params {
     pub takeoff_timeout_s: f64,
     /// An operator's input that waited longer than this for the flight is refused, s.
     pub input_expiry_s: f64,
+    /// After a flight's disarm, `arm` may fly again in the same run: the IMU calibrates at
+    /// rest before arming and the estimate runs across flights (`imu.calibrate =
+    /// "before-arm"`). A profile that calibrates after arming flies once per run.
+    pub rearm: bool,
     /// The manual altitude keys' bounds, m.
     pub z_min_m: f64,
     pub z_max_m: f64,
@@ -298,8 +302,10 @@ impl Guidance {
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Summary {
     pub events: Vec<Event>,
-    /// `fly`: the estimate's figures; `sim`: the true vehicle's.
+    /// `fly`: the estimate's figures; `sim`: the true vehicle's. Of the first flight.
     pub figures: Figures,
+    /// Every flight's figures, one per arming in order.
+    pub flights: Vec<Figures>,
     /// Every refusal of the run (`events` keeps the first ones), and the newest.
     pub refusals_total: u64,
     pub refusal_last: Option<Event>,
@@ -391,8 +397,12 @@ pub struct Commander {
     takeoff_baro_m: f64,
     /// The newest Kalman step seen.
     observed: Option<Observation>,
-    /// Disarmed after a flight: the ESCs cannot be started again in this run.
+    /// Disarmed after a flight: the ESCs cannot be started again in this run (only without
+    /// [`Params::rearm`]).
     spent: bool,
+    /// The figures of the run's earlier flights, one per arming, in order; armings taken.
+    past_flights: Vec<Figures>,
+    flights: u32,
     /// The takeoff's overshoot and the touchdown, on the estimate.
     climb: ClimbTrace,
     descent: DescentTrace,
@@ -458,6 +468,8 @@ impl Commander {
             takeoff_baro_m: f64::NAN,
             observed: None,
             spent: false,
+            past_flights: Vec::new(),
+            flights: 0,
             climb: ClimbTrace::default(),
             descent: DescentTrace::default(),
             touchdown: None,
@@ -508,6 +520,46 @@ impl Commander {
         }
     }
 
+    /// Every flight's figures, one per arming in order (none before the first arm).
+    pub fn flight_figures(&self) -> Vec<Figures> {
+        let mut all = self.past_flights.clone();
+        if self.armed_once() {
+            all.push(self.figures());
+        }
+        all
+    }
+
+    /// An arming was taken in this run (a flight began).
+    fn armed_once(&self) -> bool {
+        self.flights > 0
+    }
+
+    /// An arming: a flight begins. The run's earlier flight keeps its figures; what it
+    /// measured or decided (its takeoff and landing, its failsafes recorded and acted on,
+    /// the touchdown watch, a mission's run) does not carry into this one. The first flight
+    /// starts from the state the commander was built with.
+    fn begin_flight(&mut self, t_us: i64) {
+        if self.flights > 0 {
+            self.past_flights.push(self.figures());
+            self.climb = ClimbTrace::default();
+            self.descent = DescentTrace::default();
+            self.touchdown = None;
+            self.recorded = [false; 4];
+            self.acted = [false; 4];
+            self.touchdown_since_us = None;
+            self.ground_push_steps = 0;
+            self.blind = None;
+            self.low_since_us = None;
+            self.lifted = false;
+            self.takeoff_steps = 0;
+            self.mission_after_takeoff = false;
+            self.items_done = 0;
+            self.landing_item = None;
+        }
+        self.flights += 1;
+        self.armed_us = Some(t_us);
+    }
+
     /// Where the vehicle is sent (x, y, z), m.
     pub fn target_m(&self) -> [f64; 3] {
         self.target_m
@@ -517,7 +569,7 @@ impl Commander {
     pub fn start(&mut self, t_us: i64, out: &mut Vec<Event>) -> Option<EscRequest> {
         self.set_mode(Mode::Disarmed, t_us, "start", out);
         if self.p.start == Start::Flying {
-            self.armed_us = Some(t_us);
+            self.begin_flight(t_us);
             self.set_mode(Mode::Armed, t_us, "commander.start = flying", out);
             return Some(EscRequest::Start);
         }
@@ -596,8 +648,8 @@ impl Commander {
         }
     }
 
-    /// An `arm` would get past the commander's own rules now (disarmed, never landed or
-    /// killed in this run); the pre-arm checks are the driver's.
+    /// An `arm` would get past the commander's own rules now (disarmed, never killed in this
+    /// run, and never landed unless [`Params::rearm`]); the pre-arm checks are the driver's.
     pub fn may_arm(&self) -> bool {
         self.mode == Mode::Disarmed && !self.spent
     }
@@ -726,7 +778,7 @@ impl Commander {
         let why = format!("command {cmd}");
         match cmd {
             Command::Arm => {
-                self.armed_us = Some(t_us);
+                self.begin_flight(t_us);
                 self.set_mode(Mode::Armed, t_us, &why, out);
                 Some(EscRequest::Start)
             }
@@ -796,7 +848,7 @@ impl Commander {
     }
 
     fn disarm(&mut self, t_us: i64, why: &str, out: &mut Vec<Event>) {
-        self.spent = true;
+        self.spent = !self.p.rearm;
         self.armed_us = None;
         self.escs_running = false;
         self.ground_since_us = None;

@@ -20,7 +20,7 @@ pub enum Refusal {
     Killed,
     /// The vehicle is in this mode already.
     Already(Mode),
-    /// Landed once: only a restart flies again.
+    /// Landed once, in a profile that calibrates after arming: only a restart flies again.
     Landed,
     /// In the air in this mode: land first, or kill.
     InTheAir(Mode),
@@ -78,7 +78,9 @@ impl fmt::Display for Refusal {
             ),
             Killed => f.write_str("killed: restart uquad to fly again"),
             Already(m) => write!(f, "already {}", m.name()),
-            Landed => f.write_str("landed: restart uquad to fly again"),
+            Landed => f.write_str(
+                "landed: one flight per run in this profile (its IMU calibrates after arming, or it starts flying): restart uquad to fly again",
+            ),
             InTheAir(m) => write!(f, "in the air ({}): land first, or kill", m.name()),
             FailsafeActing(k) => write!(
                 f,

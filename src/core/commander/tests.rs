@@ -34,6 +34,7 @@ fn params() -> Params {
         crash_s: 1.0,
         takeoff_timeout_s: 15.0,
         input_expiry_s: 1.0,
+        rearm: true,
         z_min_m: 0.2,
         z_max_m: 3.0,
         mission: crate::core::mission::Limits {
@@ -381,8 +382,18 @@ fn a_landing_descends_slower_in_the_last_metre_and_disarms_at_touchdown() {
         e => panic!("{e:?}"),
     };
     assert_eq!(why, "touchdown");
-    c.command(Command::Arm, t_down, good_facts().verdict(), None, &mut ev);
+    // A profile that calibrates after arming flies once per run.
+    let mut once = c.clone();
+    once.p.rearm = false;
+    once.spent = true;
+    once.command(Command::Arm, t_down, good_facts().verdict(), None, &mut ev);
     assert!(refusals(&ev).last().unwrap().starts_with("landed"));
+    // Otherwise the next flight arms, and the first keeps its figures.
+    let first = c.figures();
+    let refused = refusals(&ev).len();
+    c.command(Command::Arm, t_down, good_facts().verdict(), None, &mut ev);
+    assert_eq!((c.mode(), refusals(&ev).len()), (Mode::Armed, refused));
+    assert_eq!(c.flight_figures(), [first, Figures::default()]);
 }
 
 #[test]

@@ -290,6 +290,10 @@ pub struct ControllerCore {
     active_gains: GainKey,
     /// The last step's set point was a path's.
     following: bool,
+    /// The observer as built, for each flight's start.
+    observer_new: Option<TorqueObserver>,
+    /// Disarmed after a flight: the next takeoff starts the control law afresh.
+    flown: bool,
 }
 
 /// What the hover planner is built from once the calibration yaw is known.
@@ -325,6 +329,8 @@ impl ControllerCore {
             last_gps_us: None,
             observer: None,
             ramp_from: None,
+            observer_new: None,
+            flown: false,
         }
     }
 
@@ -338,6 +344,7 @@ impl ControllerCore {
     /// flight ramp on.
     pub fn with_torque_observer(mut self, tau_s: f64, motor_tau_s: f64) -> Self {
         self.observer = Some(TorqueObserver::new(tau_s, motor_tau_s));
+        self.observer_new = self.observer.clone();
         self
     }
 
@@ -409,6 +416,9 @@ impl ControllerCore {
     /// on it, the ground's push makes up the weight, so the EKF's input is the speed whose
     /// thrust is the weight, whatever the motors do (else the estimate sinks into the ground).
     fn rest(&mut self, est: &Estimate, t_ctrl_us: i64, t_cmd_us: i64) -> ControlOut {
+        if est.guidance.mode == Mode::Disarmed && self.ramp_from.is_some() {
+            self.flown = true;
+        }
         let limits = self.limits();
         let w = if est.guidance.mode == Mode::Armed {
             [limits.w_min_rad_s; 4]
@@ -441,6 +451,9 @@ impl ControllerCore {
     pub fn control(&mut self, est: &Estimate, t_ctrl_us: i64, t_cmd_us: i64) -> ControlOut {
         if !est.guidance.fly {
             return self.rest(est, t_ctrl_us, t_cmd_us);
+        }
+        if std::mem::take(&mut self.flown) {
+            self.new_flight();
         }
         let ramp_step = est
             .step
@@ -490,6 +503,17 @@ impl ControllerCore {
             position_hold,
             setpoint: Some(std::array::from_fn(|i| sp.x[i])),
         }
+    }
+
+    /// A takeoff after a landing in the same run: the flight ramp, the planner (its hover
+    /// point and the manual keys' offsets), the integrators and the observer start as they
+    /// did for the first flight.
+    fn new_flight(&mut self) {
+        self.ramp_from = None;
+        self.planner = None;
+        self.controller.reset_integrators();
+        self.observer = self.observer_new.clone();
+        self.following = false;
     }
 
     /// The planner's set point with the commander's position and climb speed (the planner

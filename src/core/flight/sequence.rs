@@ -117,6 +117,9 @@ pub struct EscState {
     pub phase: EscPhase,
     /// Why the ESCs stopped, once they did.
     pub stop_reason: Option<StopReason>,
+    /// Start requests the ESC driver has taken: until it took the flight's own, its phase
+    /// is the previous flight's.
+    pub starts: u32,
 }
 
 impl EscState {
@@ -124,7 +127,13 @@ impl EscState {
     pub const ABSENT: EscState = EscState {
         phase: EscPhase::Running,
         stop_reason: None,
+        starts: u32::MAX,
     };
+
+    /// The driver has not yet taken the `asked`-th start: what it says is of before it.
+    fn before_start(&self, asked: u32) -> bool {
+        self.starts < asked
+    }
 }
 
 /// Where the flight is.
@@ -299,6 +308,8 @@ pub struct EstimatorSide {
     at_rest: bool,
     /// The ESCs' ramp end has been given to the commander ([`OperatorInput::EscsRunning`]).
     escs_running_told: bool,
+    /// ESC starts asked for in this run (one per flight).
+    starts_asked: u32,
     /// Why the last calibration at rest was refused (it is being taken again).
     calibration_refused: Option<String>,
     /// The ESCs' ramp end comes from the run's records (a replay has no ESCs to watch).
@@ -348,6 +359,7 @@ impl EstimatorSide {
             gyro_lost_noted: false,
             at_rest: false,
             escs_running_told: false,
+            starts_asked: 0,
             calibration_refused: None,
             escs_from_records: false,
             last_fix_ratio: None,
@@ -424,11 +436,13 @@ impl EstimatorSide {
         &self.history
     }
 
-    /// The run's commander summary for its report, with `figures`.
-    pub fn summary(&self, figures: commander::Figures) -> commander::Summary {
+    /// The run's commander summary for its report, with each flight's `flights` figures (one
+    /// per arming).
+    pub fn summary(&self, flights: Vec<commander::Figures>) -> commander::Summary {
         commander::Summary {
             events: self.history.clone(),
-            figures,
+            figures: flights.first().copied().unwrap_or_default(),
+            flights,
             refusals_total: self.refusals.0,
             refusal_last: self.refusals.1.clone(),
             reentries_total: self.reentries.0,
@@ -547,6 +561,7 @@ impl EstimatorSide {
         if request == Some(EscRequest::Start) && self.at_rest && !self.esc_start_asked {
             // Under a running estimate the ESCs start with the arm, not at the next settle.
             self.esc_start_asked = true;
+            self.starts_asked += 1;
             self.phase = Phase::EscStart;
             out.record(FlightRecord::Note(
                 "armed: ESC start-up ramp under the running estimate".into(),
@@ -637,6 +652,7 @@ impl EstimatorSide {
         match request {
             Some(EscRequest::Stop) => {
                 out.watchdog(Event::Disarming(t_us));
+                self.between_flights();
                 true
             }
             Some(EscRequest::Kill) => {
@@ -648,6 +664,16 @@ impl EstimatorSide {
                 false
             }
             Some(EscRequest::Start) | None => false,
+        }
+    }
+
+    /// Disarmed: when the commander may arm again ([`commander::Params::rearm`]), the next
+    /// `arm` starts the ESCs as the first one did, under the estimate that keeps running.
+    fn between_flights(&mut self) {
+        if self.at_rest && self.commander.params().rearm && self.phase != Phase::Ended {
+            self.esc_start_asked = false;
+            self.escs_running_told = false;
+            self.phase = Phase::Estimating;
         }
     }
 
@@ -806,7 +832,8 @@ impl EstimatorSide {
         let watching = self.at_rest
             && !self.escs_from_records
             && self.esc_start_asked
-            && !self.escs_running_told;
+            && !self.escs_running_told
+            && !esc.before_start(self.starts_asked);
         if !watching || self.commander.mode() != Mode::Armed {
             return None;
         }
@@ -880,10 +907,14 @@ impl EstimatorSide {
     fn esc_start(&mut self, esc: EscState, t_us: i64, out: &mut impl Outputs) -> FrameAction {
         if !self.esc_start_asked {
             self.esc_start_asked = true;
+            self.starts_asked += 1;
             out.record(FlightRecord::Note(
                 "IMU sampling period stable; ESC start-up ramp".into(),
             ));
             return FrameAction::StartEscs;
+        }
+        if esc.before_start(self.starts_asked) {
+            return FrameAction::Wait;
         }
         match esc.phase {
             EscPhase::Running => {
