@@ -66,13 +66,17 @@ the filter each simulated second, where `fly` would read gpsd. The run folder lo
 --mode fast (the default; also --fast) runs the flight's state machines in lock-step with the \
 physics on a simulated clock: 40 simulated seconds take well under a second. --mode realtime \
 (also --realtime) runs fly's own tasks and threads against the simulated edges, paced by the \
-wall clock. Both follow the same flight sequence and report the hover window the same way: \
-from sim.settle_s after the flight ramp, against the set point.\n\n\
+wall clock. --mode paced runs the lock-step flight of --fast paced to the wall clock (--speed \
+FACTOR simulated seconds per second), with the ground-station link and the console served and \
+the logs written as the run goes: the watchdog judges simulated time, so a busy host slows the \
+flight instead of halting it (for practising with a ground station; --realtime stays the test \
+of the real threads). All follow the same flight sequence and report the hover window the same \
+way: from sim.settle_s after the flight ramp, against the set point.\n\n\
 With no arguments: config/uquad.toml and its operator's cycle (--script: arm at 7 s, once the \
 estimator check passes, take off at 10 s to 1 m, land at 45 s); the run ends once the vehicle has landed and disarmed, at most \
 sim.duration_s; a summary at the end.\n\n\
-In --realtime a ground station can watch and fly it over MAVLink 2 (gcs.*): telemetry goes to \
-UDP 127.0.0.1:14550, where QGroundControl and MAVProxy listen."
+In --realtime and --mode paced a ground station can watch and fly it over MAVLink 2 (gcs.*): \
+telemetry goes to UDP 127.0.0.1:14550, where QGroundControl and MAVProxy listen."
     )]
     Sim(SimArgs),
     /// The safety campaign: every simulated fault in every phase, alone and in pairs, judged.
@@ -265,9 +269,15 @@ struct SimArgs {
     )]
     duration: Option<f64>,
     /// fast: the flight's state machines in lock-step with the physics on a simulated clock
-    /// (the default); realtime: fly's own tasks and threads on the wall clock.
+    /// (the default); realtime: fly's own tasks and threads on the wall clock; paced: the
+    /// lock-step flight paced to the wall clock, a ground station and the console served.
     #[arg(long, value_enum, value_name = "MODE", conflicts_with_all = ["fast", "realtime"])]
     mode: Option<SimMode>,
+    /// --mode paced: simulated seconds per wall second, more than 0, at most 100 (default 1;
+    /// ArduPilot's SITL speed-up). The link-loss failsafe's timeout is scaled by it, so that
+    /// it stays the ground station's wall-clock timeout.
+    #[arg(long, value_name = "FACTOR", value_parser = parse_speed)]
+    speed: Option<f64>,
     /// Same as --mode realtime.
     #[arg(long, conflicts_with = "fast")]
     realtime: bool,
@@ -298,8 +308,10 @@ struct SimArgs {
     #[arg(long, value_name = "FAULT@T", value_parser = parse_injection)]
     inject: Vec<(Fault, f64)>,
     /// The simulated operator's commands at simulated seconds, e.g. "arm@7,takeoff 1.5@10,
-    /// land@45" (arm, takeoff [ALT_M], hold [X Y Z], land, disarm, kill); the run ends once
-    /// the vehicle is disarmed after them. "none": no operator (use the console). The
+    /// land@45" (arm, takeoff [ALT_M], hold [X Y Z], land, disarm, kill; a landed vehicle
+    /// may be armed again: several flights per run); the run ends once the vehicle is
+    /// disarmed after them. "none": no operator (use the console or a ground station); the
+    /// run goes on after each landing until --duration or a signal. The
     /// operator also sends a ground station's link heartbeats each second. Default: the whole
     /// cycle, "arm@7,takeoff@10,land@45" (none when commander.start = "flying"): the default
     /// profile calibrates at rest and its estimator check passes by 6.2 s.
@@ -721,6 +733,9 @@ impl SimArgs {
 
     fn run(self) -> anyhow::Result<ExitCode> {
         let mode = self.mode();
+        if self.speed.is_some() && mode != SimMode::Paced {
+            return Err(Refused("--speed paces --mode paced only".into()).into());
+        }
         let profile = self.profile.load_kept(self.log_dir.as_deref())?;
         let profile = with_mission(profile, self.mission.as_deref())?;
         let opts = SimOptions {
@@ -738,6 +753,11 @@ impl SimArgs {
             )
             .and_then(|r| r),
             SimMode::Fast => uquad::app::sim_fast::run_fast(&profile, &opts),
+            SimMode::Paced => on_runtime(
+                Duration::from_millis(200),
+                uquad::app::sim_paced::run(&profile, &opts, self.speed.unwrap_or(1.0)),
+            )
+            .and_then(|r| r),
         };
         let summary = reported_failure(summary, self.report.as_deref())?;
         eprintln!("{}", summary.text());
@@ -1069,5 +1089,18 @@ impl ReplayArgs {
             .collect();
         print!("{paths}");
         Ok(ExitCode::SUCCESS)
+    }
+}
+
+/// `--speed`: a finite factor in (0, 100].
+fn parse_speed(s: &str) -> Result<f64, String> {
+    let v: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("{s:?} is not a number"))?;
+    if v.is_finite() && v > 0.0 && v <= 100.0 {
+        Ok(v)
+    } else {
+        Err(format!("{v} is outside (0, 100]"))
     }
 }

@@ -60,6 +60,16 @@ fn fly_with_client(scenario: &[&str], args: &[&str]) -> Flown {
 /// Runs `scenario` against a realtime simulation given `args`; the run's exit status is a
 /// success exactly when `succeeds`.
 fn fly_with_client_ending(scenario: &[&str], args: &[&str], succeeds: bool) -> Flown {
+    fly_against(realtime_sim, scenario, args, succeeds)
+}
+
+/// Runs `scenario` against the simulation `sim` builds given `args`.
+fn fly_against(
+    sim: impl Fn(&[&str], &std::path::Path) -> Command,
+    scenario: &[&str],
+    args: &[&str],
+    succeeds: bool,
+) -> Flown {
     let dir = tempfile::tempdir().unwrap();
     let (mut client, port) = start_client(scenario);
     let remote = format!("gcs.udp_remote=\"127.0.0.1:{port}\"");
@@ -82,7 +92,7 @@ fn fly_with_client_ending(scenario: &[&str], args: &[&str], succeeds: bool) -> F
     } else {
         &["--duration", "150"]
     };
-    let mut cmd = realtime_sim(&[&base[..], duration, args].concat(), dir.path());
+    let mut cmd = sim(&[&base[..], duration, args].concat(), dir.path());
     cmd.args(["--set", "gcs.enabled=sim-realtime"]);
     let mut sim = Uquad::spawn(&mut cmd);
     let mut stdin = client.stdin.take().unwrap();
@@ -97,7 +107,7 @@ fn fly_with_client_ending(scenario: &[&str], args: &[&str], succeeds: bool) -> F
         String::from_utf8_lossy(&out.stderr),
         sim.stderr()
     );
-    let status = sim.child.wait().unwrap();
+    let status = end_run(&mut sim);
     let report_path = dir.path().join("report.json");
     let text = std::fs::read_to_string(&report_path)
         .unwrap_or_else(|_| panic!("{status}: no report\n{}", sim.stderr()));
@@ -448,4 +458,28 @@ fn calibrated_before_arming_a_ground_station_sees_the_estimate_and_the_check_tha
     let mode_log = std::fs::read_to_string(run.join("mode.log")).unwrap();
     assert!(mode_log.contains(" escs running\n"), "{mode_log}");
     assert_replays_same(run, &["mode.log", "w.log", "x_hat.log"]);
+}
+
+/// Three flights in one `sim --mode paced --script none` run, flown by a ground station
+/// (arm, takeoff, land, three times): each in the report, and the run replayed to identical
+/// bytes. Paced at twice the wall clock: the simulator's pacing, not the host, sets its time.
+#[test]
+fn a_ground_station_flies_three_flights_in_one_paced_run_replayed_exactly() {
+    let paced = |args: &[&str], dir: &std::path::Path| paced_sim("2", args, dir);
+    let flown = fly_against(paced, &["flights", "3"], &[], true);
+    let (r, run) = (&flown.report, &flown.run);
+    let mut want = vec!["disarmed"];
+    for _ in 0..3 {
+        want.extend(["armed", "takeoff", "hold", "land", "disarmed"]);
+    }
+    assert_eq!(report_modes(r), want, "{r}");
+    let flights = r["flights"].as_array().expect("flights");
+    assert_eq!(flights.len(), 3, "{r}");
+    for f in flights {
+        assert_eq!(f["end_why"], "touchdown", "{f}");
+        let v = f["touchdown"]["v_m_s"].as_f64().unwrap_or(f64::NAN);
+        assert!(v <= 0.5, "touchdown at {v} m/s: {f}");
+    }
+    assert!(r["halt"].is_null(), "{r}");
+    assert_replays_same(run, &["mode.log", "w.log", "x_hat.log", "int.log"]);
 }

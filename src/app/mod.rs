@@ -23,4 +23,5 @@ pub mod report;
 pub mod run_dir;
 pub mod sim;
 pub mod sim_fast;
+pub mod sim_paced;
 pub mod sim_realtime;

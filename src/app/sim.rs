@@ -54,7 +54,7 @@ pub fn duration_s(opts: &SimOptions, profile: &crate::config::Profile) -> f64 {
     }
 }
 
-/// The two ways of flying the real code against the models.
+/// The ways of flying the real code against the models.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
 pub enum SimMode {
     /// The flight's state machines in lock-step with the physics on a simulated clock.
@@ -62,4 +62,6 @@ pub enum SimMode {
     Fast,
     /// `fly`'s own tasks and threads against the simulated edges, on the wall clock.
     Realtime,
+    /// The lock-step flight paced to the wall clock, a ground station and the console served.
+    Paced,
 }

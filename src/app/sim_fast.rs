@@ -24,6 +24,7 @@ use crate::core::flight::{Command, EscState, Estimate, FlightRecord, FrameTimes,
 use crate::core::gps::LiveFix;
 use crate::core::imu::frame::{FrameDecoder, RawFrame};
 use crate::core::motor::FLIGHT_RAMP_STEPS;
+use crate::core::status::Live;
 use crate::core::watchdog::{Event, Trip, Watchdog};
 use crate::logs::{PerStream, Record, Stream};
 use crate::sim::esc::EscModel;
@@ -35,14 +36,20 @@ use crate::sim::safety::SafetyTrace;
 use crate::sim::track::TrackTrace;
 use crate::sim::truth::TruthTrace;
 use crate::sim::{FRAME_US, frame_start_byte, imu::SimImu, physics::Plant};
+use crate::tasks::logger::LogHub;
+use crate::tasks::notices::{Notice, Notices};
 use crate::tasks::prearm::PreArm;
 use bytes::BytesMut;
 use std::path::PathBuf;
 
-/// The streams, kept in memory and written at the end as the loggers would write them. The
-/// x_hat logger can be stalled (`log-stall`): its queue fills, then records drop and count.
-struct FastOutputs {
+/// The streams, kept in memory and written at the end as the loggers would write them (or,
+/// in a paced run, handed to fly's loggers as the run goes). The x_hat logger can be stalled
+/// (`log-stall`): its queue fills, then records drop and count.
+pub(crate) struct FastOutputs {
     text: PerStream<String>,
+    /// A paced run's loggers, and the link's notices (none in a lock-step run).
+    hub: Option<LogHub>,
+    notices: Notices,
     records: PerStream<u64>,
     drops: PerStream<u64>,
     /// Watchdog events of the current frame, dispatched by the loop.
@@ -59,6 +66,8 @@ impl FastOutputs {
     fn new(stall_from_us: Option<i64>, queue_records: u32) -> Self {
         FastOutputs {
             text: PerStream::default(),
+            hub: None,
+            notices: Notices::default(),
             records: PerStream::default(),
             drops: PerStream::default(),
             events: Vec::with_capacity(8),
@@ -71,6 +80,11 @@ impl FastOutputs {
 
     fn log(&mut self, r: Record) {
         let s = r.stream();
+        if let Some(hub) = &self.hub {
+            hub.log(r);
+            self.records[s] += 1;
+            return;
+        }
         let stalled = s == Stream::XHat
             && self
                 .stall_from_us
@@ -90,6 +104,9 @@ impl FastOutputs {
 
 impl Outputs for FastOutputs {
     fn record(&mut self, r: FlightRecord) {
+        if let FlightRecord::Commander(e) = &r {
+            self.notices.send(Notice::Event(e.clone()));
+        }
         self.log(Record::Flight(r));
     }
 
@@ -99,7 +116,7 @@ impl Outputs for FastOutputs {
 }
 
 /// The vehicle, its edges and the flight, on one simulated clock.
-struct FastSim<'a> {
+pub(crate) struct FastSim<'a> {
     opts: &'a SimOptions,
     cfg: crate::config::Config,
     faults: FaultSchedule,
@@ -145,6 +162,10 @@ struct FastSim<'a> {
     truth: TruthTrace,
     /// truth.log's text.
     truth_text: String,
+    /// The newest step as a watcher sees it.
+    pub(crate) live: Option<Live>,
+    /// A paced run's operators and watchers (`app::sim_paced`); none in a lock-step run.
+    pub(crate) served: Option<crate::app::sim_paced::Served>,
 }
 
 pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSummary> {
@@ -156,7 +177,7 @@ pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumma
     profile_run.config.sim.seed = seed;
     let run_id = new_run_id(&run_dir);
     write_run_config(&profile_run, &run_dir, &run_id)?;
-    let mut sim = FastSim::new(profile, opts, seed, run_dir, run_id);
+    let mut sim = FastSim::new(profile, opts, seed, run_dir, run_id, None);
     while sim.t_us < duration_us {
         sim.t_us += sim.step_us;
         if !sim.step() {
@@ -210,12 +231,16 @@ fn prearm(cfg: &crate::config::Config) -> (PreArm, tokio::sync::watch::Sender<Op
 }
 
 impl<'a> FastSim<'a> {
-    fn new(
+    /// The vehicle at rest, its run folder `run_dir` (created, its configuration written);
+    /// `links`: a paced run's loggers and the link's notices (none: the streams are kept in
+    /// memory and written at the end).
+    pub(crate) fn new(
         profile: &Profile,
         opts: &'a SimOptions,
         seed: u64,
         run_dir: PathBuf,
         run_id: String,
+        links: Option<(LogHub, Notices)>,
     ) -> Self {
         let cfg = &profile.config;
         let (plant, imu) = crate::sim::vehicle(profile, seed);
@@ -223,6 +248,10 @@ impl<'a> FastSim<'a> {
         let (estimator, controller) = live_sides(profile);
         let faults = FaultSchedule::new(&opts.inject);
         let mut out = FastOutputs::new(faults.at_us(Fault::LogStall), cfg.log.queue_records);
+        if let Some((hub, notices)) = links {
+            out.hub = Some(hub);
+            out.notices = notices;
+        }
         out.log(Record::note(format!(
             "uquad {} simulation, seed {seed}, run {}",
             env!("CARGO_PKG_VERSION"),
@@ -275,12 +304,14 @@ impl<'a> FastSim<'a> {
             safety: SafetyTrace::default(),
             truth: TruthTrace::default(),
             truth_text: String::new(),
+            live: None,
+            served: None,
             faults,
         }
     }
 
     /// One physics step; `false` when the run is over (a halt or an abort, motors stopped).
-    fn step(&mut self) -> bool {
+    pub(crate) fn step(&mut self) -> bool {
         let t = self.t_us;
         self.out.now_us = t;
         self.escs.failing = self.faults.active(Fault::EscNack, t);
@@ -329,14 +360,19 @@ impl<'a> FastSim<'a> {
         !(ended && self.driver.stop_outcome().is_some())
     }
 
-    /// The operator's inputs due now, into the flight sequence before the frame.
+    /// The operator's inputs due now (the script's, and a paced run's links'), into the
+    /// flight sequence before the frame; a ground station's is answered with its outcome.
     fn operate(&mut self) {
         let t = self.t_us;
         self.operator.due(t, &mut self.inputs);
+        if let Some(served) = &mut self.served {
+            served.take_inputs(t, &mut self.inputs);
+        }
         if self.inputs.is_empty() {
             return;
         }
         for (due_us, input) in std::mem::take(&mut self.inputs) {
+            let asked = crate::tasks::estimator::notice_of(&input, None).map(|_| input.clone());
             // Due while no frame came (a garbled IMU): past commander.input_expiry_s, refused.
             let input = self.flight.estimator.commander().aged(input, t - due_us);
             let facts = if matches!(input, OperatorInput::Command(OperatorCommand::Arm, _)) {
@@ -354,8 +390,67 @@ impl<'a> FastSim<'a> {
             };
             self.flight
                 .operate(input, t, check, &mut escs, &mut self.out);
+            if let Some(asked) = asked {
+                let refused = self.flight.estimator.last_refusal().map(str::to_string);
+                if let Some(n) = crate::tasks::estimator::notice_of(&asked, refused) {
+                    self.out.notices.send(n);
+                }
+            }
         }
         self.dispatch_events();
+    }
+
+    /// Simulated time now, and one physics step, µs.
+    pub(crate) fn clock_us(&self) -> (i64, i64) {
+        (self.t_us, self.step_us)
+    }
+
+    /// Advances the clock by one physics step and runs it; `false` once the run is over.
+    pub(crate) fn advance(&mut self) -> bool {
+        self.t_us += self.step_us;
+        self.step()
+    }
+
+    /// A signal: the run ends as the quit key ends it, the motors stopped first.
+    pub(crate) fn shut_down(&mut self) {
+        self.quit = true;
+        self.driver
+            .stop(StopReason::Shutdown, self.t_us, &mut self.cycles);
+        self.execute_cycles();
+    }
+
+    /// What an `arm` would be told now by the commander's rules and the pre-arm checks
+    /// (nothing recorded): a ground station's pre-arm bit.
+    pub(crate) fn prearm_passes(&self) -> bool {
+        let facts = self.arm_facts();
+        let side = &self.flight.estimator;
+        side.commander().may_arm() && side.prearm_verdict(&facts, self.t_us).is_ok()
+    }
+
+    /// The vehicle's status as a watcher reads it (a paced run's link and console).
+    pub(crate) fn status(
+        &self,
+        mode: Mode,
+        prearm_ok: Option<bool>,
+    ) -> crate::core::status::VehicleStatus {
+        let live = self.live.map(|mut l| {
+            let c = &self.flight.controller;
+            l.flying_steps = c.counts().flying_steps;
+            l.setpoint_m = c.setpoint_m().unwrap_or(l.setpoint_m);
+            l
+        });
+        crate::core::status::VehicleStatus {
+            mode,
+            live,
+            fix: self.newest_fix,
+            gps_used: self.gps_live,
+            imu_frames: self.fly.frames,
+            escs_answering: self.driver.silent_addresses().is_empty(),
+            halt: self.trip.map(|t| t.reason),
+            log_problem: self.prearm.1.borrow().clone(),
+            control_cpu_ns: None,
+            prearm_ok,
+        }
     }
 
     /// At the run's end, the operator's inputs that waited past `commander.input_expiry_s`
@@ -422,6 +517,7 @@ impl<'a> FastSim<'a> {
             truth: &mut self.truth,
             truth_text: &mut self.truth_text,
             receiver_bias_m: self.gps_live.then(|| self.gps.bias_m()),
+            live: &mut self.live,
         };
         if let Err(why) = self.flight.frame(frame, times, &mut edges, &mut self.out) {
             self.fly.error = Some(why.to_string());
@@ -543,7 +639,7 @@ impl<'a> FastSim<'a> {
 
     /// The end of the run: zero and disable, as fly's shutdown does; the closing lines; the
     /// streams written into the run folder.
-    fn finish(mut self) -> anyhow::Result<SimSummary> {
+    pub(crate) fn finish(mut self) -> anyhow::Result<SimSummary> {
         self.expire_unapplied();
         self.driver
             .stop(StopReason::Shutdown, self.t_us, &mut self.cycles);
@@ -582,7 +678,11 @@ impl<'a> FastSim<'a> {
         for r in fly.closing_records() {
             self.out.log(r);
         }
-        write_streams(fly, &self.out.text);
+        match &self.out.hub {
+            // A paced run's loggers have written as it went; they end with the run.
+            Some(hub) => fly.log_drops = hub.dropped(),
+            None => write_streams(fly, &self.out.text),
+        }
         write_truth(fly, &self.truth_text);
         fly.log_records = self.out.records;
         let mission = self.flight.estimator.commander().mission_figures();
@@ -669,6 +769,8 @@ struct SimEdges<'b> {
     truth_text: &'b mut String,
     /// The simulated receiver's bias, north, west, up (with a receiver), m.
     receiver_bias_m: Option<[f64; 3]>,
+    /// The newest step as a watcher sees it.
+    live: &'b mut Option<Live>,
 }
 
 impl EscEdges for SimEdges<'_> {
@@ -703,9 +805,25 @@ impl Edges<FastOutputs> for SimEdges<'_> {
             crate::logs::format::write_values_row(self.truth_text, Some(t_us), &row);
         }
         self.judge.dispatch(&mut out.events, self.plant, t_us);
+        let g = est.guidance;
+        *self.live = Some(Live {
+            step: est.step,
+            x: est.x.into(),
+            w_rad_s: self.live.map_or([0.0; 4], |l| l.w_rad_s),
+            setpoint_m: g.pos_m,
+            mode: g.mode,
+            height_m: g.height_m,
+            flying_steps: 0,
+            ratios: est.ratios,
+            home_m: g.home_m,
+            mission_item: g.mission_item,
+        });
     }
 
     fn command(&mut self, c: &Command) {
+        if let Some(l) = self.live.as_mut() {
+            l.w_rad_s = c.w_rad_s;
+        }
         let t = self.escs.t_us;
         self.escs.driver.command(&c.w_rad_s, t, t, self.escs.cycles);
     }

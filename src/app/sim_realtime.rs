@@ -59,7 +59,8 @@ struct SimThread {
 struct SimResult {
     simulated_us: i64,
     hover: HoverStats,
-    figures: crate::core::commander::Figures,
+    /// The true vehicle's figures, one per flight.
+    flights: Vec<crate::core::commander::Figures>,
     /// truth.log was written whole.
     truth_whole: bool,
 }
@@ -224,7 +225,8 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
         }
     };
     place_truth(&truth_tmp, result.truth_whole, &mut fly);
-    fly.commander.figures = result.figures;
+    fly.commander.figures = result.flights.first().copied().unwrap_or_default();
+    fly.commander.flights = result.flights;
     Ok(SimSummary {
         esc_end,
         fly,
@@ -297,7 +299,7 @@ impl SimThread {
         SimResult {
             simulated_us: t_us,
             hover: hover.stats(),
-            figures: self.trace.figures(),
+            flights: self.trace.flight_figures(),
             truth_whole: self.truth.finish(),
         }
     }

@@ -8,7 +8,8 @@ use std::path::PathBuf;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum GcsEnabled {
-    /// `sim --realtime` only (the default): a ground station can watch a simulated vehicle.
+    /// `sim --realtime` and `sim --mode paced` only (the default): a ground station can
+    /// watch and fly a simulated vehicle.
     SimRealtime,
     /// `fly` too.
     Always,

@@ -47,6 +47,11 @@ pub fn vehicle(profile: &Profile, seed: u64) -> (physics::Plant, imu::SimImu) {
     (plant, imu)
 }
 
+/// The simulated site's ground above sea level, m (the receiver reports its altitude above
+/// sea level, as gpsd does): a ground station's takeoff altitude given above sea level reads
+/// as the height it means, as on a real field.
+pub const SITE_ALT_M: f64 = 30.0;
+
 /// Where the simulated vehicle flies: the 2012 flight's first fix (Facultad de Ingeniería,
 /// Montevideo), latitude and longitude, degrees.
 pub const SITE_DEG: [f64; 2] = [-34.919588333, -56.166258333];
@@ -70,7 +75,7 @@ pub fn gps_fix(
             mode: 3,
             lat_deg,
             lon_deg,
-            alt_m: Some(pos_m[2]),
+            alt_m: Some(SITE_ALT_M + pos_m[2]),
             // The receiver's own estimate of its error (`sim::gps`).
             eph_m: Some(eph_m),
         },

@@ -75,9 +75,11 @@ impl SimOperator {
         }
     }
 
-    /// Every command of the script was sent (or the link went silent for good).
+    /// Every command of the script was sent (or the link went silent for good): a landing
+    /// after it ends the run. Without a script (`none`) never: a ground station or a console
+    /// flies the vehicle, as many flights as it likes, until `--duration` or a signal.
     pub fn done(&self, t_us: i64) -> bool {
-        self.script.is_empty() || self.silent(t_us)
+        self.present && (self.script.is_empty() || self.silent(t_us))
     }
 
     fn silent(&self, t_us: i64) -> bool {

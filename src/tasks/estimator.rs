@@ -398,7 +398,7 @@ impl EstimatorTask {
 
 /// The answer a ground station waits for about `input` (a command of its, a mission), with
 /// the refusal's reason if refused; `None` for inputs no one waits on.
-fn notice_of(input: &OperatorInput, refused: Option<String>) -> Option<Notice> {
+pub(crate) fn notice_of(input: &OperatorInput, refused: Option<String>) -> Option<Notice> {
     match input {
         OperatorInput::Command(command, source @ LinkSource::Gcs) => Some(Notice::Outcome {
             command: *command,

@@ -1,6 +1,7 @@
 //! Gathers the vehicle's status (`core::status`) from the run's shared state, in one place:
 //! the ground-station link and the console's statistics line both read it here. Reading
-//! never waits on the control path: watches are copied, counters are atomics.
+//! never waits on the control path: watches are copied, counters are atomics. A paced
+//! simulation, whose flight runs in one lock-step loop, publishes the whole status instead.
 
 use crate::core::gps::LiveFix;
 use crate::core::status::{Live, VehicleStatus};
@@ -46,6 +47,24 @@ impl StatusSources {
             log_problem: self.log_problem.borrow().clone(),
             control_cpu_ns: self.control_cpu.map(crate::hw::cpu_clock::clock_ns),
             prearm_ok: self.prearm.get(),
+        }
+    }
+}
+
+/// Where a watcher reads the vehicle's status: `fly`'s tasks' shared state, or the status a
+/// lock-step loop publishes whole (`sim --mode paced`).
+#[derive(Clone)]
+pub enum StatusReader {
+    Tasks(Box<StatusSources>),
+    Published(watch::Receiver<VehicleStatus>),
+}
+
+impl StatusReader {
+    /// The status now.
+    pub fn read(&self) -> VehicleStatus {
+        match self {
+            StatusReader::Tasks(s) => s.read(),
+            StatusReader::Published(rx) => rx.borrow().clone(),
         }
     }
 }

@@ -76,6 +76,23 @@ pub fn realtime_sim(args: &[&str], dir: &Path) -> Command {
     cmd
 }
 
+/// [`realtime_sim`]'s run as `uquad sim --mode paced --speed SPEED`: the lock-step flight
+/// paced to the wall clock, the link and the console served.
+#[allow(dead_code)]
+pub fn paced_sim(speed: &str, args: &[&str], dir: &Path) -> Command {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_uquad"));
+    cmd.args(["sim", "--mode", "paced", "--speed", speed])
+        .args(["--config", "config/uquad.toml"])
+        .args(["--set", "commander.start=flying"])
+        .args(args)
+        .arg("--log-dir")
+        .arg(dir)
+        .arg("--report")
+        .arg(dir.join("report.json"))
+        .current_dir(root());
+    cmd
+}
+
 /// Every `.rs` file under `dir`.
 pub fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
     for entry in std::fs::read_dir(dir).unwrap() {
@@ -620,5 +637,26 @@ pub fn run_dir(dir: &Path) -> PathBuf {
         }
         assert!(t0.elapsed() < Duration::from_secs(10), "no run folder");
         std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// A `--script none` run goes on after a landing, as many flights as its operator flies,
+/// until `--duration` or a signal: once its ground station is done, the run is given 3 s to
+/// end by itself (a halt, its duration), then SIGTERM (the motors stopped, the report
+/// written). Its exit status.
+#[allow(dead_code)]
+pub fn end_run(run: &mut Uquad) -> std::process::ExitStatus {
+    let asked = std::time::Instant::now();
+    let mut signalled = false;
+    loop {
+        if let Some(status) = run.child.try_wait().expect("wait for uquad") {
+            return status;
+        }
+        if !signalled && asked.elapsed() > std::time::Duration::from_secs(3) {
+            // SAFETY: kill with a child's pid and a signal number.
+            unsafe { libc::kill(run.child.id() as i32, libc::SIGTERM) };
+            signalled = true;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
     }
 }

@@ -15,7 +15,7 @@
 //! first, then the control path stops, then the loggers drain and flush.
 
 mod control;
-mod gcs_link;
+pub(crate) mod gcs_link;
 mod operators;
 
 use crate::app::report::FlySummary;
@@ -203,7 +203,7 @@ pub async fn run(
         let link = gcs_link::Inputs {
             operator: operator_tx.clone(),
             notices,
-            status,
+            status: crate::tasks::status::StatusReader::Tasks(Box::new(status)),
         };
         gcs_link::spawn(profile, &opts, &h, link)
     });

@@ -22,7 +22,7 @@ use crate::gcs::connection::{Connection, Counts, Effect, MissionSettings, Notice
 use crate::gcs::params::Params;
 use crate::hw::cpu_clock::thread_cpu_ns;
 use crate::tasks::notices::Notices;
-use crate::tasks::status::StatusSources;
+use crate::tasks::status::StatusReader;
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -40,7 +40,7 @@ pub struct GcsContext {
     /// The flight's notices, and their sending side's count of what a full queue dropped.
     pub notices: mpsc::Receiver<Notice>,
     pub notices_tx: Notices,
-    pub status: StatusSources,
+    pub status: StatusReader,
     /// A fix older than this does not hold position, µs.
     pub gps_timeout_us: i64,
     /// The run's start.
