@@ -161,8 +161,11 @@ consoles can attach at once; one that stops reading only loses its own events."
     #[command(
         long_about = "List the parameters a ground station sees over MAVLink: one line each with \
 its id (at most 16 characters), the configuration key it stands for, its value in this profile \
-(with the parameters kept from earlier runs applied, as `fly` and `sim` apply them) and whether \
-it is flight-critical (a ground station's change is refused while armed).\n\n\
+(with the parameters kept from earlier runs applied, as `fly` and `sim` apply them), whether \
+it is flight-critical (a ground station's change is refused while armed) and when a change takes \
+effect: `flight` (the running flight's next step: the commander's speeds and heights, the \
+failsafes' timeouts; recorded in mode.log, so a replay applies it at the same step) or `start` \
+(the next run).\n\n\
 The profile's numbers and true/false keys are parameters; text keys and lists are not."
     )]
     Params(ParamsArgs),
@@ -273,7 +276,7 @@ struct SimArgs {
     /// lock-step flight paced to the wall clock, a ground station and the console served.
     #[arg(long, value_enum, value_name = "MODE", conflicts_with_all = ["fast", "realtime"])]
     mode: Option<SimMode>,
-    /// --mode paced: simulated seconds per wall second, more than 0, at most 100 (default 1;
+    /// --mode paced: simulated seconds per wall second, 0.1 to 100 (default 1;
     /// ArduPilot's SITL speed-up). The link-loss failsafe's timeout is scaled by it, so that
     /// it stays the ground station's wall-clock timeout.
     #[arg(long, value_name = "FACTOR", value_parser = parse_speed)]
@@ -898,13 +901,17 @@ impl ParamsArgs {
         let profile = self.profile.load_kept(self.log_dir.as_deref())?;
         let params = uquad::gcs::params::Params::of(&profile.config);
         println!(
-            "{:<16}  {:<36}  {:>12}  flight-critical",
+            "{:<16}  {:<36}  {:>12}  flight-critical  takes effect",
             "id", "key", "value"
         );
         for i in 0..params.len() {
             if let Some(p) = params.get(i) {
                 let critical = if p.flight_critical() { "yes" } else { "no" };
-                println!("{:<16}  {:<36}  {:>12}  {critical}", p.id, p.key, p.value);
+                let effect = if p.in_flight() { "flight" } else { "start" };
+                println!(
+                    "{:<16}  {:<36}  {:>12}  {critical:<15}  {effect}",
+                    p.id, p.key, p.value
+                );
             }
         }
         Ok(ExitCode::SUCCESS)
@@ -1092,15 +1099,15 @@ impl ReplayArgs {
     }
 }
 
-/// `--speed`: a finite factor in (0, 100].
+/// `--speed`: a finite factor in [0.1, 100].
 fn parse_speed(s: &str) -> Result<f64, String> {
     let v: f64 = s
         .trim()
         .parse()
         .map_err(|_| format!("{s:?} is not a number"))?;
-    if v.is_finite() && v > 0.0 && v <= 100.0 {
+    if (0.1..=100.0).contains(&v) {
         Ok(v)
     } else {
-        Err(format!("{v} is outside (0, 100]"))
+        Err(format!("{v} is outside 0.1 to 100"))
     }
 }

@@ -373,6 +373,8 @@ fn calibrated_before_arming_the_estimate_runs_and_an_arm_starts_the_escs_under_i
     let (action, why) = arm(&mut b);
     assert_eq!((action, why), (OperatorAction::StartEscs, None));
     assert_eq!(b.estimator.phase(), Phase::EscStart);
+    // The ESC writer takes the start.
+    b.start_requests += 1;
     b.esc = EscPhase::Ramping;
     // Every frame of the ramp is still a Kalman step; its end is told and recorded.
     for _ in 0..40 {

@@ -14,8 +14,9 @@ fn python() -> String {
     std::env::var("UQUAD_PYTHON").unwrap_or_else(|_| "python3".into())
 }
 
-/// Starts the client for `scenario`; returns it and the UDP port it listens on.
-fn start_client(scenario: &[&str]) -> (Child, u16) {
+/// Starts the client for `scenario`; returns it and the `--set` that points the vehicle's
+/// link at it: the UDP port it listens on, or the pty standing in for its radio.
+fn start_client(scenario: &[&str]) -> (Child, String) {
     let script = root().join("tests/gcs_client.py");
     let mut child = Command::new(python())
         .arg(&script)
@@ -28,11 +29,16 @@ fn start_client(scenario: &[&str]) -> (Child, u16) {
     let mut first = String::new();
     let stdout = child.stdout.as_mut().unwrap();
     BufReader::new(stdout).read_line(&mut first).unwrap();
-    let Some(port) = first
-        .trim()
-        .strip_prefix("port ")
-        .and_then(|p| p.parse().ok())
-    else {
+    let first = first.trim();
+    let link = if let Some(pty) = first.strip_prefix("pty ") {
+        Some(format!("gcs.serial=\"{pty}\""))
+    } else {
+        first
+            .strip_prefix("port ")
+            .and_then(|p| p.parse::<u16>().ok())
+            .map(|port| format!("gcs.udp_remote=\"127.0.0.1:{port}\""))
+    };
+    let Some(link) = link else {
         let out = child.wait_with_output().unwrap();
         panic!(
             "the client did not start (pymavlink missing? run tests/run.sh, or set \
@@ -40,7 +46,7 @@ fn start_client(scenario: &[&str]) -> (Child, u16) {
             String::from_utf8_lossy(&out.stderr)
         );
     };
-    (child, port)
+    (child, link)
 }
 
 /// What a scenario left: the client's JSON line, the run's report, its folder, and the
@@ -71,8 +77,7 @@ fn fly_against(
     succeeds: bool,
 ) -> Flown {
     let dir = tempfile::tempdir().unwrap();
-    let (mut client, port) = start_client(scenario);
-    let remote = format!("gcs.udp_remote=\"127.0.0.1:{port}\"");
+    let (mut client, remote) = start_client(scenario);
     let kept = format!(
         "gcs.params_file=\"{}\"",
         dir.path().join("params.toml").display()
@@ -267,11 +272,27 @@ fn uquad_params_lists_every_mapped_key() {
         .collect();
     assert_eq!(rows.len(), uquad::gcs::params::TABLE.len(), "{text}");
     assert!(
-        rows.contains(&vec!["FEN_RADIUS_M", "fence.radius_m", "30", "yes"]),
+        rows.contains(&vec![
+            "FEN_RADIUS_M",
+            "fence.radius_m",
+            "30",
+            "yes",
+            "start"
+        ]),
         "{text}"
     );
     assert!(
-        rows.contains(&vec!["SIM_GUST_N", "sim.gust_n", "3", "no"]),
+        rows.contains(&vec!["SIM_GUST_N", "sim.gust_n", "3", "no", "start"]),
+        "{text}"
+    );
+    assert!(
+        rows.contains(&vec![
+            "CMD_LAND_M_S",
+            "commander.land_m_s",
+            "0.5",
+            "no",
+            "flight"
+        ]),
         "{text}"
     );
 }
@@ -482,4 +503,101 @@ fn a_ground_station_flies_three_flights_in_one_paced_run_replayed_exactly() {
     }
     assert!(r["halt"].is_null(), "{r}");
     assert_replays_same(run, &["mode.log", "w.log", "x_hat.log", "int.log"]);
+}
+
+/// A parameter that takes effect in flight, set by a ground station in the air: the landing
+/// that follows descends at the new speed (the set point's descent in setpoint.log), the
+/// change is in mode.log, and the run replays to identical bytes.
+#[test]
+fn a_landing_speed_set_in_flight_changes_the_landing_and_replays_exactly() {
+    let paced = |args: &[&str], dir: &std::path::Path| paced_sim("2", args, dir);
+    let flown = fly_against(paced, &["land-param"], &[], true);
+    let (r, run) = (&flown.report, &flown.run);
+    let mode_log = std::fs::read_to_string(run.join("mode.log")).unwrap();
+    let set_at = mode_log
+        .lines()
+        .find_map(|l| l.strip_suffix(" param commander.land_m_s 0.3"))
+        .unwrap_or_else(|| panic!("no parameter line: {mode_log}"));
+    let land_at = mode_log
+        .lines()
+        .find_map(|l| l.strip_suffix(" mode land command land"))
+        .unwrap_or_else(|| panic!("no landing: {mode_log}"));
+    let (set_s, land_s) = (secs(set_at), secs(land_at));
+    let (set_line, land_line) = (
+        mode_log.find(" param commander.land_m_s"),
+        mode_log.find(" mode land command land"),
+    );
+    assert!(
+        set_s <= land_s && set_line < land_line,
+        "set at {set_s} s, landing at {land_s} s"
+    );
+    // The set point's fastest descent over any 0.5 s of the landing: the new 0.3 m/s, not
+    // the profile's 0.5.
+    let sp = read_table(&run.join("setpoint.log"));
+    let z: Vec<(f64, f64)> = sp
+        .iter()
+        .filter_map(|row| Some((row[0].parse().ok()?, row[3].parse().ok()?)))
+        .filter(|(t, _)| *t >= land_s)
+        .collect();
+    let fastest = z
+        .windows(51)
+        .map(|w| (w[0].1 - w[50].1) / (w[50].0 - w[0].0))
+        .fold(0.0, f64::max);
+    assert!(
+        (0.28..=0.31).contains(&fastest),
+        "the landing descended at up to {fastest} m/s"
+    );
+    assert_eq!(
+        report_modes(r).last().map(String::as_str),
+        Some("disarmed"),
+        "{r}"
+    );
+    assert_replays_same(run, &["mode.log", "w.log", "x_hat.log", "setpoint.log"]);
+}
+
+/// µs as written in mode.log, in s.
+fn secs(us: &str) -> f64 {
+    us.parse::<f64>().unwrap_or(f64::NAN) / 1e6
+}
+
+/// A flight's log downloaded from `sim --mode paced` (LOG_REQUEST_LIST, LOG_REQUEST_DATA):
+/// over UDP whole, read by pyulog, with telemetry flowing during it; over a pty standing in
+/// for a 57 600 baud radio, a part of it at 70 % of the line's byte rate or more (the link
+/// paces its output to `gcs.baud`), telemetry going on.
+#[test]
+fn a_flights_log_downloads_over_udp_and_over_a_57600_baud_radio() {
+    let paced = |args: &[&str], dir: &std::path::Path| paced_sim("2", args, dir);
+    let flown = fly_against(paced, &["download", "0"], &[], true);
+    let m = &flown.measured;
+    assert_eq!(m["bytes"], m["size"], "{m}");
+    assert!(u(&m["bytes"]) > 10_000, "{m}");
+    let topics: Vec<&str> = m["topics"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(Value::as_str)
+        .collect();
+    for t in [
+        "vehicle_attitude",
+        "vehicle_local_position",
+        "actuator_outputs",
+    ] {
+        assert!(topics.contains(&t), "{t} missing: {m}");
+    }
+    assert!(m["attitude_hz"].as_f64().unwrap() >= 5.0, "{m}");
+    assert_eq!(
+        m["log_id"], m["num_logs"],
+        "the newest log is this run's: {m}"
+    );
+
+    let radio = ["--set", "gcs.baud=57600"];
+    let flown = fly_against(paced, &["download-pty", "60000"], &radio, true);
+    let m = &flown.measured;
+    let line_b_s = 57_600.0 / 10.0;
+    let rate = m["rate_b_s"].as_f64().unwrap();
+    assert!(
+        rate >= 0.70 * line_b_s && rate <= line_b_s,
+        "{rate} B/s on a {line_b_s} B/s line: {m}"
+    );
+    assert!(m["attitude_hz"].as_f64().unwrap() >= 1.0, "{m}");
 }

@@ -13,16 +13,23 @@ Scenarios:
   mission          a refused upload, an upload, its download, arm, the Mission mode asked
                    for: the items reached in order, MISSION_CURRENT following them, landed.
   flights N        N flights in one run: arm, takeoff to 1 m, land, each time.
+  land-param       arm, takeoff to 2 m, CMD_LAND_M_S set to 0.3 in the air, land.
+  download MAX     one flight, then the run's log downloaded (at most MAX bytes of it,
+                   0: whole) while telemetry goes on; pyulog reads a whole one.
+  download-pty MAX the same over a pty standing in for a serial radio (prints `pty PATH`
+                   instead of `port N`).
 """
 
 import json
 import math
 import os
 import random
+import select
 import socket
 import struct
 import sys
 import time
+import tty
 
 os.environ["MAVLINK20"] = "1"
 from pymavlink import mavutil  # noqa: E402
@@ -36,12 +43,43 @@ def fail(why):
     sys.exit(1)
 
 
-class Station:
+class PtyLink(mavutil.mavfile):
+    """pymavlink over a pty's master side: the vehicle opens the other side as its radio."""
+
     def __init__(self):
-        self.conn = mavutil.mavlink_connection(
-            "udpin:127.0.0.1:0", source_system=255, source_component=190
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.master)
+        self.name = os.ttyname(self.slave)
+        mavutil.mavfile.__init__(
+            self, self.master, self.name, source_system=255, source_component=190
         )
-        self.port = self.conn.port.getsockname()[1]
+
+    def recv(self, n=None):
+        r, _, _ = select.select([self.master], [], [], 0.05)
+        if not r:
+            return b""
+        try:
+            return os.read(self.master, 4096)
+        except OSError:
+            return b""
+
+    def write(self, buf):
+        try:
+            os.write(self.master, buf)
+        except OSError:
+            pass
+
+
+class Station:
+    def __init__(self, pty=False):
+        if pty:
+            self.conn = PtyLink()
+            self.port = None
+        else:
+            self.conn = mavutil.mavlink_connection(
+                "udpin:127.0.0.1:0", source_system=255, source_component=190
+            )
+            self.port = self.conn.port.getsockname()[1]
         self.beating = True
         self.heard = False
         self.last_beat = 0.0
@@ -584,8 +622,10 @@ def fly(s, run_dir, started, expected):
     attitude_ms = requests(s)
     names = mode_requests(s)
     load = s.last["SYS_STATUS"].load
-    s.conn.mav.param_set_send(1, 1, b"CMD_LAND_M_S", 0.3, mav.MAV_PARAM_TYPE_REAL32)
-    s.wait_text("CMD_LAND_M_S not set: commander.land_m_s: flight-critical, refused while hold")
+    s.conn.mav.param_set_send(1, 1, b"CMD_CRASH_TILT", 0.9, mav.MAV_PARAM_TYPE_REAL32)
+    s.wait_text(
+        "CMD_CRASH_TILT not set: commander.crash_tilt_rad: flight-critical, refused while hold"
+    )
     # Return, then land, each as pymavlink's PX4 map and MAVSDK encode it.
     s.command(mav.MAV_CMD_DO_SET_MODE, [29, AUTO, RTL, 0, 0, 0, 0])
     s.wait("the return in the heartbeat", mode_is(RETURN))
@@ -781,9 +821,91 @@ def flights(s, n):
     return {"flights": n, "flight_s": times}
 
 
+def land_param(s):
+    """A landing speed set in flight (a key that takes effect in flight), then the landing."""
+    s.wait("a heartbeat", lambda m: m.get_type() == "HEARTBEAT", 5.0)
+    arm_and_take_off(s, 2.0)
+    s.conn.mav.param_set_send(1, 1, b"CMD_LAND_M_S", 0.3, mav.MAV_PARAM_TYPE_REAL32)
+    value = s.param("CMD_LAND_M_S").param_value
+    if abs(value - 0.3) > 1e-6:
+        fail(f"CMD_LAND_M_S set in the air came back as {value}; texts: {s.texts}")
+    land(s)
+    return {"land_m_s": round(value, 3)}
+
+
+def log_download(s, max_bytes):
+    """One flight, then the newest log (this run's) downloaded while telemetry goes on:
+    bytes, seconds, the rate, and ATTITUDE's rate during it."""
+    s.wait("a heartbeat", lambda m: m.get_type() == "HEARTBEAT", 5.0)
+    arm_and_take_off(s, 1.0)
+    land(s)
+    s.conn.mav.log_request_list_send(1, 1, 0, 0xFFFF)
+    entries = {}
+    end = time.time() + LONG
+    while time.time() < end:
+        m = s.pump()
+        if m is not None and m.get_type() == "LOG_ENTRY":
+            entries[m.id] = m
+            if len(entries) >= m.num_logs:
+                break
+    if not entries or max(entries) == 0:
+        fail(f"no log listed: {entries}; texts: {s.texts}")
+    entry = entries[max(entries)]
+    want = entry.size if max_bytes == 0 else min(entry.size, max_bytes)
+    data = bytearray(want)
+    have = [False] * ((want + 89) // 90)
+    attitude, t0 = 0, time.time()
+    s.conn.mav.log_request_data_send(1, 1, entry.id, 0, want)
+    last_packet = time.time()
+    while not all(have) and time.time() - t0 < 600:
+        m = s.pump()
+        if m is None:
+            if time.time() - last_packet > 2.0:
+                # Lost packets: the first gap asked for again, as ground stations do.
+                k = have.index(False)
+                s.conn.mav.log_request_data_send(1, 1, entry.id, k * 90, want - k * 90)
+                last_packet = time.time()
+            continue
+        kind = m.get_type()
+        if kind == "ATTITUDE":
+            attitude += 1
+        elif kind == "LOG_DATA" and m.id == entry.id and m.ofs < want:
+            last_packet = time.time()
+            n = min(m.count, want - m.ofs)
+            data[m.ofs : m.ofs + n] = bytes(m.data[:n])
+            have[m.ofs // 90] = True
+    seconds = time.time() - t0
+    if not all(have):
+        fail(f"log {entry.id}: {sum(have)} of {len(have)} packets in {seconds:.0f} s")
+    s.conn.mav.log_request_end_send(1, 1)
+    topics = []
+    if want == entry.size:
+        from pyulog import ULog
+
+        path = os.path.join(os.environ.get("TMPDIR", "/tmp"), f"uquad-dl-{os.getpid()}.ulg")
+        with open(path, "wb") as f:
+            f.write(data)
+        topics = sorted({d.name for d in ULog(path).data_list})
+        os.remove(path)
+    return {
+        "log_id": entry.id,
+        "num_logs": entry.num_logs,
+        "size": entry.size,
+        "bytes": want,
+        "seconds": round(seconds, 2),
+        "rate_b_s": round(want / seconds, 1),
+        "attitude_hz": round(attitude / seconds, 1),
+        "topics": topics,
+    }
+
+
 def main():
-    s = Station()
-    print(f"port {s.port}", flush=True)
+    pty = sys.argv[1] == "download-pty"
+    s = Station(pty=pty)
+    if pty:
+        print(f"pty {s.conn.name}", flush=True)
+    else:
+        print(f"port {s.port}", flush=True)
     if sys.stdin.readline().strip() != "started":
         fail("expected `started`")
     started = time.time()
@@ -801,6 +923,10 @@ def main():
         out = mission(s)
     elif sys.argv[1] == "before-arm":
         out = before_arm(s)
+    elif sys.argv[1] in ("download", "download-pty"):
+        out = log_download(s, int(sys.argv[2]))
+    elif sys.argv[1] == "land-param":
+        out = land_param(s)
     elif sys.argv[1] == "flights":
         out = flights(s, int(sys.argv[2]))
     else:

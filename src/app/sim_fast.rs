@@ -165,7 +165,7 @@ pub(crate) struct FastSim<'a> {
     /// The newest step as a watcher sees it.
     pub(crate) live: Option<Live>,
     /// A paced run's operators and watchers (`app::sim_paced`); none in a lock-step run.
-    pub(crate) served: Option<crate::app::sim_paced::Served>,
+    pub(crate) served: Option<Served>,
 }
 
 pub fn run_fast(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSummary> {
@@ -248,6 +248,7 @@ impl<'a> FastSim<'a> {
         let (estimator, controller) = live_sides(profile);
         let faults = FaultSchedule::new(&opts.inject);
         let mut out = FastOutputs::new(faults.at_us(Fault::LogStall), cfg.log.queue_records);
+        let served = links.is_some();
         if let Some((hub, notices)) = links {
             out.hub = Some(hub);
             out.notices = notices;
@@ -289,10 +290,15 @@ impl<'a> FastSim<'a> {
             out,
             fly: FlySummary::empty(run_dir),
             hover: HoverWindow::new(cfg.sim.settle_s),
-            operator: SimOperator::new(
-                &crate::app::sim::script(opts, profile),
-                faults.at_us(Fault::LinkLoss),
-            ),
+            operator: {
+                let script = crate::app::sim::script(opts, profile);
+                let operator = SimOperator::new(&script, faults.at_us(Fault::LinkLoss));
+                if served {
+                    operator.with_links()
+                } else {
+                    operator
+                }
+            },
             inputs: Vec::with_capacity(4),
             newest_fix: None,
             prearm: prearm(cfg),
@@ -314,6 +320,11 @@ impl<'a> FastSim<'a> {
     pub(crate) fn step(&mut self) -> bool {
         let t = self.t_us;
         self.out.now_us = t;
+        // A paced run's links: stamped as they arrive, applied at the next frame (an input
+        // that waits past commander.input_expiry_s for one is refused, as in `fly`).
+        if let Some(served) = &mut self.served {
+            served.take_inputs(t, &mut self.inputs);
+        }
         self.escs.failing = self.faults.active(Fault::EscNack, t);
         if self.faults.active(Fault::ThrustLoss, t) {
             self.plant.thrust_scale[0] = 0.7;
@@ -365,9 +376,6 @@ impl<'a> FastSim<'a> {
     fn operate(&mut self) {
         let t = self.t_us;
         self.operator.due(t, &mut self.inputs);
-        if let Some(served) = &mut self.served {
-            served.take_inputs(t, &mut self.inputs);
-        }
         if self.inputs.is_empty() {
             return;
         }
@@ -411,8 +419,11 @@ impl<'a> FastSim<'a> {
         self.step()
     }
 
-    /// A signal: the run ends as the quit key ends it, the motors stopped first.
+    /// A signal: the motors stopped at once, the run ends (err.log says why).
     pub(crate) fn shut_down(&mut self) {
+        self.out.log(Record::note(
+            "signal: stopping the motors and ending the run",
+        ));
         self.quit = true;
         self.driver
             .stop(StopReason::Shutdown, self.t_us, &mut self.cycles);
@@ -589,7 +600,8 @@ impl<'a> FastSim<'a> {
         let Some(trip) = self.trip else {
             return;
         };
-        if self.driver.phase() != EscPhase::Stopped {
+        // Between flights the motors are off already: the halt makes that stop final.
+        if self.driver.phase() != EscPhase::Stopped || self.driver.restartable() {
             self.driver
                 .stop(StopReason::Halt(trip.reason), self.t_us, &mut self.cycles);
             self.execute_cycles();
@@ -826,5 +838,36 @@ impl Edges<FastOutputs> for SimEdges<'_> {
         }
         let t = self.escs.t_us;
         self.escs.driver.command(&c.w_rad_s, t, t, self.escs.cycles);
+    }
+}
+
+/// The shortest link timeout the configuration allows, s: a slowed run's scaled one is not
+/// shorter (the simulated operator beats once a simulated second).
+const LINK_TIMEOUT_MIN_S: f64 = 1.5;
+
+/// A paced run's operators and watchers, as the simulator thread sees them.
+pub(crate) struct Served {
+    pub(crate) operator: tokio::sync::mpsc::Receiver<OperatorInput>,
+    pub(crate) status: tokio::sync::watch::Sender<crate::core::status::VehicleStatus>,
+    pub(crate) mode: crate::tasks::notices::ModeSource,
+    pub(crate) next_prearm_us: i64,
+    pub(crate) prearm_ok: Option<bool>,
+    /// Simulated seconds per wall second.
+    pub(crate) speed: f64,
+}
+
+impl Served {
+    /// The links' inputs that arrived since the last step, due now. A link timeout is the
+    /// ground station's wall-clock one: scaled by the speed (at least the shortest the
+    /// configuration allows).
+    pub(crate) fn take_inputs(&mut self, t_us: i64, out: &mut Vec<(i64, OperatorInput)>) {
+        while let Ok(mut input) = self.operator.try_recv() {
+            if let OperatorInput::Param { key, value } = &mut input
+                && *key == "failsafe.link_timeout_s"
+            {
+                *value = (*value * self.speed).max(LINK_TIMEOUT_MIN_S);
+            }
+            out.push((t_us, input));
+        }
     }
 }

@@ -12,14 +12,15 @@
 //! now, and the flight has simply slowed.
 //!
 //! A link's timeouts live on the wall clock a ground station lives by: the run's
-//! `failsafe.link_timeout_s` is multiplied by `--speed` (written so into the run's
-//! config.toml, so a replay judges the same), the link's own timers are the wall clock's.
+//! `failsafe.link_timeout_s` is multiplied by `--speed` (at least 1.5 s) by the run's first
+//! operator input, recorded in mode.log so that a replay judges the same; the link's own
+//! timers are the wall clock's.
 
 use crate::app::fly::gcs_link;
 use crate::app::report::SimSummary;
 use crate::app::run_dir::{create_run_dir, new_run_id, write_run_config};
 use crate::app::sim::SimOptions;
-use crate::app::sim_fast::FastSim;
+use crate::app::sim_fast::{FastSim, Served};
 use crate::config::{GcsEnabled, Profile};
 use crate::core::commander::{Mode, OperatorInput};
 use crate::core::status::VehicleStatus;
@@ -36,29 +37,11 @@ use tokio_util::sync::CancellationToken;
 /// stalled: the flight slows instead of racing).
 pub const STALL: Duration = Duration::from_millis(100);
 
-/// Operator inputs queued for the flight (taken at each frame).
+/// Operator inputs queued for the flight (taken at each step).
 const OPERATOR_QUEUE: usize = 64;
 
 /// The pre-arm verdict is asked this often while disarmed, simulated µs.
 const PREARM_EVERY_US: i64 = 1_000_000;
-
-/// A paced run's operators and watchers, as the simulator thread sees them.
-pub struct Served {
-    operator: mpsc::Receiver<OperatorInput>,
-    status: watch::Sender<VehicleStatus>,
-    mode: crate::tasks::notices::ModeSource,
-    next_prearm_us: i64,
-    prearm_ok: Option<bool>,
-}
-
-impl Served {
-    /// The links' inputs that arrived since the last frame, due now.
-    pub(crate) fn take_inputs(&mut self, t_us: i64, out: &mut Vec<(i64, OperatorInput)>) {
-        while let Ok(input) = self.operator.try_recv() {
-            out.push((t_us, input));
-        }
-    }
-}
 
 /// Wall-clock pacing of the simulated clock at `speed` simulated seconds per second.
 struct Pacer {
@@ -96,10 +79,7 @@ impl Pacer {
 /// and returns its summary.
 pub async fn run(profile: &Profile, opts: &SimOptions, speed: f64) -> anyhow::Result<SimSummary> {
     let mut profile = profile.clone();
-    let seed = opts.seed.unwrap_or(profile.config.sim.seed);
-    profile.config.sim.seed = seed;
-    // The link's silence is judged on the wall clock: `speed` times as long, simulated.
-    profile.config.failsafe.link_timeout_s *= speed;
+    profile.config.sim.seed = opts.seed.unwrap_or(profile.config.sim.seed);
     let cfg = &profile.config;
     let run_dir = create_run_dir(&opts.log_dir.clone().unwrap_or_else(|| cfg.log.dir.clone()))?;
     let run_id = new_run_id(&run_dir);
@@ -107,55 +87,72 @@ pub async fn run(profile: &Profile, opts: &SimOptions, speed: f64) -> anyhow::Re
     let (logs, loggers) =
         crate::tasks::logger::spawn_all(&run_dir, cfg.log.queue_records as usize, None).await?;
     let cancel = CancellationToken::new();
-    let (notices, notices_rx) = gcs_link::notices(cfg.gcs.enabled != GcsEnabled::Never);
     let (operator_tx, operator_rx) = mpsc::channel(OPERATOR_QUEUE);
+    // The link's silence is judged on the wall clock: the run's first input scales its
+    // timeout (recorded in mode.log, so a replay judges the same; the parameter a ground
+    // station reads stays the profile's).
+    if speed != 1.0 {
+        let _ = operator_tx.try_send(OperatorInput::Param {
+            key: "failsafe.link_timeout_s",
+            value: cfg.failsafe.link_timeout_s,
+        });
+    }
     let (status_tx, status_rx) = watch::channel(idle_status());
-    let gcs_stats = crate::tasks::gcs::GcsStats::default();
-    let gcs = notices_rx.map(|rx| {
-        let run = gcs_link::LinkRun {
-            run_dir: run_dir.clone(),
-            logs: logs.clone(),
-            notices: notices.clone(),
-            boot: Instant::now(),
-            stats: gcs_stats.clone(),
-            cancel: cancel.clone(),
-        };
-        let inputs = gcs_link::Inputs {
-            operator: operator_tx.clone(),
-            notices: rx,
-            status: StatusReader::Published(status_rx.clone()),
-        };
-        gcs_link::start(&profile, opts.log_dir.as_deref(), run, inputs)
-    });
-    serve_console(&profile, &operator_tx, &status_rx, &logs, &cancel);
+    let links = Links::start(
+        &profile,
+        opts,
+        &run_dir,
+        &logs,
+        &operator_tx,
+        &status_rx,
+        &cancel,
+    );
     let stop = Arc::new(AtomicBool::new(false));
     tokio::spawn(stop_on_signals(stop.clone(), cancel.clone()));
     let served = Served {
         operator: operator_rx,
         status: status_tx,
-        mode: notices.mode(),
+        mode: links.notices.mode(),
         next_prearm_us: 0,
         prearm_ok: None,
+        speed,
     };
     let thread = {
         let (profile, opts, stop) = (profile.clone(), opts.clone(), stop.clone());
-        let links = (logs.clone(), notices);
+        let out = (logs.clone(), links.notices.clone());
         std::thread::Builder::new()
             .name("sim-paced".into())
             .spawn(move || {
-                fly_paced(
-                    &profile,
-                    &opts,
-                    speed,
-                    (run_dir, run_id),
-                    links,
-                    served,
-                    &stop,
-                )
+                let run = (run_dir, run_id);
+                fly_paced(&profile, &opts, speed, run, out, served, &stop)
             })?
     };
     drop(operator_tx);
-    let summary = tokio::task::spawn_blocking(move || thread.join())
+    let summary = joined(thread).await;
+    // The links end first (they hold the loggers' senders), then the loggers drain: on
+    // every path, an error too.
+    cancel.cancel();
+    let gcs = links.end().await;
+    drop(logs);
+    let mut records = crate::logs::PerStream::<u64>::default();
+    for l in loggers {
+        match l.await {
+            Ok(Ok(rep)) => records[rep.stream] = rep.records,
+            Ok(Err(e)) => tracing::error!("a logger failed: {e}"),
+            Err(e) => tracing::error!("a logger task failed: {e}"),
+        }
+    }
+    let mut summary = summary?;
+    summary.fly.gcs = gcs;
+    summary.fly.log_records = records;
+    Ok(summary)
+}
+
+/// The simulator thread's summary once it has ended; a panic is an error with its message.
+async fn joined(
+    thread: std::thread::JoinHandle<anyhow::Result<SimSummary>>,
+) -> anyhow::Result<SimSummary> {
+    tokio::task::spawn_blocking(move || thread.join())
         .await
         .map_err(|e| anyhow::anyhow!("the simulator thread could not be joined: {e}"))?
         .map_err(|p| {
@@ -163,30 +160,65 @@ pub async fn run(profile: &Profile, opts: &SimOptions, speed: f64) -> anyhow::Re
                 "the simulator thread panicked: {}",
                 crate::tasks::panic_message(p.as_ref())
             )
-        })?;
-    cancel.cancel();
-    if let Some(g) = gcs
-        && tokio::time::timeout(Duration::from_secs(1), g)
+        })?
+}
+
+/// The ground-station link (unless `gcs.enabled = "never"`) and the console, served from the
+/// published status; the notices the flight tells them.
+struct Links {
+    notices: Notices,
+    gcs: Option<(tokio::task::JoinHandle<()>, crate::tasks::gcs::GcsStats)>,
+}
+
+impl Links {
+    fn start(
+        profile: &Profile,
+        opts: &SimOptions,
+        run_dir: &std::path::Path,
+        logs: &crate::tasks::logger::LogHub,
+        operator: &mpsc::Sender<OperatorInput>,
+        status: &watch::Receiver<VehicleStatus>,
+        cancel: &CancellationToken,
+    ) -> Links {
+        let cfg = &profile.config;
+        let (notices, notices_rx) = gcs_link::notices(cfg.gcs.enabled != GcsEnabled::Never);
+        let gcs = notices_rx.map(|rx| {
+            let stats = crate::tasks::gcs::GcsStats::default();
+            let run = gcs_link::LinkRun {
+                run_dir: run_dir.to_path_buf(),
+                logs: logs.clone(),
+                notices: notices.clone(),
+                boot: Instant::now(),
+                stats: stats.clone(),
+                cancel: cancel.clone(),
+            };
+            let inputs = gcs_link::Inputs {
+                operator: operator.clone(),
+                notices: rx,
+                status: StatusReader::Published(status.clone()),
+            };
+            (
+                gcs_link::start(profile, opts.log_dir.as_deref(), run, inputs),
+                stats,
+            )
+        });
+        serve_console(profile, operator, status, logs, cancel);
+        Links { notices, gcs }
+    }
+
+    /// Waits (at most 1 s) for the link to end after the cancel, else stops it; its report.
+    async fn end(self) -> Option<crate::tasks::gcs::GcsReport> {
+        let (task, stats) = self.gcs?;
+        let abort = task.abort_handle();
+        if tokio::time::timeout(Duration::from_secs(1), task)
             .await
             .is_err()
-    {
-        tracing::warn!("the ground-station link did not end within 1 s");
-    }
-    let mut summary = summary?;
-    summary.fly.gcs = cfg
-        .gcs
-        .enabled
-        .ne(&GcsEnabled::Never)
-        .then(|| gcs_stats.lock().map(|r| *r).unwrap_or_default());
-    drop(logs);
-    for l in loggers {
-        match l.await {
-            Ok(Ok(rep)) => summary.fly.log_records[rep.stream] = rep.records,
-            Ok(Err(e)) => tracing::error!("a logger failed: {e}"),
-            Err(e) => tracing::error!("a logger task failed: {e}"),
+        {
+            tracing::warn!("the ground-station link did not end within 1 s; stopped");
+            abort.abort();
         }
+        Some(stats.lock().map(|r| *r).unwrap_or_default())
     }
-    Ok(summary)
 }
 
 /// The simulator thread: the lock-step flight, paced, until its end or `stop`.
@@ -307,7 +339,7 @@ fn stats_line(s: &VehicleStatus) -> String {
     line
 }
 
-/// SIGINT, SIGTERM or SIGHUP: the run ends as the quit key ends it (the motors stopped, the
+/// SIGINT, SIGTERM or SIGHUP: the motors stopped at once, in the air too, and the run ends (the
 /// logs and the report written).
 async fn stop_on_signals(stop: Arc<AtomicBool>, cancel: CancellationToken) {
     use tokio::signal::unix::{SignalKind, signal};

@@ -154,7 +154,8 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
         operator: SimOperator::new(
             &crate::app::sim::script(opts, profile),
             faults.at_us(Fault::LinkLoss),
-        ),
+        )
+        .with_links(),
         operator_tx,
         cancel: cancel.clone(),
         trace: CycleTrace::default(),

@@ -283,12 +283,12 @@ impl Controller {
         }
     }
 
-    /// Integrator states, in gain-file column order.
     /// The integrators back to zero (a new flight's control law starts afresh).
     pub fn reset_integrators(&mut self) {
         self.x_int = [0.0; 4];
     }
 
+    /// Integrator states, in gain-file column order.
     pub fn x_int(&self) -> &[f64] {
         &self.x_int[..self.integrators.states().len()]
     }

@@ -195,8 +195,13 @@ impl EscDriver {
         silent_addresses(self.silent_mask(), &self.map.addresses)
     }
 
-    /// [`EscDriver::silent_addresses`] as bits in motor order (bit m: motor m silent).
+    /// [`EscDriver::silent_addresses`] as bits in motor order (bit m: motor m silent). While
+    /// a stop settles, and after a final one, no ESC can be started: all count as silent
+    /// (the pre-arm check refuses an arm).
     pub fn silent_mask(&self) -> u8 {
+        if self.phase == EscPhase::Stopped && !self.restartable() {
+            return 0b1111;
+        }
         let acked = self.probe_acked.unwrap_or([false; 4]);
         (0..4)
             .filter(|&m| !acked[m])
@@ -235,12 +240,13 @@ impl EscDriver {
         self.starts
     }
 
-    /// Stopped by a disarm, and the stop has settled: a start may follow (the next flight of
-    /// the run). Every other stop is final: a halt, a bad command, the run's end.
+    /// Stopped by a disarm, and every ESC acknowledged the stop: a start may follow (the next
+    /// flight of the run). Every other stop is final: a halt, a bad command, the run's end, or
+    /// a disarm's stop some ESC never acknowledged (its motor may be spinning).
     pub fn restartable(&self) -> bool {
         self.phase == EscPhase::Stopped
             && self.stop_reason == Some(StopReason::Disarmed)
-            && self.outcome.is_some()
+            && self.outcome.is_some_and(|o| o.confirmed())
     }
 
     /// Start request: enable and ramp, from `now_us`, from disabled or after a disarm's stop
@@ -268,6 +274,15 @@ impl EscDriver {
     /// each ESC acknowledged both or the retry time ran out; then nothing more.
     pub fn stop(&mut self, reason: StopReason, now_us: i64, out: &mut Vec<(CycleKind, Cycle)>) {
         if self.phase == EscPhase::Stopped {
+            // Between flights the motors are already off: a halt (or any stop but the run's
+            // end) makes the stop final, and is settled by the disarm's confirmed stop, now.
+            if self.restartable() && reason != StopReason::Shutdown {
+                self.stop_reason = Some(reason);
+                self.outcome = self.outcome.map(|o| StopOutcome {
+                    settled_us: now_us,
+                    ..o
+                });
+            }
             return;
         }
         self.stop_reason = Some(reason);
@@ -483,6 +498,10 @@ impl CycleRunner {
         mut done: impl FnMut(CycleDone, Option<E>),
     ) {
         for (kind, cycle) in cycles.drain(..) {
+            if kind == CycleKind::Enable {
+                // A flight's first cycle: an earlier flight's failed cycles do not count.
+                self.failed_cycles = 0;
+            }
             let mut ok = true;
             let mut acked = [true; 4];
             let mut first_error = None;
@@ -693,6 +712,17 @@ mod tests {
         let t = ramp_up(&mut d, t + PROBE_PERIOD_US + 1);
         assert_eq!((d.phase(), d.starts()), (EscPhase::Running, 2));
         assert_eq!((d.stop_reason(), d.stop_outcome()), (None, None));
+        // A halt between flights: final, settled at once by the disarm's confirmed stop.
+        let mut between = d.clone();
+        between.stop(StopReason::Disarmed, t, &mut cycles);
+        run_all(&mut between, &mut cycles, t);
+        between.stop(StopReason::Halt(TripReason::Kill), t + 7, &mut cycles);
+        assert!(cycles.is_empty(), "nothing to write: the motors are off");
+        assert!(!between.restartable());
+        assert_eq!(between.stop_outcome().map(|o| o.settled_us), Some(t + 7));
+        assert_eq!(between.silent_mask(), 0b1111, "an arm is refused");
+        between.start(t + 8);
+        assert_eq!(between.phase(), EscPhase::Stopped);
         for reason in [
             StopReason::Halt(TripReason::Kill),
             StopReason::StaleCommand,

@@ -334,8 +334,11 @@ impl Watchdog {
             }
             Event::MotorsEnabled(at) => {
                 self.motors_on_us.get_or_insert(at);
-                // The next flight of the run: its commands are expected again.
+                // The next flight of the run: its commands are expected again, and its
+                // estimates judged afresh (none were judged while the motors were off).
                 self.disarmed = false;
+                self.sanity_counter = 0;
+                self.refused_updates = 0;
                 None
             }
             Event::Kill(at) => self.decide(TripReason::Kill, at, now_us),

@@ -65,11 +65,19 @@ pub struct Param {
 
 impl Param {
     /// Keys whose change is refused while armed: all but the simulator's, the logs', the
-    /// console's and the link's own.
+    /// console's and the link's own (taken for the next start), and those that take effect
+    /// in flight.
     pub fn flight_critical(&self) -> bool {
-        !["sim.", "log.", "console.", "gcs."]
+        let own = ["sim.", "log.", "console.", "gcs."]
             .iter()
-            .any(|s| self.key.starts_with(s))
+            .any(|s| self.key.starts_with(s));
+        !own && !self.in_flight()
+    }
+
+    /// A change takes effect in the running flight, at its next step (the commander's
+    /// speeds and heights, the failsafes' timeouts); every other key at the next start.
+    pub fn in_flight(&self) -> bool {
+        crate::core::commander::in_flight_key(self.key).is_some()
     }
 
     /// A value sent by a ground station as the TOML value of this key: whole for an integer
@@ -252,7 +260,12 @@ mod tests {
         let climb = get("CMD_CLIMB_M_S");
         assert_eq!(climb.value, 0.5);
         assert_eq!(climb.toml_value(0.4).unwrap(), toml::Value::Float(0.4));
-        assert!(climb.flight_critical());
+        assert!(
+            !climb.flight_critical() && climb.in_flight(),
+            "set in flight"
+        );
+        assert!(get("CMD_CRASH_TILT").flight_critical());
+        assert!(!get("CMD_CRASH_TILT").in_flight());
         let acks = get("WD_MISSED_ACKS");
         assert_eq!(acks.kind, Kind::Int);
         assert_eq!(acks.toml_value(4.0).unwrap(), toml::Value::Integer(4));

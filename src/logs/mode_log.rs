@@ -16,6 +16,7 @@
 //! 2100000 key 101
 //! 2200000 fix
 //! 2300000 escs running
+//! 2400000 param commander.land_m_s 0.3
 //! 2500000 mission mission-1.toml gains caeb2603ff2b78ed
 //! ```
 //!
@@ -100,6 +101,7 @@ pub fn write_input(
         OperatorInput::Beat(src) => writeln!(out, "{t_us} beat {}", src.name()),
         OperatorInput::GpsFix => writeln!(out, "{t_us} fix"),
         OperatorInput::EscsRunning => writeln!(out, "{t_us} escs running"),
+        OperatorInput::Param { key, value } => writeln!(out, "{t_us} param {key} {value}"),
         OperatorInput::Key(k) => writeln!(out, "{t_us} key {}", k.key()),
         OperatorInput::Mission(plan) => writeln!(
             out,
@@ -214,6 +216,7 @@ fn parse_input(
         "beat" => OperatorInput::Beat(source(rest)?),
         "fix" if rest.is_empty() => OperatorInput::GpsFix,
         "escs" if rest == "running" => OperatorInput::EscsRunning,
+        "param" => parse_param(rest)?,
         "key" => {
             let k = rest.parse::<u8>().ok().and_then(ManualCommand::from_key);
             OperatorInput::Key(k.ok_or_else(|| format!("unknown key {}", quote(rest)))?)
@@ -226,6 +229,20 @@ fn parse_input(
         _ => return Err(format!("unknown record {}", quote(kind))),
     };
     Ok(Some((t_us, input, Ok(()))))
+}
+
+/// `KEY VALUE`: a parameter changed in flight; the key one that takes effect in flight, the
+/// value a finite number.
+fn parse_param(rest: &str) -> Result<OperatorInput, String> {
+    let (key, value) = rest.split_once(' ').unwrap_or((rest, ""));
+    let key = crate::core::commander::in_flight_key(key)
+        .ok_or_else(|| format!("param: {} does not take effect in flight", quote(key)))?;
+    let value = value
+        .parse::<f64>()
+        .ok()
+        .filter(|v| v.is_finite())
+        .ok_or_else(|| format!("param {key}: {} is not a number", quote(value)))?;
+    Ok(OperatorInput::Param { key, value })
 }
 
 /// `WAITED_US KIND ...`: an input that expired, recorded by its own line's kind and body.

@@ -86,10 +86,10 @@ impl CycleTrace {
     pub fn sample(&mut self, t_us: i64, mode: Mode, height_m: f64, plant: &Plant) {
         let p = plant.position_m();
         let vz = plant.velocity_m_s()[2];
-        if mode == Mode::Armed && self.last_mode.replace(mode) != Some(Mode::Armed) {
+        let before = self.last_mode.replace(mode);
+        if mode == Mode::Armed && before != Some(Mode::Armed) {
             self.begin_flight();
         }
-        self.last_mode = Some(mode);
         if mode == Mode::Takeoff && self.home_xy_m.is_none() {
             self.home_xy_m = Some([p[0], p[1]]);
             self.climb.begin(p[2], height_m);

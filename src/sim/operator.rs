@@ -63,6 +63,8 @@ pub struct SimOperator {
     /// Without a script there is no simulated operator: no heartbeats either (a real ground
     /// station or console may be the link).
     present: bool,
+    /// A ground station or a console may fly the vehicle too (`--realtime`, `--mode paced`).
+    links: bool,
 }
 
 impl SimOperator {
@@ -72,14 +74,22 @@ impl SimOperator {
             next_beat_us: BEAT_PERIOD_US,
             silent_from_us,
             present: !script.0.is_empty(),
+            links: false,
         }
     }
 
+    /// A ground station or a console may fly the vehicle too.
+    pub fn with_links(mut self) -> Self {
+        self.links = true;
+        self
+    }
+
     /// Every command of the script was sent (or the link went silent for good): a landing
-    /// after it ends the run. Without a script (`none`) never: a ground station or a console
-    /// flies the vehicle, as many flights as it likes, until `--duration` or a signal.
+    /// after it ends the run. With links and no script (`none`) never: a ground station or a
+    /// console flies the vehicle, as many flights as it likes, until `--duration` or a
+    /// signal.
     pub fn done(&self, t_us: i64) -> bool {
-        self.present && (self.script.is_empty() || self.silent(t_us))
+        (self.present || !self.links) && (self.script.is_empty() || self.silent(t_us))
     }
 
     fn silent(&self, t_us: i64) -> bool {

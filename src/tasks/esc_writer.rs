@@ -10,8 +10,10 @@
 //! start-up ramp (spec 6.4), then idle (I2C 50) until flight commands arrive. A flight command
 //! older than `command_timeout` or not finite, a halt, or shutdown: zero, then disable (the
 //! disable is attempted even when writes keep failing), written again until every ESC
-//! acknowledged both or the retry time ran out; no request is taken meanwhile. A failed write
-//! is a missed ack: counted, with the run of consecutive failures exposed for the watchdog.
+//! acknowledged both or the retry time ran out; no request is taken meanwhile. A disarm's
+//! stop that every ESC acknowledged leaves the writer probing until the next flight's start
+//! (the same enable and ramp); every other stop is final. A failed write is a missed ack:
+//! counted, with the run of consecutive failures exposed for the watchdog.
 
 pub use crate::core::esc::EscPhase;
 use crate::core::esc::{
@@ -42,7 +44,8 @@ struct Requests {
     shutdown: bool,
 }
 
-/// The writer's inbox: newest command wins; start, halt and shutdown are latched.
+/// The writer's inbox: newest command wins; start, halt and shutdown wait until the writer
+/// takes them (a halt drops a start not yet taken).
 ///
 /// Waking a sleeping thread costs tens of microseconds on this kind of machine (more on a
 /// virtual one), so the command's hand-off avoids it: when a frame has been decoded and a
@@ -134,6 +137,7 @@ impl EscMailbox {
     /// [`EscMailbox::halt`] unless the inbox is locked (the panic hook must not wait).
     fn try_halt(&self, reason: StopReason) {
         if let Ok(mut r) = self.req.try_lock() {
+            r.start = false;
             if r.halt.is_none() {
                 r.halt = Some(reason);
             }
@@ -315,7 +319,8 @@ impl Writer {
         if let Some(o) = driver.stop_outcome()
             && let Ok(mut g) = self.status.stop_outcome.lock()
         {
-            g.get_or_insert(o);
+            // The newest: a halt between flights settles the disarm's stop again, later.
+            *g = Some(o);
         }
         self.status
             .silent
@@ -455,7 +460,12 @@ fn run(mut w: Writer, mailbox: &EscMailbox) {
                 return settle_stop(&mut w, &mut driver, &mut cycles);
             }
             Wake::Halt(reason) => driver.stop(reason, now_us, &mut cycles),
-            Wake::Start => driver.start(now_us),
+            Wake::Start => {
+                driver.start(now_us);
+                // The restart is published (the last stop cleared) before its first write
+                // is reported to the watchdog: a halt from then on waits for its own stop.
+                w.finish(&driver);
+            }
             Wake::Command(c) => {
                 if c.w_rad_s.iter().any(|v| !v.is_finite()) {
                     w.status.refused_commands.fetch_add(1, Ordering::Relaxed);
@@ -548,7 +558,8 @@ impl Writer {
     }
 }
 
-/// After a stop the writer writes nothing more; it waits for shutdown to end the thread.
+/// After a final stop (any but a confirmed disarm's) the writer writes nothing more; it
+/// waits for shutdown to end the thread.
 fn park_until_shutdown(mailbox: &EscMailbox) {
     loop {
         if let Wake::Shutdown = wait(mailbox, None, false, false) {

@@ -91,6 +91,7 @@ pub(crate) fn start(
             let heights = cfg.commander_params().height_range_m();
             (*heights.start(), *heights.end())
         },
+        log_desk: log_desk(&run.run_dir),
         missions: Some(gcs::MissionDesk {
             profile: std::sync::Arc::new(profile.clone()),
             run_dir: run.run_dir,
@@ -112,4 +113,15 @@ pub(crate) fn start(
             }
         }
     })
+}
+
+/// The runs beside `run_dir` for log download, each as its ULog export (`uquad export`).
+fn log_desk(run_dir: &Path) -> Option<gcs::LogDesk> {
+    let dir = run_dir.parent()?.to_path_buf();
+    let export: gcs::Export = std::sync::Arc::new(|run: &Path, out: &Path| {
+        crate::app::export::run(run, crate::app::export::Format::Ulog, out)
+            .map(|_| ())
+            .map_err(|e| format!("{e:#}"))
+    });
+    Some(gcs::LogDesk::new(dir, run_dir.to_path_buf(), export))
 }

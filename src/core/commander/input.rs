@@ -156,6 +156,12 @@ pub enum OperatorInput {
     /// (`imu.calibrate = "before-arm"`): the motors idle, a takeoff may follow. The
     /// actuator's, recorded so that a replay (which has no ESCs) sees it at the same step.
     EscsRunning,
+    /// A ground station's change of a parameter that takes effect in flight
+    /// ([`super::IN_FLIGHT`]), checked and kept by the link: applied between two steps.
+    Param {
+        key: &'static str,
+        value: f64,
+    },
     /// An input that waited `waited_us` for the flight, longer than
     /// `commander.input_expiry_s` (the IMU silent, the flight stalled): refused, never
     /// applied, and recorded so that a replay refuses it too.
@@ -184,6 +190,7 @@ impl OperatorInput {
             OperatorInput::Beat(src) => format!("beat {}", src.name()),
             OperatorInput::GpsFix => "fix".into(),
             OperatorInput::EscsRunning => "escs running".into(),
+            OperatorInput::Param { key, .. } => format!("param {key}"),
             OperatorInput::Expired { input, .. } => input.what(),
         }
     }

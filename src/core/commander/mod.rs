@@ -11,13 +11,15 @@
 //!
 //! Here the modes and their transitions; beside it the operator's words (`input`), the
 //! pre-arm checks (`checks`), the vertical set point's profile (`profile`), the failsafes
-//! (`failsafe`) and the takeoff's and touchdown's figures (`figures`).
+//! (`failsafe`), the takeoff's and touchdown's figures (`figures`) and the parameters a
+//! ground station may change in flight (`in_flight`).
 
 mod blind;
 mod checks;
 mod failsafe;
 mod figures;
 mod ground;
+mod in_flight;
 mod input;
 mod mission_mode;
 mod profile;
@@ -27,6 +29,7 @@ use blind::Blind;
 pub use checks::{ArmFacts, EstimatorHealth, calibration_problem, estimator_problem};
 pub use failsafe::{Action, Failsafe};
 pub use figures::{ClimbTrace, DescentTrace, Figures, Takeoff, Touchdown};
+pub use in_flight::{IN_FLIGHT, in_flight_key};
 pub use input::{Command, KeyOutcome, LinkSource, OperatorInput};
 pub use mission_mode::MissionFigures;
 use profile::{BRAKE_SHARE, Profile};
@@ -555,6 +558,7 @@ impl Commander {
             self.mission_after_takeoff = false;
             self.items_done = 0;
             self.landing_item = None;
+            self.yaw_rad = None;
         }
         self.flights += 1;
         self.armed_us = Some(t_us);

@@ -5,7 +5,7 @@ use super::blind::{BLIND_BASE_MIN, BLIND_BRAKE_MAX, BLIND_RAMP_PER_S};
 use super::*;
 use crate::core::ekf::TestRatios;
 
-fn params() -> Params {
+pub(super) fn params() -> Params {
     Params {
         start: Start::Disarmed,
         hover_z_m: 1.0,

@@ -308,7 +308,9 @@ pub struct EstimatorSide {
     at_rest: bool,
     /// The ESCs' ramp end has been given to the commander ([`OperatorInput::EscsRunning`]).
     escs_running_told: bool,
-    /// ESC starts asked for in this run (one per flight).
+    /// The ESC starts the driver had taken at the last frame, and the count the flight's own
+    /// start makes (one more): until the driver reaches it, its phase is of before.
+    esc_starts_seen: u32,
     starts_asked: u32,
     /// Why the last calibration at rest was refused (it is being taken again).
     calibration_refused: Option<String>,
@@ -359,6 +361,7 @@ impl EstimatorSide {
             gyro_lost_noted: false,
             at_rest: false,
             escs_running_told: false,
+            esc_starts_seen: 0,
             starts_asked: 0,
             calibration_refused: None,
             escs_from_records: false,
@@ -534,6 +537,15 @@ impl EstimatorSide {
                 self.commander.escs_running();
                 None
             }
+            OperatorInput::Param { key, value } => {
+                let note = if self.commander.set_param(key, value) {
+                    format!("parameter {key} = {value}: in effect from this step")
+                } else {
+                    format!("parameter {key} = {value}: not a parameter of the flight, ignored")
+                };
+                out.record(FlightRecord::Note(note));
+                None
+            }
             OperatorInput::Command(cmd, src) => {
                 // A link that gives a command is an operator link from then on: its silence
                 // is a link-loss, whether or not it ever sent a heartbeat.
@@ -561,7 +573,7 @@ impl EstimatorSide {
         if request == Some(EscRequest::Start) && self.at_rest && !self.esc_start_asked {
             // Under a running estimate the ESCs start with the arm, not at the next settle.
             self.esc_start_asked = true;
-            self.starts_asked += 1;
+            self.starts_asked = self.esc_starts_seen.saturating_add(1);
             self.phase = Phase::EscStart;
             out.record(FlightRecord::Note(
                 "armed: ESC start-up ramp under the running estimate".into(),
@@ -708,6 +720,7 @@ impl EstimatorSide {
         }
         self.start(out);
         self.counts.frames += 1;
+        self.esc_starts_seen = esc.starts;
         self.imu.on_frame(times.t_frame_us);
         // The commander's clock first: a stop it asks for goes with this frame's action.
         let stop = self.tick(times.t_frame_us, out);
@@ -907,7 +920,7 @@ impl EstimatorSide {
     fn esc_start(&mut self, esc: EscState, t_us: i64, out: &mut impl Outputs) -> FrameAction {
         if !self.esc_start_asked {
             self.esc_start_asked = true;
-            self.starts_asked += 1;
+            self.starts_asked = self.esc_starts_seen.saturating_add(1);
             out.record(FlightRecord::Note(
                 "IMU sampling period stable; ESC start-up ramp".into(),
             ));

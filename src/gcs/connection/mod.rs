@@ -19,12 +19,14 @@
 
 mod commands;
 mod ftp;
+mod logs;
 mod mission;
 mod params;
 mod streams;
 #[cfg(test)]
 mod tests;
 
+pub use logs::LogEntry;
 pub use mission::MissionSettings;
 pub use streams::{PERIODIC_SENT, REQUESTABLE};
 
@@ -75,6 +77,10 @@ pub enum Effect {
     /// Write upload `name` (a mission file's `text`) into the run folder and plan it off the
     /// control path; then [`Connection::handle_plan`] with the plan.
     PlanMission { name: String, text: String },
+    /// List the logs a ground station may download; then [`Connection::handle_log_list`].
+    ListLogs,
+    /// Read log `id` of the last list whole; then [`Connection::handle_log_opened`].
+    OpenLog { id: u16 },
 }
 
 /// What the protocol is set up with.
@@ -116,6 +122,8 @@ pub struct Counts {
     pub input_drops: u64,
     pub param_sets: u64,
     pub gcs_heartbeats: u64,
+    /// Log bytes sent by log download.
+    pub log_bytes_sent: u64,
 }
 
 /// Every message the protocol reads, with what it does (the book's reference lists these;
@@ -145,8 +153,10 @@ pub const RECEIVED: &[(&str, &str)] = &[
     (
         "PARAM_SET",
         "checked as `--set` is, kept for the next start, answered with the value after it \
-         (the old one, and a text, when refused); flight-critical keys only while disarmed; \
-         5 a second",
+         (the old one, and a text, when refused); the keys that take effect in flight (the \
+         commander's speeds and heights, the failsafes' timeouts: `uquad params`) applied at \
+         the flight's next step and recorded in mode.log; other flight-critical keys only \
+         while disarmed; 5 a second",
     ),
     (
         "MISSION_COUNT",
@@ -169,6 +179,21 @@ pub const RECEIVED: &[(&str, &str)] = &[
     (
         "MISSION_CLEAR_ALL",
         "fence and rally: accepted (none kept); the mission: refused (upload another)",
+    ),
+    (
+        "LOG_REQUEST_LIST",
+        "a LOG_ENTRY for each log asked for: the run folders' ULog exports, oldest first \
+         (the newest 20 runs; the running one exported as it stands)",
+    ),
+    (
+        "LOG_REQUEST_DATA",
+        "LOG_DATA packets of 90 bytes from the offset asked, a budget each 20 ms (over UDP \
+         50 packets; over a radio what its paced queue can take beside the telemetry, whose \
+         fast messages slow to 2 Hz while it runs)",
+    ),
+    (
+        "LOG_REQUEST_END",
+        "stops the read and lets the log's bytes go",
     ),
     (
         "FILE_TRANSFER_PROTOCOL",
@@ -251,6 +276,7 @@ pub struct Connection {
     /// A serial stream's held bytes are looked at again then (see [`STALL`]).
     stall_check_at: Option<Instant>,
     counts: Counts,
+    downloads: logs::Downloads,
     /// The systems that announced themselves as ground stations and may command, with when
     /// each was last heard (at most [`GCS_SENDERS_MAX`]: a new one takes the place of the
     /// longest silent, so fake heartbeats cannot fill the list against the real one).
@@ -293,6 +319,7 @@ impl Connection {
             signing_time: None,
             stall_check_at: None,
             counts: Counts::default(),
+            downloads: logs::Downloads::default(),
             gcs_senders: Vec::with_capacity(GCS_SENDERS_MAX),
             s,
         }
@@ -322,6 +349,7 @@ impl Connection {
             self.missions.next_timer(),
             self.params.next_pace(),
             self.stall_check_at,
+            self.downloads.next_due(),
         ]
         .into_iter()
         .flatten()
@@ -330,7 +358,10 @@ impl Connection {
 
     /// The counters so far.
     pub fn counts(&self) -> Counts {
-        self.counts
+        Counts {
+            log_bytes_sent: self.downloads.sent_bytes,
+            ..self.counts
+        }
     }
 
     /// What the owner's link did with a frame: sent, or dropped (full, or failed).
@@ -628,6 +659,15 @@ impl Connection {
                 let id = p.param_id.to_str().unwrap_or("").to_string();
                 let value = crate::gcs::params::set_value(p.param_value, p.param_type);
                 self.on_param_set(now, &id, value);
+            }
+            MavMessage::LOG_REQUEST_LIST(l) if self.for_us(l.target_system, l.target_component) => {
+                self.on_log_list(l.start, l.end)
+            }
+            MavMessage::LOG_REQUEST_DATA(d) if self.for_us(d.target_system, d.target_component) => {
+                self.on_log_data_request(now, d.id, d.ofs, d.count)
+            }
+            MavMessage::LOG_REQUEST_END(e) if self.for_us(e.target_system, e.target_component) => {
+                self.on_log_end()
             }
             MavMessage::FILE_TRANSFER_PROTOCOL(f)
                 if (f.target_system == 0 || f.target_system == self.s.cfg.system_id)

@@ -149,10 +149,21 @@ impl Connection {
                 self.counts.param_sets += 1;
                 if let Some(v) = value_of(value) {
                     self.s.params.set(index, v);
+                    self.apply_in_flight(index, v);
                 }
             }
             Err(why) => self.param_refused(index, &why),
         }
         self.param_value(index);
+    }
+
+    /// A kept value of a key that takes effect in flight goes to the flight too, as an
+    /// operator input (recorded, applied at its next step).
+    fn apply_in_flight(&mut self, index: usize, value: f64) {
+        let key = self.s.params.get(index).map(|p| p.key);
+        if let Some(key) = key.and_then(crate::core::commander::in_flight_key) {
+            self.operator
+                .push_back(crate::core::commander::OperatorInput::Param { key, value });
+        }
     }
 }

@@ -150,11 +150,13 @@ impl Streams {
         MavResult::MAV_RESULT_ACCEPTED
     }
 
-    /// The ids of the messages due at `now`, their next times moved on.
-    fn take_due(&mut self, now: Instant) -> Vec<u32> {
+    /// The ids of the messages due at `now`, their next times moved on; with `at_most`, no
+    /// message more often than that (a radio's download takes the line meanwhile).
+    fn take_due(&mut self, now: Instant, at_most: Option<Duration>) -> Vec<u32> {
         let mut due = Vec::new();
         for s in &mut self.list {
             let Some(every) = s.interval else { continue };
+            let every = at_most.map_or(every, |slowest| every.max(slowest));
             if now < s.next {
                 continue;
             }
@@ -170,12 +172,19 @@ impl Streams {
     }
 }
 
+/// While a log downloads over a radio, no periodic message goes more often than this.
+pub const RADIO_DOWNLOAD_STREAM_EVERY: Duration = Duration::from_millis(500);
+
 impl Connection {
     /// The periodic messages due at `now`.
     pub(super) fn send_due(&mut self, now: Instant) {
         let snap = self.snapshot(now);
         let system_id = self.s.cfg.system_id;
-        for id in self.streams.take_due(now) {
+        // Over a radio a download would be starved by the fast streams: they slow to
+        // 2 Hz while it runs (attitude and position still flow).
+        let radio_download = !self.s.datagrams && self.downloads.next_due().is_some();
+        let at_most = radio_download.then_some(RADIO_DOWNLOAD_STREAM_EVERY);
+        for id in self.streams.take_due(now, at_most) {
             if let Some(m) = build(id, &snap, system_id) {
                 self.send(&m);
             }

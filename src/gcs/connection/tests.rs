@@ -374,16 +374,36 @@ fn a_parameter_set_is_kept_by_the_owner_or_refused_with_the_old_value() {
     // Refused by the link's own rule while flying: no file is touched.
     b.status(Mode::Hold);
     b.sent();
-    b.hear(GCS, param_set("CMD_CLIMB_M_S", 0.5));
+    b.hear(GCS, param_set("CMD_CRASH_TILT", 0.9));
     assert!(b.effects().is_empty());
     let out = b.sent();
-    assert_eq!(param_values(&out), [("CMD_CLIMB_M_S".into(), 0.4)]);
+    let values = param_values(&out);
+    assert!(
+        values.len() == 1 && values[0].0 == "CMD_CRASH_TILT" && values[0].1 != 0.9,
+        "{values:?}"
+    );
     assert_eq!(
         Bench::texts(&out),
         [
-            "parameter CMD_CLIMB_M_S not set: commander.climb_m_s: flight-critical, refused while hold"
+            "parameter CMD_CRASH_TILT not set: commander.crash_tilt_rad: flight-critical, refused while hold"
         ]
     );
+
+    // A key that takes effect in flight: kept, then handed to the flight as an input.
+    b.hear(GCS, param_set("CMD_LAND_M_S", 0.3));
+    let effects = b.effects();
+    let [Effect::KeepParam { index, value, .. }] = &effects[..] else {
+        panic!("{effects:?}");
+    };
+    b.conn.handle_param_kept(b.now, *index, value, Ok(()));
+    // (The earlier set of CMD_CLIMB_M_S, disarmed, went to the flight too.)
+    let inputs = b.operator();
+    let param = inputs.last();
+    assert!(
+        matches!(param, Some(OperatorInput::Param { key: "commander.land_m_s", value }) if (value - 0.3).abs() < 1e-9),
+        "{inputs:?}"
+    );
+    assert_eq!(param_values(&b.sent()), [("CMD_LAND_M_S".into(), 0.3)]);
 }
 
 #[test]
@@ -749,7 +769,7 @@ fn the_commanders_mode_is_told_when_no_step_follows_it() {
     });
     assert!(told, "{out:?}");
     // A flight-critical parameter is not changed while armed, step or no step.
-    b.hear(GCS, param_set("CMD_CLIMB_M_S", 0.3));
+    b.hear(GCS, param_set("CMD_CRASH_TILT", 0.9));
     assert!(b.effects().is_empty());
     // A halt's kill after the last step: the last heartbeat says so.
     let killed = VehicleStatus {
@@ -948,4 +968,90 @@ fn set_mode(p: [f32; 3]) -> MavMessage {
         MavCmd::MAV_CMD_DO_SET_MODE,
         [p[0], p[1], p[2], 0.0, 0.0, 0.0, 0.0],
     )
+}
+
+#[test]
+fn a_log_is_listed_then_sent_in_packets_within_the_links_room_from_the_offset_asked() {
+    let mut b = Bench::new();
+    let list = MavMessage::LOG_REQUEST_LIST(LOG_REQUEST_LIST_DATA {
+        start: 0,
+        end: 0xffff,
+        target_system: 1,
+        target_component: 1,
+    });
+    b.hear(GCS, list.clone());
+    assert_eq!(b.effects(), [Effect::ListLogs]);
+    let entries = vec![
+        LogEntry {
+            id: 1,
+            size: 10,
+            time_utc: 5,
+        },
+        LogEntry {
+            id: 2,
+            size: 200,
+            time_utc: 6,
+        },
+    ];
+    b.conn.handle_log_list(b.now, Ok(entries));
+    let listed: Vec<(u16, u32, u16)> = b
+        .sent()
+        .into_iter()
+        .filter_map(|m| match m {
+            MavMessage::LOG_ENTRY(e) => Some((e.id, e.size, e.num_logs)),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(listed, [(1, 10, 2), (2, 200, 2)]);
+    // Log 2 from byte 100: opened by the owner, then sent two packets a tick at most.
+    let read = MavMessage::LOG_REQUEST_DATA(LOG_REQUEST_DATA_DATA {
+        ofs: 100,
+        count: u32::MAX,
+        id: 2,
+        target_system: 1,
+        target_component: 1,
+    });
+    b.hear(GCS, read);
+    assert_eq!(b.effects(), [Effect::OpenLog { id: 2 }]);
+    let bytes: std::sync::Arc<[u8]> = (0..200u8).collect::<Vec<u8>>().into();
+    b.conn.handle_log_opened(b.now, 2, Ok(bytes));
+    let mut got = Vec::new();
+    for _ in 0..3 {
+        b.conn.poll_download(b.now, 1);
+        b.conn.poll_download(b.now, 5);
+        for m in b.sent() {
+            if let MavMessage::LOG_DATA(d) = m {
+                got.push((d.ofs, d.count, d.data[0]));
+            }
+        }
+        b.now += super::logs::TICK;
+    }
+    assert_eq!(
+        got,
+        [(100, 90, 100), (190, 10, 190)],
+        "one packet a tick, then the rest"
+    );
+    assert!(b.conn.poll_timeout().is_some());
+    assert_eq!(b.conn.counts().log_bytes_sent, 100);
+    // A log the list does not have is refused with a text; none at all is one empty entry.
+    b.hear(
+        GCS,
+        MavMessage::LOG_REQUEST_DATA(LOG_REQUEST_DATA_DATA {
+            ofs: 0,
+            count: 10,
+            id: 9,
+            target_system: 1,
+            target_component: 1,
+        }),
+    );
+    assert_eq!(
+        Bench::texts(&b.sent()),
+        ["logs: no log 9 (ask for the list first)"]
+    );
+    b.hear(GCS, list);
+    b.conn.handle_log_list(b.now, Ok(Vec::new()));
+    let empty = b.sent().into_iter().any(
+        |m| matches!(m, MavMessage::LOG_ENTRY(e) if e.num_logs == 0 && e.id == 0 && e.size == 0),
+    );
+    assert!(empty);
 }

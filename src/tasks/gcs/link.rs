@@ -13,6 +13,13 @@ use tokio_serial::{SerialPortBuilderExt, SerialStream};
 
 /// Frames queued for the radio: about a second of telemetry at 57600 baud.
 const SERIAL_QUEUE: usize = 64;
+/// The radio's writer makes up this much of a late wake-up (a few ms of bytes, which a
+/// radio's buffer holds).
+const WAKE_SLACK: std::time::Duration = std::time::Duration::from_millis(5);
+
+/// A download keeps at most this many frames queued for the radio (about 0.1 s at 57600
+/// baud).
+const RADIO_DOWNLOAD_QUEUED: usize = 6;
 
 pub enum Link {
     Udp {
@@ -115,6 +122,20 @@ impl Link {
         }
     }
 
+    /// Log-download packets the link can take now: over UDP 50 per 20 ms tick (about
+    /// 225 kB/s, far below what loopback or a LAN carries beside the telemetry); over a radio
+    /// what keeps at most [`RADIO_DOWNLOAD_QUEUED`] frames queued, so the telemetry's frames
+    /// wait at most that long behind them and the download takes the rest of the line.
+    pub fn download_room(&self) -> usize {
+        match self {
+            Link::Udp { .. } => 50,
+            Link::Serial { writer, .. } => {
+                let queued = SERIAL_QUEUE.saturating_sub(writer.capacity());
+                RADIO_DOWNLOAD_QUEUED.saturating_sub(queued)
+            }
+        }
+    }
+
     /// Sends `bytes` (whole frames) without waiting.
     pub fn send(&mut self, bytes: &[u8]) -> Result<(), SendFail> {
         match self {
@@ -148,7 +169,9 @@ fn send_to(socket: &UdpSocket, bytes: &[u8], to: SocketAddr) -> Result<(), SendF
 }
 
 /// The radio: 8N1 at `gcs.baud`; its writes go through a queue to a task of their own, so a
-/// slow radio never holds the link task.
+/// slow radio never holds the link task. The task paces them to the line's byte rate (ten
+/// bits a byte): a radio drops what overruns its air rate, and a device that takes bytes
+/// faster (a pty, a USB adapter's buffer) must not hide that.
 fn open_serial(cfg: &GcsConfig) -> anyhow::Result<Link> {
     let name = cfg.serial.to_string_lossy();
     let port = tokio_serial::new(name.as_ref(), cfg.baud)
@@ -156,11 +179,18 @@ fn open_serial(cfg: &GcsConfig) -> anyhow::Result<Link> {
         .with_context(|| format!("cannot open gcs.serial {}", cfg.serial.display()))?;
     let (reader, mut write_half) = tokio::io::split(port);
     let (writer, mut frames) = mpsc::channel::<Vec<u8>>(SERIAL_QUEUE);
+    let byte_time = std::time::Duration::from_secs_f64(10.0 / f64::from(cfg.baud.max(1)));
     tokio::spawn(async move {
+        let mut free_at = tokio::time::Instant::now();
         while let Some(f) = frames.recv().await {
+            tokio::time::sleep_until(free_at).await;
             if write_half.write_all(&f).await.is_err() {
                 return;
             }
+            // A wake-up a little late is made up (a radio buffers a few ms of bytes); an idle
+            // line saves nothing up.
+            let idle_from = tokio::time::Instant::now() - WAKE_SLACK;
+            free_at = free_at.max(idle_from) + byte_time * f.len() as u32;
         }
     });
     Ok(Link::Serial { reader, writer })

@@ -12,8 +12,10 @@
 //! last heartbeat; or when the serial radio fails.
 
 mod link;
+mod logs;
 
 pub use link::Link;
+pub use logs::{Export, LogDesk};
 
 use crate::config::{GcsConfig, ParamStore, Profile};
 use crate::core::commander::OperatorInput;
@@ -53,6 +55,8 @@ pub struct GcsContext {
     pub signing_key: Option<crate::config::SigningKey>,
     /// The heights a takeoff may go to above the takeoff point, m.
     pub takeoff_heights_m: (f64, f64),
+    /// Serves the runs' logs for download (none: an empty list).
+    pub log_desk: Option<LogDesk>,
 }
 
 /// What the link needs to plan an upload: the profile (its checks, weights and speeds) and
@@ -78,10 +82,15 @@ pub struct GcsReport {
 /// Where the task publishes its report.
 pub type GcsStats = Arc<Mutex<GcsReport>>;
 
-/// A worker's plan of upload `name`.
-struct Planned {
-    name: String,
-    plan: Result<MissionPlan, String>,
+/// What a blocking worker did for the protocol: planned upload `name`, listed the logs, or
+/// read one.
+enum Done {
+    Plan {
+        name: String,
+        plan: Result<MissionPlan, String>,
+    },
+    Logs(Result<Vec<crate::gcs::connection::LogEntry>, String>),
+    Log(u16, Result<Arc<[u8]>, String>),
 }
 
 /// The protocol's settings from the task's context and its link.
@@ -109,7 +118,7 @@ fn settings(ctx: &GcsContext, link: &Link, now: Instant) -> Settings {
 enum Wake {
     Timer,
     Notice(Notice),
-    Plan(Planned),
+    Done(Done),
     Bytes(usize, Option<std::net::SocketAddr>),
     RxError,
 }
@@ -118,7 +127,7 @@ enum Wake {
 pub async fn run(mut link: Link, mut ctx: GcsContext) {
     let started = Instant::now();
     let mut conn = Connection::new(settings(&ctx, &link, started), started);
-    let (plans_tx, mut plans) = mpsc::channel::<Planned>(1);
+    let (done_tx, mut done) = mpsc::channel::<Done>(2);
     let mut buf = vec![0u8; 4096];
     let mut cpu_ns = 0u64;
     // Far enough never to come; a protocol always has its health check due.
@@ -132,7 +141,7 @@ pub async fn run(mut link: Link, mut ctx: GcsContext) {
             _ = ctx.cancel.cancelled() => break,
             _ = tokio::time::sleep_until(due) => Wake::Timer,
             Some(n) = ctx.notices.recv() => Wake::Notice(n),
-            Some(p) = plans.recv() => Wake::Plan(p),
+            Some(d) = done.recv() => Wake::Done(d),
             r = link.recv(&mut buf) => match r {
                 Ok((n, from)) => Wake::Bytes(n, from),
                 // A datagram refused on the way (ICMP): nothing to read, go on.
@@ -157,7 +166,9 @@ pub async fn run(mut link: Link, mut ctx: GcsContext) {
                 conn.handle_notice(Instant::now(), n);
                 fresh_status(&mut conn, &mut ctx);
             }
-            Wake::Plan(p) => conn.handle_plan(Instant::now(), &p.name, p.plan),
+            Wake::Done(Done::Plan { name, plan }) => conn.handle_plan(Instant::now(), &name, plan),
+            Wake::Done(Done::Logs(list)) => conn.handle_log_list(Instant::now(), list),
+            Wake::Done(Done::Log(id, bytes)) => conn.handle_log_opened(Instant::now(), id, bytes),
             Wake::Bytes(n, from) => {
                 if conn.handle_datagram(Instant::now(), &buf[..n])
                     && let Some(f) = from
@@ -167,7 +178,7 @@ pub async fn run(mut link: Link, mut ctx: GcsContext) {
             }
             Wake::RxError => conn.count_rx_error(),
         }
-        drive(&mut conn, &mut link, &ctx, &plans_tx);
+        drive(&mut conn, &mut link, &ctx, &done_tx);
         cpu_ns += thread_cpu_ns().saturating_sub(t0);
         publish(&conn, &ctx, cpu_ns, started);
     }
@@ -178,7 +189,7 @@ pub async fn run(mut link: Link, mut ctx: GcsContext) {
     }
     fresh_status(&mut conn, &mut ctx);
     conn.handle_end(Instant::now());
-    drive(&mut conn, &mut link, &ctx, &plans_tx);
+    drive(&mut conn, &mut link, &ctx, &done_tx);
     publish(&conn, &ctx, cpu_ns, started);
 }
 
@@ -192,8 +203,9 @@ fn fresh_status(conn: &mut Connection, ctx: &mut GcsContext) {
     conn.handle_status(Instant::now(), ctx.status.read());
 }
 
-/// Everything the protocol has for the outside: inputs to the flight, file work, frames.
-fn drive(conn: &mut Connection, link: &mut Link, ctx: &GcsContext, plans: &mpsc::Sender<Planned>) {
+/// Everything the protocol has for the outside: inputs to the flight, file work, frames (a
+/// download's in the room the link has left).
+fn drive(conn: &mut Connection, link: &mut Link, ctx: &GcsContext, done: &mpsc::Sender<Done>) {
     while let Some(input) = conn.poll_operator() {
         if let Err(e) = ctx.operator.try_send(input) {
             conn.handle_operator_full(Instant::now(), e.into_inner());
@@ -216,31 +228,53 @@ fn drive(conn: &mut Connection, link: &mut Link, ctx: &GcsContext, plans: &mpsc:
                 });
                 conn.handle_param_kept(Instant::now(), index, &value, kept);
             }
-            Effect::PlanMission { name, text } => plan(ctx.missions.as_ref(), name, text, plans),
+            Effect::PlanMission { name, text } => plan(ctx.missions.as_ref(), name, text, done),
+            Effect::ListLogs => list_logs(ctx.log_desk.as_ref(), done),
+            Effect::OpenLog { id } => read_log(ctx.log_desk.as_ref(), id, done),
         }
     }
+    transmit(conn, link);
+    conn.poll_download(Instant::now(), link.download_room());
+    transmit(conn, link);
+}
+
+fn transmit(conn: &mut Connection, link: &mut Link) {
     while let Some(frame) = conn.poll_transmit() {
         conn.count_sent(link.send(&frame).is_ok());
     }
 }
 
+/// Lists the logs on a blocking worker (exports take seconds); none without a desk.
+fn list_logs(desk: Option<&LogDesk>, done: &mpsc::Sender<Done>) {
+    let (desk, tx) = (desk.cloned(), done.clone());
+    tokio::task::spawn_blocking(move || {
+        let list = desk.map_or(Ok(Vec::new()), |d| d.list());
+        let _ = tx.blocking_send(Done::Logs(list));
+    });
+}
+
+/// Reads log `id` on a blocking worker.
+fn read_log(desk: Option<&LogDesk>, id: u16, done: &mpsc::Sender<Done>) {
+    let (desk, tx) = (desk.cloned(), done.clone());
+    tokio::task::spawn_blocking(move || {
+        let bytes = desk.map_or(Err("no logs are served".into()), |d| d.read(id));
+        let _ = tx.blocking_send(Done::Log(id, bytes));
+    });
+}
+
 /// Writes upload `name` into the run folder and plans it on a blocking worker, off this task
 /// and off the control path; the plan comes back through `plans`.
-fn plan(desk: Option<&MissionDesk>, name: String, text: String, plans: &mpsc::Sender<Planned>) {
+fn plan(desk: Option<&MissionDesk>, name: String, text: String, done: &mpsc::Sender<Done>) {
     let Some(desk) = desk else {
         return;
     };
-    let (profile, path, tx) = (
-        desk.profile.clone(),
-        desk.run_dir.join(&name),
-        plans.clone(),
-    );
+    let (profile, path, tx) = (desk.profile.clone(), desk.run_dir.join(&name), done.clone());
     tokio::task::spawn_blocking(move || {
         let plan = std::fs::write(&path, &text)
             .map_err(|e| format!("mission upload: cannot write {}: {e}", path.display()))
             .and_then(|()| profile.plan_mission(&path, &text));
         // A link that has ended takes no plan: nothing to tell.
-        let _ = tx.blocking_send(Planned { name, plan });
+        let _ = tx.blocking_send(Done::Plan { name, plan });
     });
 }
 
