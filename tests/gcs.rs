@@ -601,3 +601,24 @@ fn a_flights_log_downloads_over_udp_and_over_a_57600_baud_radio() {
     );
     assert!(m["attitude_hz"].as_f64().unwrap() >= 1.0, "{m}");
 }
+
+/// A companion computer's position target in hold (SET_POSITION_TARGET_LOCAL_NED streamed at
+/// 10 Hz for 2 s): the hold point moves 3 m north, the vehicle reaches it and holds it once
+/// the stream stops; the stream is one move in mode.log, and the run replays exactly.
+#[test]
+fn a_position_target_moves_the_hold_point_3_m_and_it_is_reached() {
+    let paced = |args: &[&str], dir: &std::path::Path| paced_sim("2", args, dir);
+    let flown = fly_against(paced, &["guided"], &[], true);
+    let (m, run) = (&flown.measured, &flown.run);
+    // Wall seconds at twice the simulated pace.
+    assert!(m["reached_s"].as_f64().unwrap() <= 10.0, "{m}");
+    assert!(m["held_err_max_m"].as_f64().unwrap() <= 0.6, "{m}");
+    let mode_log = std::fs::read_to_string(run.join("mode.log")).unwrap();
+    let moves = mode_log
+        .lines()
+        .filter(|l| l.contains(" in gcs hold "))
+        .count();
+    assert_eq!(moves, 1, "the stream of one point is one move: {mode_log}");
+    assert_eq!(flown.report["gcs"]["targets_taken"], 1, "{}", flown.report);
+    assert_replays_same(run, &["mode.log", "w.log", "x_hat.log"]);
+}

@@ -14,6 +14,8 @@ Scenarios:
                    for: the items reached in order, MISSION_CURRENT following them, landed.
   flights N        N flights in one run: arm, takeoff to 1 m, land, each time.
   land-param       arm, takeoff to 2 m, CMD_LAND_M_S set to 0.3 in the air, land.
+  guided           arm, takeoff to 1.5 m, a position target 3 m north streamed for 2 s
+                   (as a companion computer sends it), reached and held, land.
   download MAX     one flight, then the run's log downloaded (at most MAX bytes of it,
                    0: whole) while telemetry goes on; pyulog reads a whole one.
   download-pty MAX the same over a pty standing in for a serial radio (prints `pty PATH`
@@ -899,6 +901,39 @@ def log_download(s, max_bytes):
     }
 
 
+def guided(s):
+    """In hold, SET_POSITION_TARGET_LOCAL_NED 3 m north of where the vehicle is, streamed at
+    10 Hz for 2 s then stopped: the time it took to come within 0.5 m, and how far it was
+    from the point 3 s after."""
+    s.wait("a heartbeat", lambda m: m.get_type() == "HEARTBEAT", 5.0)
+    arm_and_take_off(s, 1.5)
+    lp = s.wait("LOCAL_POSITION_NED", lambda m: m.get_type() == "LOCAL_POSITION_NED")
+    target = (lp.x + 3.0, lp.y, lp.z)
+    position_only = 0b1111_1111_1000
+    t0, last_sent, reached = time.time(), 0.0, None
+    while time.time() - t0 < LONG:
+        now = time.time()
+        if now - t0 < 2.0 and now - last_sent >= 0.1:
+            last_sent = now
+            s.conn.mav.set_position_target_local_ned_send(
+                0, 1, 1, mav.MAV_FRAME_LOCAL_NED, position_only, *target, 0, 0, 0, 0, 0, 0, 0, 0
+            )
+        m = s.pump(0.05)
+        if m is not None and m.get_type() == "LOCAL_POSITION_NED":
+            if math.hypot(m.x - target[0], m.y - target[1]) < 0.5:
+                reached = time.time() - t0
+                break
+    if reached is None:
+        fail(f"the target 3 m north was not reached; texts: {s.texts}")
+    end, worst = time.time() + 3.0, 0.0
+    while time.time() < end:
+        m = s.pump()
+        if m is not None and m.get_type() == "LOCAL_POSITION_NED":
+            worst = max(worst, math.hypot(m.x - target[0], m.y - target[1]))
+    land(s)
+    return {"reached_s": round(reached, 2), "held_err_max_m": round(worst, 2)}
+
+
 def main():
     pty = sys.argv[1] == "download-pty"
     s = Station(pty=pty)
@@ -925,6 +960,8 @@ def main():
         out = before_arm(s)
     elif sys.argv[1] in ("download", "download-pty"):
         out = log_download(s, int(sys.argv[2]))
+    elif sys.argv[1] == "guided":
+        out = guided(s)
     elif sys.argv[1] == "land-param":
         out = land_param(s)
     elif sys.argv[1] == "flights":

@@ -19,6 +19,7 @@
 
 mod commands;
 mod ftp;
+mod guided;
 mod logs;
 mod mission;
 mod params;
@@ -124,6 +125,10 @@ pub struct Counts {
     pub gcs_heartbeats: u64,
     /// Log bytes sent by log download.
     pub log_bytes_sent: u64,
+    /// Position targets taken as moves of the hold point, and those ignored (not in hold,
+    /// no position, a frame not taken).
+    pub targets_taken: u64,
+    pub targets_ignored: u64,
 }
 
 /// Every message the protocol reads, with what it does (the book's reference lists these;
@@ -179,6 +184,19 @@ pub const RECEIVED: &[(&str, &str)] = &[
     (
         "MISSION_CLEAR_ALL",
         "fence and rally: accepted (none kept); the mission: refused (upload another)",
+    ),
+    (
+        "SET_POSITION_TARGET_LOCAL_NED",
+        "in `hold`, moves the hold point (as `hold X Y Z` from the takeoff point, the fence \
+         and the manual heights refusing what they do not allow): MAV_FRAME_LOCAL_NED or \
+         LOCAL_OFFSET_NED, the position taken (velocities, accelerations and yaw not), a move \
+         of 5 cm or more at most every 0.2 s; ignored and counted in any other mode",
+    ),
+    (
+        "SET_POSITION_TARGET_GLOBAL_INT",
+        "as SET_POSITION_TARGET_LOCAL_NED, the point placed by the newest fix: \
+         MAV_FRAME_GLOBAL_RELATIVE_ALT_INT (altitude above the takeoff point) or GLOBAL_INT \
+         (above sea level)",
     ),
     (
         "LOG_REQUEST_LIST",
@@ -277,6 +295,7 @@ pub struct Connection {
     stall_check_at: Option<Instant>,
     counts: Counts,
     downloads: logs::Downloads,
+    guided: guided::Guided,
     /// The systems that announced themselves as ground stations and may command, with when
     /// each was last heard (at most [`GCS_SENDERS_MAX`]: a new one takes the place of the
     /// longest silent, so fake heartbeats cannot fill the list against the real one).
@@ -320,6 +339,7 @@ impl Connection {
             stall_check_at: None,
             counts: Counts::default(),
             downloads: logs::Downloads::default(),
+            guided: guided::Guided::default(),
             gcs_senders: Vec::with_capacity(GCS_SENDERS_MAX),
             s,
         }
@@ -660,6 +680,16 @@ impl Connection {
                 let value = crate::gcs::params::set_value(p.param_value, p.param_type);
                 self.on_param_set(now, &id, value);
             }
+            MavMessage::SET_POSITION_TARGET_LOCAL_NED(t)
+                if self.for_us(t.target_system, t.target_component) =>
+            {
+                self.on_local_target(now, t)
+            }
+            MavMessage::SET_POSITION_TARGET_GLOBAL_INT(t)
+                if self.for_us(t.target_system, t.target_component) =>
+            {
+                self.on_global_target(now, t)
+            }
             MavMessage::LOG_REQUEST_LIST(l) if self.for_us(l.target_system, l.target_component) => {
                 self.on_log_list(l.start, l.end)
             }
@@ -773,6 +803,10 @@ fn write_target(m: &MavMessage) -> Option<(u8, u8)> {
         }
         MavMessage::SET_MODE(c) => Some((c.target_system, 0)),
         MavMessage::PARAM_SET(p) => Some((p.target_system, p.target_component)),
+        MavMessage::SET_POSITION_TARGET_LOCAL_NED(t) => Some((t.target_system, t.target_component)),
+        MavMessage::SET_POSITION_TARGET_GLOBAL_INT(t) => {
+            Some((t.target_system, t.target_component))
+        }
         MavMessage::MISSION_COUNT(_)
         | MavMessage::MISSION_ITEM(_)
         | MavMessage::MISSION_ITEM_INT(_)

@@ -1055,3 +1055,57 @@ fn a_log_is_listed_then_sent_in_packets_within_the_links_room_from_the_offset_as
     );
     assert!(empty);
 }
+
+/// SET_POSITION_TARGET_LOCAL_NED at north-east-down `ned`, position only.
+fn local_target(ned: [f32; 3]) -> MavMessage {
+    let ignore_rest = PositionTargetTypemask::from_bits_truncate(0b1111_1111_1000);
+    MavMessage::SET_POSITION_TARGET_LOCAL_NED(SET_POSITION_TARGET_LOCAL_NED_DATA {
+        x: ned[0],
+        y: ned[1],
+        z: ned[2],
+        type_mask: ignore_rest,
+        target_system: 1,
+        target_component: 1,
+        coordinate_frame: MavFrame::MAV_FRAME_LOCAL_NED,
+        ..SET_POSITION_TARGET_LOCAL_NED_DATA::DEFAULT
+    })
+}
+
+#[test]
+fn a_position_target_in_hold_moves_the_hold_point_thinned_and_is_ignored_elsewhere() {
+    let mut b = Bench::new();
+    b.beat(GCS);
+    b.status(Mode::Hold);
+    b.operator();
+    // North 3 m, east 1 m, 1.5 m up: north-west-up (3, -1, 1.5) from the takeoff point (at
+    // the origin here).
+    b.hear(GCS, local_target([3.0, 1.0, -1.5]));
+    let inputs = b.operator();
+    assert!(
+        matches!(inputs[..], [OperatorInput::Command(Command::Hold(Some(p)), LinkSource::Gcs)]
+            if p == [3.0, -1.0, 1.5]),
+        "{inputs:?}"
+    );
+    // The stream goes on: the same point, and a move within 0.2 s, are not taken again.
+    b.hear(GCS, local_target([3.0, 1.0, -1.5]));
+    b.now += Duration::from_millis(100);
+    b.hear(GCS, local_target([4.0, 1.0, -1.5]));
+    assert!(b.operator().is_empty());
+    b.now += Duration::from_millis(150);
+    b.hear(GCS, local_target([4.0, 1.0, -1.5]));
+    assert_eq!(b.operator().len(), 1);
+    // Not in hold (a landing): ignored and counted; a stranger's is denied.
+    b.status(Mode::Land);
+    b.hear(GCS, local_target([5.0, 1.0, -1.5]));
+    assert!(b.operator().is_empty());
+    assert_eq!(
+        (
+            b.conn.counts().targets_taken,
+            b.conn.counts().targets_ignored
+        ),
+        (2, 1)
+    );
+    b.status(Mode::Hold);
+    b.hear((77, 1), local_target([6.0, 1.0, -1.5]));
+    assert!(b.operator().is_empty());
+}
