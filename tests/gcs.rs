@@ -616,9 +616,33 @@ fn a_position_target_moves_the_hold_point_3_m_and_it_is_reached() {
     let mode_log = std::fs::read_to_string(run.join("mode.log")).unwrap();
     let moves = mode_log
         .lines()
-        .filter(|l| l.contains(" in gcs hold "))
+        .filter(|l| l.contains(" in gcs move "))
         .count();
     assert_eq!(moves, 1, "the stream of one point is one move: {mode_log}");
     assert_eq!(flown.report["gcs"]["targets_taken"], 1, "{}", flown.report);
+    assert_replays_same(run, &["mode.log", "w.log", "x_hat.log"]);
+}
+
+/// A ground station's preflight calibration (gyro): disarmed, the IMU is calibrated at rest
+/// again and the next arm waits for it; in the air it is denied, named; the run replays
+/// exactly.
+#[test]
+fn a_preflight_calibration_calibrates_again_on_the_ground_and_is_denied_in_the_air() {
+    let paced = |args: &[&str], dir: &std::path::Path| paced_sim("2", args, dir);
+    let flown = fly_against(paced, &["calibrate"], &[], true);
+    let run = &flown.run;
+    let mode_log = std::fs::read_to_string(run.join("mode.log")).unwrap();
+    let asked = mode_log
+        .lines()
+        .filter(|l| l.contains(" in gcs calibrate"))
+        .count();
+    assert_eq!(asked, 2, "{mode_log}");
+    assert!(
+        mode_log.contains(" refused calibrate | hold: the IMU calibrates at rest, disarmed"),
+        "{mode_log}"
+    );
+    let err = std::fs::read_to_string(run.join("err.log")).unwrap();
+    let calibrations = err.matches("IMU calibration completed").count();
+    assert_eq!(calibrations, 2, "{err}");
     assert_replays_same(run, &["mode.log", "w.log", "x_hat.log"]);
 }

@@ -14,6 +14,8 @@ Scenarios:
                    for: the items reached in order, MISSION_CURRENT following them, landed.
   flights N        N flights in one run: arm, takeoff to 1 m, land, each time.
   land-param       arm, takeoff to 2 m, CMD_LAND_M_S set to 0.3 in the air, land.
+  calibrate        a preflight calibration (gyro) once the estimate runs: accepted, the arm
+                   waits for the new one; in the air: denied, named.
   guided           arm, takeoff to 1.5 m, a position target 3 m north streamed for 2 s
                    (as a companion computer sends it), reached and held, land.
   download MAX     one flight, then the run's log downloaded (at most MAX bytes of it,
@@ -934,6 +936,22 @@ def guided(s):
     return {"reached_s": round(reached, 2), "held_err_max_m": round(worst, 2)}
 
 
+def calibrate(s):
+    """MAV_CMD_PREFLIGHT_CALIBRATION (gyro) disarmed, once the estimate runs: accepted; the
+    next arm waits for the new calibration; asked in the air: denied with the reason."""
+    s.wait("a heartbeat", lambda m: m.get_type() == "HEARTBEAT", 5.0)
+    s.wait("ATTITUDE", lambda m: m.get_type() == "ATTITUDE")
+    gyro = [1, 0, 0, 0, 0, 0, 0]
+    s.command(mav.MAV_CMD_PREFLIGHT_CALIBRATION, gyro)
+    arm_and_take_off(s, 1.0)
+    s.command(mav.MAV_CMD_PREFLIGHT_CALIBRATION, gyro, mav.MAV_RESULT_DENIED)
+    s.wait_text("calibrate refused: hold: the IMU calibrates at rest, disarmed")
+    # The magnetometer's is not uquad's: unsupported.
+    s.command(mav.MAV_CMD_PREFLIGHT_CALIBRATION, [0, 1, 0, 0, 0, 0, 0], mav.MAV_RESULT_UNSUPPORTED)
+    land(s)
+    return {"calibrated": True}
+
+
 def main():
     pty = sys.argv[1] == "download-pty"
     s = Station(pty=pty)
@@ -960,6 +978,8 @@ def main():
         out = before_arm(s)
     elif sys.argv[1] in ("download", "download-pty"):
         out = log_download(s, int(sys.argv[2]))
+    elif sys.argv[1] == "calibrate":
+        out = calibrate(s)
     elif sys.argv[1] == "guided":
         out = guided(s)
     elif sys.argv[1] == "land-param":

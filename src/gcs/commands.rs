@@ -95,6 +95,13 @@ pub const HANDLED: &[(MavCmd, &str)] = &[
     ),
     (MavCmd::MAV_CMD_GET_HOME_POSITION, "sends HOME_POSITION"),
     (
+        MavCmd::MAV_CMD_PREFLIGHT_CALIBRATION,
+        "param 1 = 1 (gyro) or param 5 = 1 or 2 (accelerometer, level): `calibrate`, the IMU \
+         calibrated at rest again (disarmed, in a profile that calibrates before arming); \
+         the other sensors' (magnetometer, barometer, …) are not done, and a request for \
+         them alone is unsupported",
+    ),
+    (
         MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL,
         "message param 1 every param 2 µs (at most every 20 ms; 0: its default rate; -1: \
          never)",
@@ -125,6 +132,7 @@ pub fn map(cmd: MavCmd, a: Args) -> Result<Request, Refusal> {
         MavCmd::MAV_CMD_REQUEST_MESSAGE => Ok(Message(whole(p[0])?)),
         MavCmd::MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES => Ok(Message(AUTOPILOT_VERSION_DATA::ID)),
         MavCmd::MAV_CMD_GET_HOME_POSITION => Ok(Message(HOME_POSITION_DATA::ID)),
+        MavCmd::MAV_CMD_PREFLIGHT_CALIBRATION => preflight_calibration(p),
         MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL => Ok(Interval {
             msg_id: whole(p[0])?,
             interval_us: p[1],
@@ -134,6 +142,19 @@ pub fn map(cmd: MavCmd, a: Args) -> Result<Request, Refusal> {
             format!("{other:?} is not supported"),
         )),
     }
+}
+
+/// PREFLIGHT_CALIBRATION: the gyro (param 1) and the accelerometer or the level (param 5)
+/// are the one calibration at rest uquad has; any other sensor's is not supported.
+fn preflight_calibration(p: [f32; 7]) -> Result<Request, Refusal> {
+    let imu = p[0] == 1.0 || p[4] == 1.0 || p[4] == 2.0;
+    if imu {
+        return Ok(Request::Commander(Command::Calibrate));
+    }
+    Err((
+        MavResult::MAV_RESULT_UNSUPPORTED,
+        "preflight calibration: only the gyro and the level (the IMU at rest)".into(),
+    ))
 }
 
 fn arm_disarm(arm: f32, force: f32) -> Result<Request, Refusal> {

@@ -27,11 +27,17 @@ pub enum Command {
     Resume,
     /// Fly back above the takeoff point, then land.
     Return,
+    /// In `hold`, move the hold point to (x, y) from the takeoff point and z above it, m
+    /// (refused in any other mode): a companion computer's position target.
+    Move([f64; 3]),
+    /// Calibrate the IMU at rest again (the gyros' offsets and the level), disarmed on the
+    /// ground: a ground station's preflight calibration.
+    Calibrate,
 }
 
 impl Command {
     /// Parses `arm`, `takeoff [ALT_M]`, `hold [X Y Z]`, `land`, `disarm`, `kill`, `start`,
-    /// `pause`, `resume`, `return`.
+    /// `pause`, `resume`, `return`, `calibrate`, `move X Y Z`.
     pub fn parse(line: &str) -> Result<Command, String> {
         let mut words = line.split_whitespace();
         let verb = words.next().unwrap_or("");
@@ -56,12 +62,17 @@ impl Command {
             ("pause", []) => Ok(Command::Pause),
             ("resume", []) => Ok(Command::Resume),
             ("return", []) => Ok(Command::Return),
-            ("arm" | "land" | "disarm" | "kill" | "start" | "pause" | "resume" | "return", _) => {
-                Err(format!("{verb} takes no arguments"))
-            }
+            ("calibrate", []) => Ok(Command::Calibrate),
+            ("move", [x, y, z]) => Ok(Command::Move([*x, *y, *z])),
+            ("move", _) => Err("move takes X Y Z in metres".into()),
+            (
+                "arm" | "land" | "disarm" | "kill" | "start" | "pause" | "resume" | "return"
+                | "calibrate",
+                _,
+            ) => Err(format!("{verb} takes no arguments")),
             _ => Err(format!(
                 "unknown command {verb:?}: arm, takeoff [ALT_M], hold [X Y Z], land, disarm, \
-                 kill, start, pause, resume, return"
+                 kill, start, pause, resume, return, calibrate, move X Y Z"
             )),
         }
     }
@@ -70,8 +81,17 @@ impl Command {
     pub fn is_word(line: &str) -> bool {
         let verb = line.split_whitespace().next().unwrap_or("");
         [
-            "arm", "takeoff", "hold", "land", "disarm", "kill", "start", "pause", "resume",
+            "arm",
+            "takeoff",
+            "hold",
+            "land",
+            "disarm",
+            "kill",
+            "start",
+            "pause",
+            "resume",
             "return",
+            "calibrate",
         ]
         .contains(&verb)
     }
@@ -88,6 +108,8 @@ impl Command {
             Command::Pause => "pause",
             Command::Resume => "resume",
             Command::Return => "return",
+            Command::Calibrate => "calibrate",
+            Command::Move(_) => "move",
         }
     }
 }
@@ -97,6 +119,7 @@ impl fmt::Display for Command {
         match self {
             Command::Takeoff(Some(a)) => write!(f, "takeoff {a}"),
             Command::Hold(Some([x, y, z])) => write!(f, "hold {x} {y} {z}"),
+            Command::Move([x, y, z]) => write!(f, "move {x} {y} {z}"),
             c => f.write_str(c.word()),
         }
     }

@@ -684,7 +684,7 @@ impl Commander {
         let p = &self.p;
         let (z_m, r_m) = match cmd {
             Command::Takeoff(Some(z)) => (z, 0.0),
-            Command::Hold(Some([x, y, z])) => (z, x.hypot(y)),
+            Command::Hold(Some([x, y, z])) | Command::Move([x, y, z]) => (z, x.hypot(y)),
             _ => return None,
         };
         let heights = p.height_range_m();
@@ -717,6 +717,14 @@ impl Commander {
         match cmd {
             Command::Kill => Ok(()),
             _ if m == Mode::Kill => Err(Killed),
+            Command::Move(_) if m != Mode::Hold => Err(MoveNeedsHold(m)),
+            Command::Move(_) if self.acting_failsafe().is_some() => {
+                Err(FailsafeActing(self.acting_failsafe()))
+            }
+            Command::Move(_) => Ok(()),
+            Command::Calibrate if !self.p.rearm => Err(CalibratesAfterArm),
+            Command::Calibrate if m != Mode::Disarmed => Err(CalibrateNeedsDisarmed(m)),
+            Command::Calibrate => Ok(()),
             Command::Arm if m != Mode::Disarmed => Err(Already(m)),
             Command::Arm if self.spent => Err(Landed),
             Command::Arm => arm_verdict.map_err(PreArm),
@@ -822,6 +830,16 @@ impl Commander {
             }
             Command::Return => {
                 self.begin_return(est, t_us, &why, out);
+                None
+            }
+            // The flight sequence takes the IMU's calibration again (the commander only
+            // judges whether it may).
+            Command::Calibrate => None,
+            // The hold goes on, at its new point: no mode change (a stream of them is not a
+            // stream of re-entries).
+            Command::Move(a) => {
+                let home = self.home_m.unwrap_or_default();
+                self.target_m = std::array::from_fn(|i| home[i] + a[i]);
                 None
             }
         }

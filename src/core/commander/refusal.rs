@@ -22,6 +22,12 @@ pub enum Refusal {
     Already(Mode),
     /// Landed once, in a profile that calibrates after arming: only a restart flies again.
     Landed,
+    /// A hold point moved while not holding.
+    MoveNeedsHold(Mode),
+    /// A calibration asked for in a profile that calibrates after arming (it does then).
+    CalibratesAfterArm,
+    /// A calibration asked for while not disarmed.
+    CalibrateNeedsDisarmed(Mode),
     /// In the air in this mode: land first, or kill.
     InTheAir(Mode),
     /// A failsafe acts and its cause persists (none named: its kind was not found).
@@ -78,6 +84,13 @@ impl fmt::Display for Refusal {
             ),
             Killed => f.write_str("killed: restart uquad to fly again"),
             Already(m) => write!(f, "already {}", m.name()),
+            MoveNeedsHold(m) => write!(f, "{}: a hold point moves only in hold", m.name()),
+            CalibratesAfterArm => f.write_str(
+                "this profile calibrates the IMU after arming (imu.calibrate = \"after-arm\")",
+            ),
+            CalibrateNeedsDisarmed(m) => {
+                write!(f, "{}: the IMU calibrates at rest, disarmed", m.name())
+            }
             Landed => f.write_str(
                 "landed: one flight per run in this profile (its IMU calibrates after arming, or it starts flying): restart uquad to fly again",
             ),

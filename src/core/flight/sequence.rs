@@ -552,8 +552,17 @@ impl EstimatorSide {
                 self.commander.link_beat(src, t_us);
                 let v = verdict.unwrap_or(Ok(()));
                 let o = self.observed;
-                self.commander
-                    .command(cmd, t_us, v, o.as_ref(), &mut self.events)
+                let request = self
+                    .commander
+                    .command(cmd, t_us, v, o.as_ref(), &mut self.events);
+                let refused = self
+                    .events
+                    .iter()
+                    .any(|e| matches!(e, commander::Event::Refusal { .. }));
+                if cmd == commander::Command::Calibrate && !refused {
+                    self.calibrate_again(out);
+                }
+                request
             }
             OperatorInput::Mission(plan) => {
                 self.load_mission(plan, t_us, out);
@@ -677,6 +686,21 @@ impl EstimatorSide {
             }
             Some(EscRequest::Start) | None => false,
         }
+    }
+
+    /// A preflight calibration the commander allowed (disarmed, calibrated at rest): the
+    /// estimate is dropped and the IMU calibrated again from the next frame, as at start;
+    /// one already under way goes on.
+    fn calibrate_again(&mut self, out: &mut impl Outputs) {
+        let note = if self.at_rest && self.phase == Phase::Estimating {
+            self.core.recalibrate();
+            self.phase = Phase::Calibration;
+            self.observed = None;
+            "preflight calibration: calibrating the IMU at rest again, motors off"
+        } else {
+            "preflight calibration: the IMU's calibration at rest is under way"
+        };
+        out.record(FlightRecord::Note(note.into()));
     }
 
     /// Disarmed: when the commander may arm again ([`commander::Params::rearm`]), the next

@@ -1,7 +1,9 @@
 //! Position targets a companion computer streams (SET_POSITION_TARGET_LOCAL_NED,
 //! SET_POSITION_TARGET_GLOBAL_INT): in `hold` each moves the hold point, as the commander's
-//! `hold X Y Z` (from the takeoff point; the fence and the manual heights refuse what they
-//! do not allow, in the commander's words); in any other mode they are ignored and counted
+//! `move X Y Z` (from the takeoff point; the fence and the manual heights refuse what they
+//! do not allow, in the commander's words; the commander refuses it unless it holds, so a
+//! target that crosses a landing or a return never undoes it); in any other mode they are
+//! ignored and counted
 //! (PX4 takes them only in its Offboard mode). The position is taken, velocities,
 //! accelerations and yaw are not (a target that gives no position is ignored). A stream is
 //! thinned to what moves the point by [`MIN_MOVE_M`] at most every [`EVERY`], so mode.log
@@ -88,10 +90,12 @@ impl Connection {
     fn guided_target(&mut self, now: Instant, point: Option<[f64; 3]>) {
         let live = self.status.live;
         let holding = self.status.mode == Mode::Hold && live.is_some_and(|l| l.mode == Mode::Hold);
-        let (Some(point), true, Some(live)) = (point, holding, live) else {
-            self.counts.targets_ignored += 1;
+        if !holding {
             // A hold entered again starts from its own point: the next target is a move.
             self.guided.last = None;
+        }
+        let (Some(point), true, Some(live)) = (point, holding, live) else {
+            self.counts.targets_ignored += 1;
             return;
         };
         let fresh = self.guided.last.is_none_or(|(at, last)| {
@@ -109,7 +113,7 @@ impl Connection {
         let home = live.home_m.unwrap_or_default();
         let from_home: [f64; 3] = std::array::from_fn(|i| point[i] - home[i]);
         self.operator.push_back(OperatorInput::Command(
-            Command::Hold(Some(from_home)),
+            Command::Move(from_home),
             LinkSource::Gcs,
         ));
     }

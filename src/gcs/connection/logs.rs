@@ -36,8 +36,10 @@ pub(super) struct Downloads {
     entries: Vec<LogEntry>,
     /// A list asked for (its first and last id), waiting for the owner.
     listing: Option<(u16, u16)>,
-    /// A read asked for (id, offset, bytes) while its log is being opened.
+    /// A read asked for (id, offset, bytes) while its log is being opened, and the log the
+    /// owner is opening (one at a time).
     opening: Option<(u16, u32, u32)>,
+    open_asked: Option<u16>,
     /// The log being sent, whole, and what is left of the read: next offset, end.
     open: Option<(u16, Arc<[u8]>)>,
     sending: Option<(u32, u32)>,
@@ -54,10 +56,22 @@ impl Downloads {
 }
 
 impl Connection {
-    /// LOG_REQUEST_LIST: the owner lists the logs afresh (the running one grows).
+    /// LOG_REQUEST_LIST: the owner lists the logs afresh (the running one grows); one list
+    /// at a time (a repeat while one is made is answered by it). Disarmed only: the exports
+    /// are file work, and a download's packets take the link.
     pub(super) fn on_log_list(&mut self, start: u16, end: u16) {
-        self.downloads.listing = Some((start, end));
-        self.effects.push_back(Effect::ListLogs);
+        if !self.disarmed() {
+            let text = "logs: downloaded only while disarmed";
+            return self.text(MavSeverity::MAV_SEVERITY_WARNING, text);
+        }
+        if self.downloads.listing.replace((start, end)).is_none() {
+            self.effects.push_back(Effect::ListLogs);
+        }
+    }
+
+    /// Whether a read is being sent or waited for.
+    pub(super) fn downloading(&self) -> bool {
+        self.downloads.sending.is_some() || self.downloads.opening.is_some()
     }
 
     /// The owner's list (from [`Effect::ListLogs`]): a LOG_ENTRY for each log asked for; none
@@ -88,10 +102,16 @@ impl Connection {
             self.send(&entry_message(Some(e), n, last));
         }
         self.downloads.entries = entries;
+        // A new list may number the logs anew: what was open is let go.
+        self.on_log_end();
     }
 
     /// LOG_REQUEST_DATA: `count` bytes of log `id` from `ofs` (the rest of it, when more).
     pub(super) fn on_log_data_request(&mut self, now: Instant, id: u16, ofs: u32, count: u32) {
+        if !self.disarmed() {
+            let text = "logs: downloaded only while disarmed";
+            return self.text(MavSeverity::MAV_SEVERITY_WARNING, text);
+        }
         if !self.downloads.entries.iter().any(|e| e.id == id) {
             let text = format!("logs: no log {id} (ask for the list first)");
             return self.text(MavSeverity::MAV_SEVERITY_WARNING, &text);
@@ -99,21 +119,35 @@ impl Connection {
         match &self.downloads.open {
             Some((open, _)) if *open == id => self.start_sending(now, ofs, count),
             _ => {
+                // One log opened at a time: a newer request waits for it.
                 self.downloads.opening = Some((id, ofs, count));
-                self.effects.push_back(Effect::OpenLog { id });
+                self.ask_open(id);
             }
+        }
+    }
+
+    fn ask_open(&mut self, id: u16) {
+        if self.downloads.open_asked.is_none() {
+            self.downloads.open_asked = Some(id);
+            self.effects.push_back(Effect::OpenLog { id });
         }
     }
 
     /// The owner's bytes of log `id` (from [`Effect::OpenLog`]), or why it could not read it.
     pub fn handle_log_opened(&mut self, now: Instant, id: u16, bytes: Result<Arc<[u8]>, String>) {
         self.tell_time(now);
-        let Some((asked, ofs, count)) = self.downloads.opening.take() else {
+        if self.downloads.open_asked != Some(id) {
+            return;
+        }
+        self.downloads.open_asked = None;
+        let Some((asked, ofs, count)) = self.downloads.opening else {
             return;
         };
         if asked != id {
-            return;
+            // A newer request, for another log: that one is opened now.
+            return self.ask_open(asked);
         }
+        self.downloads.opening = None;
         match bytes {
             Ok(b) => {
                 self.downloads.open = Some((id, b));
@@ -131,6 +165,15 @@ impl Connection {
         self.downloads.sending = None;
         self.downloads.open = None;
         self.downloads.opening = None;
+    }
+
+    /// Armed: a download stops (the link is the flight's).
+    pub(super) fn stop_download_when_armed(&mut self) {
+        if self.downloading() && !self.disarmed() {
+            self.on_log_end();
+            let text = "logs: download stopped, armed";
+            self.text(MavSeverity::MAV_SEVERITY_WARNING, text);
+        }
     }
 
     fn start_sending(&mut self, now: Instant, ofs: u32, count: u32) {

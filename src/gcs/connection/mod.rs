@@ -457,6 +457,7 @@ impl Connection {
                 self.send(&home);
             }
         }
+        self.stop_download_when_armed();
         if mode != self.told_mode {
             self.told_mode = mode;
             let snap = self.snapshot(now);
@@ -519,6 +520,13 @@ impl Connection {
         match input {
             OperatorInput::Command(c, _) => self.command_not_taken(c),
             OperatorInput::Mission(_) => self.mission_not_taken(),
+            OperatorInput::Param { key, .. } => {
+                // Kept for the next start, but the running flight did not take it: said.
+                let text = format!(
+                    "parameter {key} kept for the next start, not applied in flight: the flight's queue is full"
+                );
+                self.text(MavSeverity::MAV_SEVERITY_WARNING, &text);
+            }
             _ => {}
         }
     }

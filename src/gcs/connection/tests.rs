@@ -1082,7 +1082,7 @@ fn a_position_target_in_hold_moves_the_hold_point_thinned_and_is_ignored_elsewhe
     b.hear(GCS, local_target([3.0, 1.0, -1.5]));
     let inputs = b.operator();
     assert!(
-        matches!(inputs[..], [OperatorInput::Command(Command::Hold(Some(p)), LinkSource::Gcs)]
+        matches!(inputs[..], [OperatorInput::Command(Command::Move(p), LinkSource::Gcs)]
             if p == [3.0, -1.0, 1.5]),
         "{inputs:?}"
     );

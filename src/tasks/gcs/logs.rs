@@ -1,7 +1,8 @@
 //! The log download's file work, on a blocking worker: the run folders beside this run's
-//! (the newest [`LOGS_MAX`]), each exported as a ULog file into a cache folder (a finished
-//! run once; the running one afresh at every list, as it stands), and a listed export read
-//! whole for the link (at most [`LOG_BYTES_MAX`]).
+//! (the newest [`LOGS_MAX`]), each exported as a ULog file into `.exports` in the log folder
+//! (a finished run once; the running one afresh at every list, as it stands; exports of
+//! runs no longer listed are removed), and a listed export read whole for the link (at most
+//! [`LOG_BYTES_MAX`]). The link asks for one list and one read at a time.
 
 use crate::gcs::connection::LogEntry;
 use std::path::{Path, PathBuf};
@@ -30,10 +31,9 @@ pub struct LogDesk {
 }
 
 impl LogDesk {
-    /// Logs of the runs under `dir` (this one `run_dir`), exported into a cache folder of
-    /// this process's.
+    /// Logs of the runs under `dir` (this one `run_dir`), exported into `dir/.exports`.
     pub fn new(dir: PathBuf, run_dir: PathBuf, export: Export) -> Self {
-        let cache = std::env::temp_dir().join(format!("uquad-logs-{}", std::process::id()));
+        let cache = dir.join(".exports");
         LogDesk {
             dir,
             run_dir,
@@ -67,6 +67,7 @@ impl LogDesk {
                 time_utc: started_utc(&run),
             });
         }
+        self.prune(&listed);
         if let Ok(mut l) = self.listed.lock() {
             *l = listed;
         }
@@ -90,6 +91,19 @@ impl LogDesk {
         std::fs::read(&path)
             .map(Arc::from)
             .map_err(|e| format!("cannot read {}: {e}", path.display()))
+    }
+
+    /// Removes the exports of runs no longer listed (the cache holds the listed ones only).
+    fn prune(&self, listed: &[PathBuf]) {
+        let Ok(read) = std::fs::read_dir(&self.cache) else {
+            return;
+        };
+        for e in read.flatten() {
+            let path = e.path();
+            if !listed.contains(&path) {
+                let _ = std::fs::remove_file(&path);
+            }
+        }
     }
 
     /// The newest [`LOGS_MAX`] run folders (those with a mode.log), oldest first: their

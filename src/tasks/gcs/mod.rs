@@ -206,11 +206,7 @@ fn fresh_status(conn: &mut Connection, ctx: &mut GcsContext) {
 /// Everything the protocol has for the outside: inputs to the flight, file work, frames (a
 /// download's in the room the link has left).
 fn drive(conn: &mut Connection, link: &mut Link, ctx: &GcsContext, done: &mpsc::Sender<Done>) {
-    while let Some(input) = conn.poll_operator() {
-        if let Err(e) = ctx.operator.try_send(input) {
-            conn.handle_operator_full(Instant::now(), e.into_inner());
-        }
-    }
+    // File work first: a kept parameter's input for the flight follows it at once.
     while let Some(effect) = conn.poll_effect() {
         match effect {
             Effect::ErrLog(line) => ctx.logs.err(line),
@@ -231,6 +227,11 @@ fn drive(conn: &mut Connection, link: &mut Link, ctx: &GcsContext, done: &mpsc::
             Effect::PlanMission { name, text } => plan(ctx.missions.as_ref(), name, text, done),
             Effect::ListLogs => list_logs(ctx.log_desk.as_ref(), done),
             Effect::OpenLog { id } => read_log(ctx.log_desk.as_ref(), id, done),
+        }
+    }
+    while let Some(input) = conn.poll_operator() {
+        if let Err(e) = ctx.operator.try_send(input) {
+            conn.handle_operator_full(Instant::now(), e.into_inner());
         }
     }
     transmit(conn, link);
