@@ -97,7 +97,7 @@ pub async fn run(profile: &Profile, opts: &SimOptions, speed: f64) -> anyhow::Re
             value: cfg.failsafe.link_timeout_s,
         });
     }
-    let (status_tx, status_rx) = watch::channel(idle_status());
+    let (status_tx, status_rx) = watch::channel(VehicleStatus::default());
     let links = Links::start(
         &profile,
         opts,
@@ -281,22 +281,6 @@ fn publish(sim: &mut FastSim<'_>, t_us: i64) {
         }
         served.prearm_ok = prearm;
         served.status.send_replace(status);
-    }
-}
-
-/// The status before the first frame.
-fn idle_status() -> VehicleStatus {
-    VehicleStatus {
-        mode: Mode::Disarmed,
-        live: None,
-        fix: None,
-        gps_used: false,
-        imu_frames: 0,
-        escs_answering: false,
-        halt: None,
-        log_problem: None,
-        control_cpu_ns: None,
-        prearm_ok: None,
     }
 }
 

@@ -6,6 +6,7 @@
 use std::io::Write;
 use std::path::PathBuf;
 
+#[derive(Debug, Clone)]
 pub struct ParamStore {
     /// The run's config.toml.
     pub run_config: PathBuf,

@@ -237,11 +237,12 @@ fn parse_param(rest: &str) -> Result<OperatorInput, String> {
     let (key, value) = rest.split_once(' ').unwrap_or((rest, ""));
     let key = crate::core::commander::in_flight_key(key)
         .ok_or_else(|| format!("param: {} does not take effect in flight", quote(key)))?;
+    // Every key that takes effect in flight is a speed, a height or a time: above 0.
     let value = value
         .parse::<f64>()
         .ok()
-        .filter(|v| v.is_finite())
-        .ok_or_else(|| format!("param {key}: {} is not a number", quote(value)))?;
+        .filter(|v| v.is_finite() && *v > 0.0)
+        .ok_or_else(|| format!("param {key}: {} is not a number above 0", quote(value)))?;
     Ok(OperatorInput::Param { key, value })
 }
 

@@ -63,25 +63,24 @@ pub const HOVER_SCRIPT: &str = "arm@7,takeoff@10";
 /// vehicle starts flying (`commander.start = "flying"`, no operator script) unless ARGS say
 /// otherwise: these tests are about the flight, not the commander.
 pub fn realtime_sim(args: &[&str], dir: &Path) -> Command {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_uquad"));
-    cmd.args(["sim", "--realtime", "--config", "config/uquad.toml"])
-        .args(["--set", "commander.start=flying"])
-        .args(args)
-        .args(REALTIME_TOLERANT)
-        .arg("--log-dir")
-        .arg(dir)
-        .arg("--report")
-        .arg(dir.join("report.json"))
-        .current_dir(root());
-    cmd
+    let mut all = args.to_vec();
+    all.extend_from_slice(&REALTIME_TOLERANT);
+    sim_in(&["--realtime"], &all, dir)
 }
 
 /// [`realtime_sim`]'s run as `uquad sim --mode paced --speed SPEED`: the lock-step flight
 /// paced to the wall clock, the link and the console served.
 #[allow(dead_code)]
 pub fn paced_sim(speed: &str, args: &[&str], dir: &Path) -> Command {
+    sim_in(&["--mode", "paced", "--speed", speed], args, dir)
+}
+
+/// `uquad sim MODE --config config/uquad.toml` flying from the start, then ARGS, its run
+/// folder under `dir` and its report at `dir/report.json`.
+fn sim_in(mode: &[&str], args: &[&str], dir: &Path) -> Command {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_uquad"));
-    cmd.args(["sim", "--mode", "paced", "--speed", speed])
+    cmd.arg("sim")
+        .args(mode)
         .args(["--config", "config/uquad.toml"])
         .args(["--set", "commander.start=flying"])
         .args(args)

@@ -52,7 +52,9 @@ impl Commander {
     /// A ground station's kept change of `key` to `value`, from the next step on; `false`
     /// when the key does not take effect in flight (nothing changes).
     pub fn set_param(&mut self, key: &str, value: f64) -> bool {
-        value.is_finite() && self.p.set_in_flight(key, value)
+        // Each is a speed, a height or a time: a value at or below 0 (or not a number) is no
+        // value for it, whoever wrote it.
+        value.is_finite() && value > 0.0 && self.p.set_in_flight(key, value)
     }
 }
 
@@ -74,6 +76,7 @@ mod tests {
         assert_eq!(p, base);
         let mut c = Commander::new(base);
         assert!(!c.set_param("commander.land_m_s", f64::NAN));
+        assert!(!c.set_param("commander.land_m_s", 0.0));
         assert!(c.set_param("commander.land_m_s", 0.3));
         assert_eq!(c.params().land_m_s, 0.3);
     }

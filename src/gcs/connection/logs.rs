@@ -19,6 +19,9 @@ pub const CHUNK: usize = 90;
 /// A download's packets go out at most this often (and the timer wakes for them).
 pub const TICK: Duration = Duration::from_millis(20);
 
+/// A download stops once no ground station's heartbeat was heard for this long.
+pub const QUIET: Duration = Duration::from_secs(5);
+
 /// One log as the owner lists it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct LogEntry {
@@ -197,6 +200,15 @@ impl Connection {
     pub fn poll_download(&mut self, now: Instant, room: usize) {
         if self.downloads.next_due().is_none_or(|due| now < due) || room == 0 {
             return;
+        }
+        // Nobody is listening any more: the download stops, its bytes let go.
+        let heard = self
+            .last_beat
+            .is_some_and(|t| now.saturating_duration_since(t) < QUIET);
+        if !heard {
+            self.on_log_end();
+            let text = "logs: download stopped, the ground station is silent";
+            return self.text(MavSeverity::MAV_SEVERITY_WARNING, text);
         }
         self.downloads.next_due = Some(now + TICK);
         for _ in 0..room {

@@ -207,7 +207,8 @@ pub const RECEIVED: &[(&str, &str)] = &[
         "LOG_REQUEST_DATA",
         "LOG_DATA packets of 90 bytes from the offset asked, a budget each 20 ms (over UDP \
          50 packets; over a radio what its paced queue can take beside the telemetry, whose \
-         fast messages slow to 2 Hz while it runs)",
+         fast messages slow to 2 Hz while it runs); disarmed only; stopped when no ground \
+         station's heartbeat came for 5 s",
     ),
     (
         "LOG_REQUEST_END",

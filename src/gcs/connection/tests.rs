@@ -973,6 +973,7 @@ fn set_mode(p: [f32; 3]) -> MavMessage {
 #[test]
 fn a_log_is_listed_then_sent_in_packets_within_the_links_room_from_the_offset_asked() {
     let mut b = Bench::new();
+    b.beat(GCS);
     let list = MavMessage::LOG_REQUEST_LIST(LOG_REQUEST_LIST_DATA {
         start: 0,
         end: 0xffff,
@@ -1108,4 +1109,54 @@ fn a_position_target_in_hold_moves_the_hold_point_thinned_and_is_ignored_elsewhe
     b.status(Mode::Hold);
     b.hear((77, 1), local_target([6.0, 1.0, -1.5]));
     assert!(b.operator().is_empty());
+}
+
+#[test]
+fn a_download_stops_when_the_ground_station_falls_silent() {
+    let mut b = Bench::new();
+    b.beat(GCS);
+    b.hear(
+        GCS,
+        MavMessage::LOG_REQUEST_LIST(LOG_REQUEST_LIST_DATA {
+            start: 0,
+            end: 0xffff,
+            target_system: 1,
+            target_component: 1,
+        }),
+    );
+    let one = LogEntry {
+        id: 1,
+        size: 1000,
+        time_utc: 0,
+    };
+    b.conn.handle_log_list(b.now, Ok(vec![one]));
+    b.hear(
+        GCS,
+        MavMessage::LOG_REQUEST_DATA(LOG_REQUEST_DATA_DATA {
+            ofs: 0,
+            count: u32::MAX,
+            id: 1,
+            target_system: 1,
+            target_component: 1,
+        }),
+    );
+    let bytes: std::sync::Arc<[u8]> = vec![7u8; 1000].into();
+    b.conn.handle_log_opened(b.now, 1, Ok(bytes));
+    b.sent();
+    b.now += super::logs::QUIET + Duration::from_millis(1);
+    b.conn.poll_download(b.now, 5);
+    let out = b.sent();
+    assert!(!out.iter().any(|m| matches!(m, MavMessage::LOG_DATA(_))));
+    assert_eq!(
+        Bench::texts(&out),
+        ["logs: download stopped, the ground station is silent"]
+    );
+    // It stays stopped: nothing more is sent.
+    b.now += super::logs::TICK;
+    b.conn.poll_download(b.now, 5);
+    assert!(
+        !b.sent()
+            .iter()
+            .any(|m| matches!(m, MavMessage::LOG_DATA(_)))
+    );
 }

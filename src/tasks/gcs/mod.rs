@@ -82,14 +82,19 @@ pub struct GcsReport {
 /// Where the task publishes its report.
 pub type GcsStats = Arc<Mutex<GcsReport>>;
 
-/// What a blocking worker did for the protocol: planned upload `name`, listed the logs, or
-/// read one.
+/// What a blocking worker did for the protocol: planned upload `name`, listed the logs,
+/// read one, or kept a parameter.
 enum Done {
     Plan {
         name: String,
         plan: Result<MissionPlan, String>,
     },
     Logs(Result<Vec<crate::gcs::connection::LogEntry>, String>),
+    Kept {
+        index: usize,
+        value: toml::Value,
+        kept: Result<(), String>,
+    },
     Log(u16, Result<Arc<[u8]>, String>),
 }
 
@@ -168,6 +173,9 @@ pub async fn run(mut link: Link, mut ctx: GcsContext) {
             }
             Wake::Done(Done::Plan { name, plan }) => conn.handle_plan(Instant::now(), &name, plan),
             Wake::Done(Done::Logs(list)) => conn.handle_log_list(Instant::now(), list),
+            Wake::Done(Done::Kept { index, value, kept }) => {
+                conn.handle_param_kept(Instant::now(), index, &value, kept)
+            }
             Wake::Done(Done::Log(id, bytes)) => conn.handle_log_opened(Instant::now(), id, bytes),
             Wake::Bytes(n, from) => {
                 if conn.handle_datagram(Instant::now(), &buf[..n])
@@ -215,15 +223,7 @@ fn drive(conn: &mut Connection, link: &mut Link, ctx: &GcsContext, done: &mpsc::
                 param,
                 value,
                 t_s,
-            } => {
-                let kept = ctx.store.set(param.id, param.key, value.clone(), t_s);
-                let kept = kept.map(|k| {
-                    k.note_failed.into_iter().for_each(|why| ctx.logs.err(why));
-                    tracing::info!("{}", k.line);
-                    ctx.logs.err(k.line);
-                });
-                conn.handle_param_kept(Instant::now(), index, &value, kept);
-            }
+            } => keep_param(ctx, index, param, value, t_s, done),
             Effect::PlanMission { name, text } => plan(ctx.missions.as_ref(), name, text, done),
             Effect::ListLogs => list_logs(ctx.log_desk.as_ref(), done),
             Effect::OpenLog { id } => read_log(ctx.log_desk.as_ref(), id, done),
@@ -243,6 +243,30 @@ fn transmit(conn: &mut Connection, link: &mut Link) {
     while let Some(frame) = conn.poll_transmit() {
         conn.count_sent(link.send(&frame).is_ok());
     }
+}
+
+/// Keeps a parameter on a blocking worker (it reads the configuration and syncs files to
+/// the card: not on the link's task, which serves the flight's telemetry and commands), one
+/// at a time; the outcome comes back through `done`.
+fn keep_param(
+    ctx: &GcsContext,
+    index: usize,
+    param: crate::gcs::params::Param,
+    value: toml::Value,
+    t_s: f64,
+    done: &mpsc::Sender<Done>,
+) {
+    static KEEPING: Mutex<()> = Mutex::new(());
+    let (store, logs, tx) = (ctx.store.clone(), ctx.logs.clone(), done.clone());
+    tokio::task::spawn_blocking(move || {
+        let _one = KEEPING.lock().unwrap_or_else(|p| p.into_inner());
+        let kept = store.set(param.id, param.key, value.clone(), t_s).map(|k| {
+            k.note_failed.into_iter().for_each(|why| logs.err(why));
+            tracing::info!("{}", k.line);
+            logs.err(k.line);
+        });
+        let _ = tx.blocking_send(Done::Kept { index, value, kept });
+    });
 }
 
 /// Lists the logs on a blocking worker (exports take seconds); none without a desk.
