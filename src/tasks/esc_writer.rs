@@ -544,9 +544,9 @@ impl Writer {
                 EscPhase::Disabled | EscPhase::Ramping => {}
             }
         }
+        // The driver's own: a halt between flights makes the disarm's stop the halt's.
         if let Some(r) = driver.stop_reason()
             && let Ok(mut g) = self.status.stop_reason.lock()
-            && g.is_none()
         {
             *g = Some(r);
         }
