@@ -87,7 +87,8 @@ pub const HANDLED: &[(MavCmd, &str)] = &[
     ),
     (
         MavCmd::MAV_CMD_REQUEST_MESSAGE,
-        "sends message param 1 once (the messages the link sends)",
+        "sends message param 1 once (the messages the link sends); AVAILABLE_MODES: the mode \
+         of index param 2 (1-based; 0: every mode)",
     ),
     (
         MavCmd::MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES,

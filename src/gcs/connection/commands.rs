@@ -51,7 +51,14 @@ impl Connection {
         match commands::map(cmd, args).and_then(|r| self.in_context(cmd, args, r)) {
             Ok(Request::Commander(c)) => self.forward_command(now, c, cmd, from),
             Ok(Request::Message(id)) => {
-                let result = self.send_by_id(now, id);
+                // REQUEST_MESSAGE's param 2: which one of a listed message (AVAILABLE_MODES'
+                // mode index; 0: all).
+                let index = if cmd == MavCmd::MAV_CMD_REQUEST_MESSAGE {
+                    args.p[1]
+                } else {
+                    0.0
+                };
+                let result = self.send_by_id(now, id, index);
                 self.ack(cmd, result, from);
             }
             Ok(Request::Interval {

@@ -191,14 +191,22 @@ impl Connection {
         }
     }
 
-    /// REQUEST_MESSAGE: the message now, if it can be built.
-    pub(super) fn send_by_id(&mut self, now: Instant, id: u32) -> MavResult {
+    /// REQUEST_MESSAGE: the message now, if it can be built; AVAILABLE_MODES the mode of
+    /// 1-based `index` (0: every mode, one message each; past the last: denied).
+    pub(super) fn send_by_id(&mut self, now: Instant, id: u32, index: f32) -> MavResult {
         if !REQUESTABLE.contains(&id) {
             return MavResult::MAV_RESULT_DENIED;
         }
-        // Every mode, one message each (param 2's index is not read: all of them answer).
         if id == AVAILABLE_MODES_DATA::ID {
-            for m in tm::available_modes() {
+            let modes = tm::available_modes();
+            let all = index == 0.0;
+            let one = (index.fract() == 0.0 && index >= 1.0).then(|| index as usize - 1);
+            let chosen: Vec<MavMessage> = match (all, one) {
+                (true, _) => modes,
+                (false, Some(i)) if i < modes.len() => vec![modes[i].clone()],
+                _ => return MavResult::MAV_RESULT_DENIED,
+            };
+            for m in chosen {
                 self.send(&m);
             }
             return MavResult::MAV_RESULT_ACCEPTED;

@@ -1160,3 +1160,48 @@ fn a_download_stops_when_the_ground_station_falls_silent() {
             .any(|m| matches!(m, MavMessage::LOG_DATA(_)))
     );
 }
+
+#[test]
+fn available_modes_answers_the_mode_index_asked_for_or_every_mode_for_0() {
+    let mut b = Bench::new();
+    b.beat(GCS);
+    b.sent();
+    let ask = |index: f32| {
+        command_long(
+            MavCmd::MAV_CMD_REQUEST_MESSAGE,
+            [
+                <AVAILABLE_MODES_DATA as mavlink::MessageData>::ID as f32,
+                index,
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+            ],
+        )
+    };
+    let modes = |msgs: &[MavMessage]| -> Vec<(u8, u8)> {
+        msgs.iter()
+            .filter_map(|m| match m {
+                MavMessage::AVAILABLE_MODES(a) => Some((a.mode_index, a.number_modes)),
+                _ => None,
+            })
+            .collect()
+    };
+    b.hear(GCS, ask(2.0));
+    let out = b.sent();
+    let n = crate::gcs::modes::SELECTABLE.len() as u8;
+    assert_eq!(modes(&out), [(2, n)]);
+    b.hear(GCS, ask(0.0));
+    assert_eq!(modes(&b.sent()).len(), usize::from(n));
+    b.hear(GCS, ask(f32::from(n) + 1.0));
+    let out = b.sent();
+    assert!(modes(&out).is_empty());
+    assert_eq!(
+        acks(&out),
+        [(
+            MavCmd::MAV_CMD_REQUEST_MESSAGE,
+            MavResult::MAV_RESULT_DENIED
+        )]
+    );
+}
