@@ -69,6 +69,18 @@ fn fly_with_client_ending(scenario: &[&str], args: &[&str], succeeds: bool) -> F
     fly_against(realtime_sim, scenario, args, succeeds)
 }
 
+/// Runs `scenario` against `sim --mode paced` at twice the wall clock given `args`; the run
+/// succeeds.
+fn fly_paced(scenario: &[&str], args: &[&str]) -> Flown {
+    let paced = |args: &[&str], dir: &std::path::Path| paced_sim("2", args, dir);
+    fly_against(paced, scenario, args, true)
+}
+
+/// The lines of `text` that contain `part`.
+fn lines_with(text: &str, part: &str) -> usize {
+    text.lines().filter(|l| l.contains(part)).count()
+}
+
 /// Runs `scenario` against the simulation `sim` builds given `args`.
 fn fly_against(
     sim: impl Fn(&[&str], &std::path::Path) -> Command,
@@ -486,8 +498,7 @@ fn calibrated_before_arming_a_ground_station_sees_the_estimate_and_the_check_tha
 /// bytes. Paced at twice the wall clock: the simulator's pacing, not the host, sets its time.
 #[test]
 fn a_ground_station_flies_three_flights_in_one_paced_run_replayed_exactly() {
-    let paced = |args: &[&str], dir: &std::path::Path| paced_sim("2", args, dir);
-    let flown = fly_against(paced, &["flights", "3"], &[], true);
+    let flown = fly_paced(&["flights", "3"], &[]);
     let (r, run) = (&flown.report, &flown.run);
     let mut want = vec!["disarmed"];
     for _ in 0..3 {
@@ -510,8 +521,7 @@ fn a_ground_station_flies_three_flights_in_one_paced_run_replayed_exactly() {
 /// change is in mode.log, and the run replays to identical bytes.
 #[test]
 fn a_landing_speed_set_in_flight_changes_the_landing_and_replays_exactly() {
-    let paced = |args: &[&str], dir: &std::path::Path| paced_sim("2", args, dir);
-    let flown = fly_against(paced, &["land-param"], &[], true);
+    let flown = fly_paced(&["land-param"], &[]);
     let (r, run) = (&flown.report, &flown.run);
     let mode_log = std::fs::read_to_string(run.join("mode.log")).unwrap();
     let set_at = mode_log
@@ -567,8 +577,7 @@ fn secs(us: &str) -> f64 {
 /// to the line's rate a download comes depends on the host (the book's table has them).
 #[test]
 fn a_flights_log_downloads_over_udp_and_over_a_57600_baud_radio() {
-    let paced = |args: &[&str], dir: &std::path::Path| paced_sim("2", args, dir);
-    let flown = fly_against(paced, &["download", "0"], &[], true);
+    let flown = fly_paced(&["download", "0"], &[]);
     let m = &flown.measured;
     assert_eq!(m["bytes"], m["size"], "{m}");
     assert!(u(&m["bytes"]) > 10_000, "{m}");
@@ -592,7 +601,7 @@ fn a_flights_log_downloads_over_udp_and_over_a_57600_baud_radio() {
     );
 
     let radio = ["--set", "gcs.baud=57600"];
-    let flown = fly_against(paced, &["download-pty", "60000"], &radio, true);
+    let flown = fly_paced(&["download-pty", "60000"], &radio);
     let m = &flown.measured;
     assert_eq!(m["bytes"], 60_000, "{m}");
     let line_b_s = 57_600.0 / 10.0;
@@ -606,18 +615,14 @@ fn a_flights_log_downloads_over_udp_and_over_a_57600_baud_radio() {
 /// the stream stops; the stream is one move in mode.log, and the run replays exactly.
 #[test]
 fn a_position_target_moves_the_hold_point_3_m_and_it_is_reached() {
-    let paced = |args: &[&str], dir: &std::path::Path| paced_sim("2", args, dir);
-    let flown = fly_against(paced, &["guided"], &[], true);
+    let flown = fly_paced(&["guided"], &[]);
     let (m, run) = (&flown.measured, &flown.run);
     // Reached (the client waits for it at most 30 s): how soon, in wall seconds, is measured
     // and not judged. Then held: the estimate within 1 m of the point for 3 s.
     assert!(m["reached_s"].as_f64().is_some(), "{m}");
     assert!(m["held_err_max_m"].as_f64().unwrap() <= 1.0, "{m}");
     let mode_log = std::fs::read_to_string(run.join("mode.log")).unwrap();
-    let moves = mode_log
-        .lines()
-        .filter(|l| l.contains(" in gcs move "))
-        .count();
+    let moves = lines_with(&mode_log, " in gcs move ");
     assert_eq!(moves, 1, "the stream of one point is one move: {mode_log}");
     assert_eq!(flown.report["gcs"]["targets_taken"], 1, "{}", flown.report);
     assert_replays_same(run, &["mode.log", "w.log", "x_hat.log"]);
@@ -628,14 +633,10 @@ fn a_position_target_moves_the_hold_point_3_m_and_it_is_reached() {
 /// exactly.
 #[test]
 fn a_preflight_calibration_calibrates_again_on_the_ground_and_is_denied_in_the_air() {
-    let paced = |args: &[&str], dir: &std::path::Path| paced_sim("2", args, dir);
-    let flown = fly_against(paced, &["calibrate"], &[], true);
+    let flown = fly_paced(&["calibrate"], &[]);
     let run = &flown.run;
     let mode_log = std::fs::read_to_string(run.join("mode.log")).unwrap();
-    let asked = mode_log
-        .lines()
-        .filter(|l| l.contains(" in gcs calibrate"))
-        .count();
+    let asked = lines_with(&mode_log, " in gcs calibrate");
     assert_eq!(asked, 2, "{mode_log}");
     assert!(
         mode_log.contains(" refused calibrate | hold: the IMU calibrates at rest, disarmed"),

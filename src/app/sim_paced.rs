@@ -125,10 +125,13 @@ pub async fn run(profile: &Profile, opts: &SimOptions, speed: f64) -> anyhow::Re
             .spawn(move || {
                 let run = (run_dir, run_id);
                 fly_paced(&profile, &opts, speed, run, out, served, &stop)
-            })?
+            })
     };
     drop(operator_tx);
-    let summary = joined(thread).await;
+    let summary = match thread {
+        Ok(t) => joined(t).await,
+        Err(e) => Err(anyhow::anyhow!("cannot start the simulator thread: {e}")),
+    };
     // The links end first (they hold the loggers' senders), then the loggers drain: on
     // every path, an error too.
     cancel.cancel();

@@ -970,16 +970,32 @@ fn set_mode(p: [f32; 3]) -> MavMessage {
     )
 }
 
-#[test]
-fn a_log_is_listed_then_sent_in_packets_within_the_links_room_from_the_offset_asked() {
-    let mut b = Bench::new();
-    b.beat(GCS);
-    let list = MavMessage::LOG_REQUEST_LIST(LOG_REQUEST_LIST_DATA {
+/// LOG_REQUEST_LIST of every log.
+fn log_list() -> MavMessage {
+    MavMessage::LOG_REQUEST_LIST(LOG_REQUEST_LIST_DATA {
         start: 0,
         end: 0xffff,
         target_system: 1,
         target_component: 1,
-    });
+    })
+}
+
+/// LOG_REQUEST_DATA of `count` bytes of log `id` from `ofs`.
+fn log_read(id: u16, ofs: u32, count: u32) -> MavMessage {
+    MavMessage::LOG_REQUEST_DATA(LOG_REQUEST_DATA_DATA {
+        ofs,
+        count,
+        id,
+        target_system: 1,
+        target_component: 1,
+    })
+}
+
+#[test]
+fn a_log_is_listed_then_sent_in_packets_within_the_links_room_from_the_offset_asked() {
+    let mut b = Bench::new();
+    b.beat(GCS);
+    let list = log_list();
     b.hear(GCS, list.clone());
     assert_eq!(b.effects(), [Effect::ListLogs]);
     let entries = vec![
@@ -1005,13 +1021,7 @@ fn a_log_is_listed_then_sent_in_packets_within_the_links_room_from_the_offset_as
         .collect();
     assert_eq!(listed, [(1, 10, 2), (2, 200, 2)]);
     // Log 2 from byte 100: opened by the owner, then sent two packets a tick at most.
-    let read = MavMessage::LOG_REQUEST_DATA(LOG_REQUEST_DATA_DATA {
-        ofs: 100,
-        count: u32::MAX,
-        id: 2,
-        target_system: 1,
-        target_component: 1,
-    });
+    let read = log_read(2, 100, u32::MAX);
     b.hear(GCS, read);
     assert_eq!(b.effects(), [Effect::OpenLog { id: 2 }]);
     let bytes: std::sync::Arc<[u8]> = (0..200u8).collect::<Vec<u8>>().into();
@@ -1035,16 +1045,7 @@ fn a_log_is_listed_then_sent_in_packets_within_the_links_room_from_the_offset_as
     assert!(b.conn.poll_timeout().is_some());
     assert_eq!(b.conn.counts().log_bytes_sent, 100);
     // A log the list does not have is refused with a text; none at all is one empty entry.
-    b.hear(
-        GCS,
-        MavMessage::LOG_REQUEST_DATA(LOG_REQUEST_DATA_DATA {
-            ofs: 0,
-            count: 10,
-            id: 9,
-            target_system: 1,
-            target_component: 1,
-        }),
-    );
+    b.hear(GCS, log_read(9, 0, 10));
     assert_eq!(
         Bench::texts(&b.sent()),
         ["logs: no log 9 (ask for the list first)"]
@@ -1115,31 +1116,14 @@ fn a_position_target_in_hold_moves_the_hold_point_thinned_and_is_ignored_elsewhe
 fn a_download_stops_when_the_ground_station_falls_silent() {
     let mut b = Bench::new();
     b.beat(GCS);
-    b.hear(
-        GCS,
-        MavMessage::LOG_REQUEST_LIST(LOG_REQUEST_LIST_DATA {
-            start: 0,
-            end: 0xffff,
-            target_system: 1,
-            target_component: 1,
-        }),
-    );
+    b.hear(GCS, log_list());
     let one = LogEntry {
         id: 1,
         size: 1000,
         time_utc: 0,
     };
     b.conn.handle_log_list(b.now, Ok(vec![one]));
-    b.hear(
-        GCS,
-        MavMessage::LOG_REQUEST_DATA(LOG_REQUEST_DATA_DATA {
-            ofs: 0,
-            count: u32::MAX,
-            id: 1,
-            target_system: 1,
-            target_component: 1,
-        }),
-    );
+    b.hear(GCS, log_read(1, 0, u32::MAX));
     let bytes: std::sync::Arc<[u8]> = vec![7u8; 1000].into();
     b.conn.handle_log_opened(b.now, 1, Ok(bytes));
     b.sent();
