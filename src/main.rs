@@ -311,7 +311,7 @@ struct SimArgs {
     #[arg(long, value_name = "FAULT@T", value_parser = parse_injection)]
     inject: Vec<(Fault, f64)>,
     /// The simulated operator's commands at simulated seconds, e.g. "arm@7,takeoff 1.5@10,
-    /// land@45" (arm, takeoff [ALT_M], hold [X Y Z], land, disarm, kill; a landed vehicle
+    /// land@45" (arm, takeoff [ALT_M], hold [X Y Z], land, disarm, kill, motor M PCT S; a landed vehicle
     /// may be armed again: several flights per run); the run ends once the vehicle is
     /// disarmed after them. "none": no operator (use the console or a ground station); the
     /// run goes on after each landing until --duration or a signal. The

@@ -29,7 +29,7 @@ enum Input {
     Wait,
 }
 
-const INPUTS: [Input; 15] = [
+const INPUTS: [Input; 16] = [
     Input::Command(Command::Arm),
     Input::Command(Command::Takeoff(None)),
     Input::Command(Command::Land),
@@ -38,6 +38,11 @@ const INPUTS: [Input; 15] = [
     Input::Command(Command::Return),
     Input::Command(Command::Hold(None)),
     Input::Command(Command::Start),
+    Input::Command(Command::MotorTest {
+        motor: 1,
+        throttle_pct: 10.0,
+        duration_s: 5.0,
+    }),
     Input::LinkSilent,
     Input::FixesLost,
     Input::StuckOnGround,
@@ -156,7 +161,15 @@ struct Seen {
 fn request(req: Option<EscRequest>, w: &mut World, seen: &mut Seen, why: &str) {
     match req {
         Some(EscRequest::Start) => w.motors = true,
-        Some(EscRequest::Stop) => {
+        // A motor test spins one motor, only with the motors off (disarmed, on the ground).
+        Some(EscRequest::MotorTest(_)) if w.motors || w.z_m > 0.0 => {
+            seen.stop_in_air = Some(format!(
+                "motor test with the motors on at {} m ({why})",
+                w.z_m
+            ));
+        }
+        Some(EscRequest::MotorTest(_)) => {}
+        Some(EscRequest::Stop | EscRequest::EndMotorTest) => {
             if w.z_m > 0.3 && w.motors {
                 seen.stop_in_air = Some(format!("stop at {} m ({why})", w.z_m));
             }

@@ -647,3 +647,68 @@ fn a_preflight_calibration_calibrates_again_on_the_ground_and_is_denied_in_the_a
     assert_eq!(calibrations, 2, "{err}");
     assert_replays_same(run, &["mode.log", "w.log", "x_hat.log"]);
 }
+
+/// A motor test of each motor from a ground station, as QGroundControl sends it: on the
+/// simulated ESC bus each motor in turn is driven alone (its start-up ramp, then its test
+/// throttle for its time); out of bounds or armed, it is refused with the reason; a throttle
+/// of 0 stops a test; the run replays exactly.
+#[test]
+fn a_ground_station_tests_each_motor_alone_disarmed_and_is_refused_armed() {
+    use uquad::core::motor::{ESC_ENABLE_WAIT_US, MotorMap, esc_startup_ramp, esc_startup_ramp_us};
+    let flown = fly_paced(&["motor-test"], &[]);
+    let (r, run) = (&flown.report, &flown.run);
+    let escs = r["esc_end"].as_array().expect("esc_end");
+    let map = MotorMap::UQUAD;
+    let value = uquad::core::esc::MotorTest::new(0, 10.0, 1.0).value;
+    // From the ramp's first write to the test's last, 2 ms before its end.
+    let ramp_s = (esc_startup_ramp_us() - ESC_ENABLE_WAIT_US) as f64 / 1e6;
+    let full_s = ramp_s + 1.0 - 0.002;
+    let mut last_start_s = 0.0;
+    for (m, esc) in escs.iter().enumerate() {
+        assert_eq!(esc["address"], format!("0x{:02x}", map.addresses[m]), "{r}");
+        let runs = esc["runs_alone"]
+            .as_array()
+            .expect("a run alone of each motor");
+        let run = &runs[0];
+        let trimmed = (i16::from(value) + map.trims[m]) as u64;
+        assert_eq!(u(&run["value"]), trimmed, "{run}");
+        let seconds = run["seconds"].as_f64().unwrap();
+        assert!(
+            (seconds - full_s).abs() < 0.005,
+            "{run}: {full_s} s expected"
+        );
+        // The ramp's writes, then the test's every esc.resend_ms (2 ms).
+        let ramp_writes = esc_startup_ramp().count() as u64 - 1;
+        assert!(u(&run["writes"]) >= ramp_writes + 495, "{run}");
+        let start_s = run["start_s"].as_f64().unwrap();
+        assert!(start_s > last_start_s, "motors tested in turn: {r}");
+        last_start_s = start_s;
+        // Motor 1's second test was stopped by a throttle of 0 before its ramp was done.
+        let stopped = if m == 0 { 1 } else { 0 };
+        assert!(runs.len() <= 1 + stopped, "{esc}");
+        for later in &runs[1..] {
+            assert!(later["seconds"].as_f64().unwrap() < ramp_s, "{esc}");
+        }
+    }
+    let mode_log = std::fs::read_to_string(run.join("mode.log")).unwrap();
+    for m in 1..=4 {
+        // Asked again while the one before ran: each asking but one was refused.
+        let asked = lines_with(&mode_log, &format!(" in gcs motor {m} 10 1 |"));
+        let refused = lines_with(&mode_log, &format!(" refused motor {m} 10 1 |"));
+        assert_eq!(asked - refused, 1, "motor {m}: {mode_log}");
+    }
+    assert_eq!(
+        lines_with(&mode_log, " in gcs motor 1 0 0 | ok"),
+        1,
+        "{mode_log}"
+    );
+    assert!(
+        mode_log.contains(" refused motor 2 10 1 | armed: a motor test runs only disarmed"),
+        "{mode_log}"
+    );
+    assert!(
+        mode_log.contains(" refused motor 1 50 1 | motor 1 at 50 %"),
+        "{mode_log}"
+    );
+    assert_replays_same(run, &["mode.log", "w.log", "x_hat.log"]);
+}

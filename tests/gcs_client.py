@@ -952,6 +952,53 @@ def calibrate(s):
     return {"calibrated": True}
 
 
+def until_taken(s, cmd, p, waiting):
+    """Sends `cmd` until it is accepted, again while it is refused for a reason in `waiting`
+    (the refusal's text names it); any other refusal fails."""
+    end = time.time() + LONG
+    while time.time() < end:
+        told = len(s.texts)
+        s.conn.mav.command_long_send(1, 1, cmd, 0, *p)
+        ack = s.wait(
+            f"COMMAND_ACK of {cmd}",
+            lambda m: m.get_type() == "COMMAND_ACK" and m.command == cmd,
+        )
+        if ack.result == mav.MAV_RESULT_ACCEPTED:
+            return
+        until = time.time() + 2.0
+        while len(s.texts) == told and time.time() < until:
+            s.pump()
+        if not any(w in t for t in s.texts[told:] for w in waiting):
+            fail(f"command {cmd} refused ({ack.result}): {s.texts[told:]}")
+        time.sleep(0.2)
+    fail(f"command {cmd} never taken")
+
+
+def motor_test(s):
+    """MAV_CMD_DO_MOTOR_TEST of each motor in turn as QGroundControl sends it (10 % for 1 s),
+    once the estimate runs, each after the last one ended; one out of bounds; a long one
+    stopped by a throttle of 0; then armed: refused with the reason."""
+    s.wait("a heartbeat", lambda m: m.get_type() == "HEARTBEAT", 5.0)
+    s.wait("ATTITUDE", lambda m: m.get_type() == "ATTITUDE")
+    test = mav.MAV_CMD_DO_MOTOR_TEST
+    running = ["a motor test of motor"]
+    for motor in (1, 2, 3, 4):
+        until_taken(s, test, [motor, mav.MOTOR_TEST_THROTTLE_PERCENT, 10, 1, 0, 2, 0], running)
+    s.command(test, [1, mav.MOTOR_TEST_THROTTLE_PERCENT, 50, 1, 0, 2, 0], mav.MAV_RESULT_DENIED)
+    s.wait_text("up to 30 %")
+    # A long test of motor 1, stopped at once by a throttle of 0 (the clients' stop).
+    until_taken(s, test, [1, mav.MOTOR_TEST_THROTTLE_PERCENT, 10, 5, 0, 2, 0], running)
+    s.command(test, [1, mav.MOTOR_TEST_THROTTLE_PERCENT, 0, 0, 0, 2, 0])
+    arm_wait = running + ["arm refused: imu:", "arm refused: estimator:"]
+    until_taken(s, mav.MAV_CMD_COMPONENT_ARM_DISARM, [1, 0, 0, 0, 0, 0, 0], arm_wait)
+    s.command(test, [2, mav.MOTOR_TEST_THROTTLE_PERCENT, 10, 1, 0, 2, 0], mav.MAV_RESULT_DENIED)
+    s.wait_text("refused: armed: a motor test runs only disarmed")
+    s.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, [0, 0, 0, 0, 0, 0, 0])
+    s.wait("disarmed", lambda m: m.get_type() == "HEARTBEAT"
+           and not m.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED)
+    return {"tested": [1, 2, 3, 4], "texts": [t for t in s.texts if "motor" in t]}
+
+
 def main():
     pty = sys.argv[1] == "download-pty"
     s = Station(pty=pty)
@@ -984,6 +1031,8 @@ def main():
         out = guided(s)
     elif sys.argv[1] == "land-param":
         out = land_param(s)
+    elif sys.argv[1] == "motor-test":
+        out = motor_test(s)
     elif sys.argv[1] == "flights":
         out = flights(s, int(sys.argv[2]))
     else:

@@ -760,6 +760,9 @@ impl EscEdges for SimEscs<'_> {
                 self.driver.start(self.t_us);
             }
             EscAsk::Stop(reason) => self.driver.stop(reason, self.t_us, self.cycles),
+            EscAsk::TestMotor(test) => {
+                self.driver.test_motor(test, self.t_us, self.cycles);
+            }
         }
     }
 

@@ -6,8 +6,8 @@
 //! returns write cycles (four SMBus writes each, one per ESC) and never touches a bus or a clock.
 
 use crate::core::motor::{
-    EscAction, I2C_IDLE, MotorMap, REG_DISABLE, REG_ENABLE, REG_SPEED, esc_startup_ramp,
-    i2c_from_rad_s,
+    EscAction, I2C_IDLE, I2C_MAX, MotorMap, REG_DISABLE, REG_ENABLE, REG_SPEED, esc_startup_ramp,
+    esc_startup_ramp_us, i2c_from_rad_s,
 };
 use crate::core::watchdog::{Event, Halt, Trip};
 
@@ -23,6 +23,47 @@ pub enum EscPhase {
     Running = 2,
     /// Zero written and disabled.
     Stopped = 3,
+    /// A motor test: one ESC enabled and spun alone, disarmed (the others disabled).
+    Testing = 4,
+}
+
+/// The highest throttle a motor test may ask, % of the ESC's range above idle: enough to
+/// see a motor's direction and hear its bearings, well under the thrust that lifts a corner
+/// of the vehicle off its feet.
+pub const MOTOR_TEST_MAX_PCT: f64 = 30.0;
+/// The longest a motor test may run, s (QGroundControl asks 3 s, Mission Planner 2 s).
+pub const MOTOR_TEST_MAX_S: f64 = 5.0;
+
+/// A ground station's motor test: one motor spun alone on the ground, disarmed, to check
+/// the motor order and each one's direction before a first flight.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct MotorTest {
+    /// The motor, 0-based in the motor map's order (a ground station's motor 1 is m0).
+    pub motor: usize,
+    /// Its I2C speed value before its trim.
+    pub value: u8,
+    /// How long it spins at `value`, µs, after the ESC's start-up ramp.
+    pub duration_us: i64,
+}
+
+impl MotorTest {
+    /// Motor `motor` (0-based) at `throttle_pct` of the range from idle to `I2C_MAX`, for
+    /// `duration_s` (the caller bounds both).
+    pub fn new(motor: usize, throttle_pct: f64, duration_s: f64) -> Self {
+        let span = f64::from(I2C_MAX - I2C_IDLE);
+        let above_idle = (throttle_pct.clamp(0.0, 100.0) / 100.0 * span).round() as u8;
+        MotorTest {
+            motor: motor.min(3),
+            value: I2C_IDLE + above_idle,
+            duration_us: (duration_s.max(0.0) * 1e6).round() as i64,
+        }
+    }
+
+    /// From the request to the motor's stop, µs: the ESC's start-up ramp (as for a flight:
+    /// the enable wait, then the saw-tooth these ESCs start their motor with), then the spin.
+    pub fn total_us(&self) -> i64 {
+        esc_startup_ramp_us() as i64 + self.duration_us
+    }
 }
 
 /// One write to each ESC: (address, register, value).
@@ -42,6 +83,9 @@ pub enum CycleKind {
     StopDisable,
     /// A disable written to disabled ESCs: do they answer? (the pre-arm check).
     Probe,
+    /// A motor test's start: the tested ESC enabled, the others disabled (not the watchdog's
+    /// "motors enabled": nothing flies).
+    TestEnable,
 }
 
 /// The addresses of the motors whose bits are set in `mask`.
@@ -112,6 +156,8 @@ pub struct EscTiming {
 pub enum StopReason {
     /// Disarmed on the ground: a landing, a disarm, a failed start-up.
     Disarmed,
+    /// A motor test's time ran out.
+    MotorTestDone,
     /// The run ends: a signal, a quit, the program's end.
     Shutdown,
     /// A panic somewhere in the process.
@@ -125,9 +171,16 @@ pub enum StopReason {
 }
 
 impl StopReason {
+    /// A stop on the ground that the next flight (or motor test) may follow: a disarm's, a
+    /// motor test's end.
+    pub fn on_the_ground(self) -> bool {
+        matches!(self, StopReason::Disarmed | StopReason::MotorTestDone)
+    }
+
     pub fn name(self) -> &'static str {
         match self {
             StopReason::Disarmed => "disarmed",
+            StopReason::MotorTestDone => "motor test done",
             StopReason::Shutdown => "shutdown",
             StopReason::Panic => "panic",
             StopReason::NonFiniteCommand => "non-finite motor command",
@@ -165,6 +218,8 @@ pub struct EscDriver {
     probe_acked: Option<[bool; 4]>,
     /// Start requests taken, this run (the driver's caller waits for its own to be taken).
     starts: u32,
+    /// The motor test under way, and when its motor spins from and until, µs.
+    test: Option<(MotorTest, i64, i64)>,
 }
 
 impl EscDriver {
@@ -187,6 +242,7 @@ impl EscDriver {
             next_probe_us: 0,
             probe_acked: None,
             starts: 0,
+            test: None,
         }
     }
 
@@ -224,6 +280,15 @@ impl EscDriver {
                 .get(self.ramp_next)
                 .map(|(at, _)| self.ramp_start_us + *at as i64),
             EscPhase::Running => Some(self.next_resend_us),
+            EscPhase::Testing => self.test.map(|(_, from_us, until_us)| {
+                let ramp_us = self
+                    .ramp
+                    .get(self.ramp_next)
+                    .map(|(at, _)| self.ramp_start_us + *at as i64);
+                ramp_us
+                    .unwrap_or(self.next_resend_us.max(from_us))
+                    .min(until_us)
+            }),
             EscPhase::Stopped if self.restartable() => Some(self.next_probe_us),
             EscPhase::Stopped => self.retry.map(|r| r.next_us.min(r.deadline_us)),
             EscPhase::Disabled => Some(self.next_probe_us),
@@ -240,21 +305,32 @@ impl EscDriver {
         self.starts
     }
 
-    /// Stopped by a disarm, and every ESC acknowledged the stop: a start may follow (the next
-    /// flight of the run). Every other stop is final: a halt, a bad command, the run's end, or
-    /// a disarm's stop some ESC never acknowledged (its motor may be spinning).
+    /// Stopped by a disarm (or a motor test's end), and every ESC acknowledged the stop: a
+    /// start may follow (the next flight of the run). Every other stop is final: a halt, a bad
+    /// command, the run's end, or a disarm's stop some ESC never acknowledged (its motor may
+    /// be spinning).
     pub fn restartable(&self) -> bool {
         self.phase == EscPhase::Stopped
-            && self.stop_reason == Some(StopReason::Disarmed)
+            && self.stop_reason.is_some_and(StopReason::on_the_ground)
             && self.outcome.is_some_and(|o| o.confirmed())
     }
 
-    /// Start request: enable and ramp, from `now_us`, from disabled or after a disarm's stop
-    /// (the same start-up as the first flight; ignored otherwise).
+    /// The motor test under way, if one is.
+    pub fn motor_test(&self) -> Option<MotorTest> {
+        self.test.map(|(t, ..)| t)
+    }
+
+    /// Start request: enable and ramp, from `now_us`, from disabled, after a disarm's stop
+    /// (the same start-up as the first flight) or during a motor test (the ramp takes every
+    /// motor over); ignored otherwise.
     pub fn start(&mut self, now_us: i64) {
-        if self.phase != EscPhase::Disabled && !self.restartable() {
+        if self.phase != EscPhase::Disabled
+            && self.phase != EscPhase::Testing
+            && !self.restartable()
+        {
             return;
         }
+        self.test = None;
         self.starts += 1;
         self.phase = EscPhase::Ramping;
         self.ramp_start_us = now_us;
@@ -270,9 +346,44 @@ impl EscDriver {
         self.map.speed_writes(values)
     }
 
+    /// A motor test from `now_us`: the tested ESC enabled and the others disabled at once,
+    /// the start-up ramp written to it alone, then its speed (re-sent like a flight's) for
+    /// the test's time, then the stop. Taken where a start would be (disabled, after a
+    /// disarm's stop) and during another test, which it replaces; false (nothing done)
+    /// otherwise.
+    pub fn test_motor(
+        &mut self,
+        test: MotorTest,
+        now_us: i64,
+        out: &mut Vec<(CycleKind, Cycle)>,
+    ) -> bool {
+        let startable = matches!(self.phase, EscPhase::Disabled | EscPhase::Testing);
+        if !(startable || self.restartable()) || test.motor > 3 {
+            return false;
+        }
+        self.phase = EscPhase::Testing;
+        self.stop_reason = None;
+        self.retry = None;
+        self.outcome = None;
+        self.command_frame_us = None;
+        let from_us = now_us + esc_startup_ramp_us() as i64;
+        self.test = Some((test, from_us, from_us + test.duration_us));
+        // The ramp's enable is the test's own first cycle.
+        self.ramp_start_us = now_us;
+        self.ramp_next = 1;
+        self.values = [0; 4];
+        self.values[test.motor] = test.value;
+        self.next_resend_us = from_us;
+        let mut enable = self.map.addresses.map(|a| (a, REG_DISABLE, 0));
+        enable[test.motor].1 = REG_ENABLE;
+        out.push((CycleKind::TestEnable, enable));
+        true
+    }
+
     /// Zero, then disable every ESC, from `now_us`; retried (see [`EscDriver::poll`]) until
     /// each ESC acknowledged both or the retry time ran out; then nothing more.
     pub fn stop(&mut self, reason: StopReason, now_us: i64, out: &mut Vec<(CycleKind, Cycle)>) {
+        self.test = None;
         if self.phase == EscPhase::Stopped {
             // Between flights the motors are already off: a halt (or any stop but the run's
             // end) makes the stop final, and is settled by the disarm's confirmed stop, now.
@@ -346,7 +457,7 @@ impl EscDriver {
             unconfirmed,
             settled_us: at_us,
         });
-        if self.stop_reason == Some(StopReason::Disarmed) {
+        if self.stop_reason.is_some_and(StopReason::on_the_ground) {
             // Between flights the pre-arm check asks again whether each ESC answers: the
             // stop's own acknowledgements are the first answer, probes the next.
             self.probe_acked = Some(r.disable_acked);
@@ -415,9 +526,39 @@ impl EscDriver {
                     }
                 }
             }
+            EscPhase::Testing => self.poll_test(now_us, out),
             EscPhase::Stopped if self.restartable() => self.probe(now_us, out),
             EscPhase::Stopped => self.retry_stop(now_us, out),
             EscPhase::Disabled => self.probe(now_us, out),
+        }
+    }
+
+    /// A motor test: the start-up ramp on the tested ESC alone, then its speed re-sent, the
+    /// stop at its end.
+    fn poll_test(&mut self, now_us: i64, out: &mut Vec<(CycleKind, Cycle)>) {
+        let Some((test, from_us, until_us)) = self.test else {
+            return;
+        };
+        if now_us >= until_us {
+            return self.stop(StopReason::MotorTestDone, now_us, out);
+        }
+        while let Some(&(at, action)) = self.ramp.get(self.ramp_next) {
+            if self.ramp_start_us + at as i64 > now_us {
+                break;
+            }
+            self.ramp_next += 1;
+            if let EscAction::SpeedAll(v) = action {
+                let mut writes = self.map.addresses.map(|a| (a, REG_SPEED, 0));
+                writes[test.motor].2 = v;
+                out.push((CycleKind::Ramp, writes));
+            }
+        }
+        if now_us >= from_us && now_us >= self.next_resend_us {
+            out.push((CycleKind::Speeds, self.speeds(&self.values)));
+            self.next_resend_us += self.resend_us;
+            if self.next_resend_us <= now_us {
+                self.next_resend_us = now_us + self.resend_us;
+            }
         }
     }
 
@@ -498,7 +639,7 @@ impl CycleRunner {
         mut done: impl FnMut(CycleDone, Option<E>),
     ) {
         for (kind, cycle) in cycles.drain(..) {
-            if kind == CycleKind::Enable {
+            if matches!(kind, CycleKind::Enable | CycleKind::TestEnable) {
                 // A flight's first cycle: an earlier flight's failed cycles do not count.
                 self.failed_cycles = 0;
             }
@@ -664,6 +805,95 @@ mod tests {
             t_us += 1_000;
         }
         t_us
+    }
+
+    /// A motor test at `t_us` on a fresh driver, its enable cycle executed.
+    fn testing(motor: usize, t_us: i64) -> (EscDriver, MotorTest) {
+        let mut d = driver();
+        let mut cycles = Vec::new();
+        let test = MotorTest::new(motor, 10.0, 1.0);
+        assert!(d.test_motor(test, t_us, &mut cycles));
+        let (a, m) = (MotorMap::UQUAD.addresses, motor);
+        assert_eq!(cycles[0].0, CycleKind::TestEnable);
+        for (k, w) in cycles[0].1.iter().enumerate() {
+            let reg = if k == m { REG_ENABLE } else { REG_DISABLE };
+            assert_eq!(*w, (a[k], reg, 0), "only the tested ESC is enabled");
+        }
+        run_all(&mut d, &mut cycles, t_us);
+        (d, test)
+    }
+
+    #[test]
+    fn a_motor_test_spins_one_motor_alone_for_its_time_then_stops_as_a_disarm_does() {
+        let t0 = 1_000_000;
+        let (mut d, test) = testing(2, t0);
+        assert_eq!(test.value, I2C_IDLE + 17, "10 % of the range above idle");
+        assert_eq!((d.phase(), d.starts()), (EscPhase::Testing, 0));
+        let mut cycles = Vec::new();
+        let wait_us = crate::core::motor::ESC_ENABLE_WAIT_US as i64;
+        d.poll(t0 + wait_us - 1, &mut cycles);
+        assert!(
+            cycles.is_empty(),
+            "nothing spins during the ESC's enable wait"
+        );
+        let from = t0 + esc_startup_ramp_us() as i64;
+        let mut t = t0 + wait_us;
+        let (mut ramp, mut speeds) = (0, 0);
+        while d.phase() == EscPhase::Testing {
+            assert!(d.next_wake_us().is_some_and(|w| w >= t - 1_000));
+            d.poll(t, &mut cycles);
+            for (kind, cycle) in &cycles {
+                let values: Vec<u8> = cycle.iter().map(|w| w.2).collect();
+                let others: Vec<u8> = [0, 1, 3].iter().map(|&k| values[k]).collect();
+                match kind {
+                    CycleKind::Ramp => ramp += 1,
+                    CycleKind::Speeds => {
+                        assert!(t >= from, "the test's speed after the ramp");
+                        assert_eq!(values[2], test.value + 15, "m2, trimmed");
+                        speeds += 1;
+                    }
+                    _ => continue,
+                }
+                assert_eq!(others, [0, 0, 0], "m2 alone");
+            }
+            run_all(&mut d, &mut cycles, t);
+            t += 1_000;
+        }
+        assert_eq!(
+            ramp,
+            esc_startup_ramp().count() - 1,
+            "the start-up ramp, on m2"
+        );
+        assert_eq!(speeds, 500, "re-sent every 2 ms for 1 s");
+        assert_eq!(d.stop_reason(), Some(StopReason::MotorTestDone));
+        assert!(d.restartable(), "a flight (or another test) may follow");
+        assert_eq!(d.silent_mask(), 0, "the stop's acknowledgements answer");
+        assert!(d.test_motor(test, t, &mut cycles), "another test");
+        d.start(t + 1);
+        assert_eq!(
+            (d.phase(), d.starts(), d.motor_test()),
+            (EscPhase::Ramping, 1, None),
+            "an arm's start takes every motor over"
+        );
+        assert!(
+            !d.test_motor(test, t + 2, &mut cycles),
+            "no test while flying"
+        );
+    }
+
+    #[test]
+    fn a_halt_during_a_motor_test_stops_it_for_good_and_no_test_follows_a_final_stop() {
+        let (mut d, test) = testing(0, 0);
+        let mut cycles = Vec::new();
+        d.stop(StopReason::Halt(TripReason::Kill), 500_000, &mut cycles);
+        assert_eq!(cycles[0].0, CycleKind::StopZero);
+        run_all(&mut d, &mut cycles, 500_000);
+        assert!(!d.restartable());
+        assert_eq!(d.motor_test(), None);
+        assert!(!d.test_motor(test, 600_000, &mut cycles));
+        assert!(cycles.is_empty());
+        d.poll(2_000_000, &mut cycles);
+        assert!(cycles.is_empty(), "nothing spins after a final stop");
     }
 
     #[test]

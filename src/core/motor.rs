@@ -166,6 +166,11 @@ pub const ESC_ENABLE_WAIT_US: u64 = 420_000;
 /// Spacing of the ramp's sub-steps, µs.
 pub const ESC_RAMP_STEP_US: u64 = 1_235;
 
+/// How long the start-up ramp takes, µs: from the enable to a sub-step after its last write.
+pub fn esc_startup_ramp_us() -> u64 {
+    esc_startup_ramp().last().map_or(0, |(at, _)| at) + ESC_RAMP_STEP_US
+}
+
 /// The driver's start-up ramp (spec 6.4): enable, wait 420 ms, then for r = 30..=49, 2·r
 /// sub-steps 1235 µs apart writing r − 25 when the sub-step index j is a multiple of 7 and
 /// r + 25 otherwise: 1580 writes, about 1.95 s.

@@ -8,6 +8,8 @@
 //! - DO_SET_MODE (and SET_MODE) in PX4's main and sub modes, DO_SET_STANDARD_MODE: the
 //!   commander's command of the same meaning (`gcs::modes`); a mode uquad does not have is
 //!   refused, named, never read as another.
+//! - DO_MOTOR_TEST → `motor M PCT S` (one motor alone, disarmed; the commander bounds it);
+//!   PREFLIGHT_CALIBRATION (gyro, level) → `calibrate`.
 //! - REQUEST_MESSAGE, SET_MESSAGE_INTERVAL, REQUEST_AUTOPILOT_CAPABILITIES,
 //!   GET_HOME_POSITION: answered by the link.
 
@@ -103,6 +105,14 @@ pub const HANDLED: &[(MavCmd, &str)] = &[
          them alone is unsupported",
     ),
     (
+        MavCmd::MAV_CMD_DO_MOTOR_TEST,
+        "`motor M PCT S`: motor param 1 (1 to 4: m0 to m3, the board's order; param 6 = 1, a \
+         vehicle-specific sequence, is refused) alone, disarmed, at param 3 % of the range \
+         above idle (param 2 = 0; or param 2 = 1, param 3 a PWM width, 1000 to 2000 µs read as \
+         0 to 100 %) for param 4 s after the ESC's start-up ramp; at most 30 % and 5 s, one \
+         motor at a time (param 5 at most 1); a throttle of 0 or `disarm` ends it",
+    ),
+    (
         MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL,
         "message param 1 every param 2 µs (at most every 20 ms; 0: its default rate; -1: \
          never)",
@@ -134,6 +144,7 @@ pub fn map(cmd: MavCmd, a: Args) -> Result<Request, Refusal> {
         MavCmd::MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES => Ok(Message(AUTOPILOT_VERSION_DATA::ID)),
         MavCmd::MAV_CMD_GET_HOME_POSITION => Ok(Message(HOME_POSITION_DATA::ID)),
         MavCmd::MAV_CMD_PREFLIGHT_CALIBRATION => preflight_calibration(p),
+        MavCmd::MAV_CMD_DO_MOTOR_TEST => motor_test(p),
         MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL => Ok(Interval {
             msg_id: whole(p[0])?,
             interval_us: p[1],
@@ -156,6 +167,66 @@ fn preflight_calibration(p: [f32; 7]) -> Result<Request, Refusal> {
         MavResult::MAV_RESULT_UNSUPPORTED,
         "preflight calibration: only the gyro and the level (the IMU at rest)".into(),
     ))
+}
+
+/// MOTOR_TEST_THROTTLE_TYPE's percent and PWM, and MOTOR_TEST_ORDER's sequence (MAVLink's
+/// enums).
+const THROTTLE_PERCENT: f32 = 0.0;
+const THROTTLE_PWM: f32 = 1.0;
+const ORDER_SEQUENCE: f32 = 1.0;
+
+/// DO_MOTOR_TEST: param 1 the motor (1-based), 2 the throttle's type, 3 the throttle (0
+/// stops a test), 4 the time in s, 5 how many motors in turn (0 or 1: this one), 6 the
+/// motors' order (default or board: motor 1 is m0; a vehicle-specific sequence is not
+/// known here). The commander judges the bounds and the state; here only what cannot be
+/// read as one motor's test is refused.
+fn motor_test(p: [f32; 7]) -> Result<Request, Refusal> {
+    let asked = format!(
+        "motor test (motor {}, type {}, throttle {})",
+        p[0], p[1], p[2]
+    );
+    if p[5] == ORDER_SEQUENCE {
+        return Err(denied(format!(
+            "{asked}: motors in a vehicle-specific sequence are not numbered here: send the \
+             board order (motor 1 to 4 = m0 to m3)"
+        )));
+    }
+    // Not a number is not at most 1.
+    if p[4].is_nan() || p[4] > 1.0 {
+        return Err(denied(format!(
+            "{asked}: one motor at a time (param 5 = {} motors asked)",
+            p[4]
+        )));
+    }
+    let throttle_pct = match p[1] {
+        THROTTLE_PERCENT => p[2],
+        THROTTLE_PWM => (p[2] - 1000.0) / 10.0,
+        other => {
+            return Err((
+                MavResult::MAV_RESULT_UNSUPPORTED,
+                format!("{asked}: throttle type {other}: only percent (0) and PWM (1)"),
+            ));
+        }
+    };
+    if !(p[0].fract() == 0.0 && (0.0..=255.0).contains(&p[0])) {
+        return Err(denied(format!("{asked}: the motor is 1 to 4")));
+    }
+    if !(throttle_pct.is_finite() && p[3].is_finite()) {
+        return Err(denied(format!(
+            "{asked}: throttle and time must be numbers"
+        )));
+    }
+    Ok(Request::Commander(Command::MotorTest {
+        motor: p[0] as u8,
+        throttle_pct: shortest(throttle_pct),
+        duration_s: shortest(p[3]),
+    }))
+}
+
+/// `v` as the f64 of its shortest decimal form: 12.3 stays 12.3 in mode.log and in the
+/// refusals, not 12.300000190734863 (a finite f32's shortest form always parses).
+fn shortest(v: f32) -> f64 {
+    v.to_string().parse().unwrap_or(f64::from(v))
 }
 
 fn arm_disarm(arm: f32, force: f32) -> Result<Request, Refusal> {
@@ -350,6 +421,43 @@ mod tests {
         };
         assert_eq!(standard(5.0), Ok(Request::Commander(Command::Return)));
         assert_eq!(standard(1.0).unwrap_err().0, MavResult::MAV_RESULT_DENIED);
+    }
+
+    /// DO_MOTOR_TEST as QGroundControl (percent) and Mission Planner (PWM) send it; several
+    /// motors in turn, or a throttle from the pilot's stick, refused.
+    #[test]
+    fn a_motor_test_is_one_motor_at_a_throttle_in_percent() {
+        let test = |p: [f32; 6]| {
+            map(
+                MavCmd::MAV_CMD_DO_MOTOR_TEST,
+                long([p[0], p[1], p[2], p[3], p[4], p[5], 0.]),
+            )
+        };
+        let want = |motor, throttle_pct, duration_s| {
+            Ok(Request::Commander(Command::MotorTest {
+                motor,
+                throttle_pct,
+                duration_s,
+            }))
+        };
+        assert_eq!(test([1., 0., 10., 3., 0., 2.]), want(1, 10.0, 3.0));
+        assert_eq!(test([4., 1., 1150., 2., 1., 0.]), want(4, 15.0, 2.0));
+        assert_eq!(test([3., 0., 5., 2., 1., 2.]), want(3, 5.0, 2.0));
+        let (result, why) = test([1., 0., 10., 3., 4., 0.]).unwrap_err();
+        assert_eq!(result, MavResult::MAV_RESULT_DENIED);
+        assert!(why.contains("one motor at a time"), "{why}");
+        let (result, _) = test([1., 2., 10., 3., 0., 0.]).unwrap_err();
+        assert_eq!(result, MavResult::MAV_RESULT_UNSUPPORTED);
+        let (result, why) = test([1., 0., 10., 3., 0., 1.]).unwrap_err();
+        assert_eq!(result, MavResult::MAV_RESULT_DENIED);
+        assert!(why.contains("board order"), "{why}");
+        assert!(test([1., 0., 10., 3., f32::NAN, 0.]).is_err());
+        assert_eq!(test([2., 0., 12.3, 1.5, 0., 0.]), want(2, 12.3, 1.5));
+        for bad in [[1.5, 0., 10., 3., 0., 0.], [-1., 0., 10., 3., 0., 0.]] {
+            assert_eq!(test(bad).unwrap_err().0, MavResult::MAV_RESULT_DENIED);
+        }
+        assert!(test([1., 0., f32::NAN, 3., 0., 0.]).is_err());
+        assert!(test([1., 0., 10., f32::INFINITY, 0., 0.]).is_err());
     }
 
     #[test]

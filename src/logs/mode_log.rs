@@ -378,6 +378,36 @@ mod tests {
     }
 
     #[test]
+    fn a_motor_test_reads_back_with_its_verdict() {
+        let test = OperatorInput::Command(
+            Command::MotorTest {
+                motor: 2,
+                throttle_pct: 12.5,
+                duration_s: 1.5,
+            },
+            LinkSource::Gcs,
+        );
+        let mut s = String::new();
+        let why = "esc: no acknowledgement from 0x6b".to_string();
+        write_input(&mut s, 3, &test, Some(&Err(why.clone())));
+        write_input(&mut s, 4, &test, Some(&Ok(())));
+        assert_eq!(
+            s,
+            format!("3 in gcs motor 2 12.5 1.5 | {why}\n4 in gcs motor 2 12.5 1.5 | ok\n")
+        );
+        let mut none = |name: &str| Err(format!("no file {name}"));
+        let got = read_inputs(&s, i64::MAX, &mut none).unwrap();
+        assert_eq!(got, vec![(3, test.clone(), Err(why)), (4, test, Ok(()))]);
+        for bad in [
+            "5 in gcs motor 1.5 10 1",
+            "5 in gcs motor 1 10",
+            "5 in gcs motor 300 1 1",
+        ] {
+            assert!(read_inputs(bad, i64::MAX, &mut none).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
     fn an_expired_input_reads_back_expired() {
         let arm = OperatorInput::Command(Command::Arm, LinkSource::Gcs);
         let expired = OperatorInput::Expired {

@@ -12,12 +12,13 @@
 //! disable is attempted even when writes keep failing), written again until every ESC
 //! acknowledged both or the retry time ran out; no request is taken meanwhile. A disarm's
 //! stop that every ESC acknowledged leaves the writer probing until the next flight's start
-//! (the same enable and ramp); every other stop is final. A failed write is a missed ack:
+//! (the same enable and ramp); every other stop is final. Disarmed, a motor test spins one
+//! ESC alone for its time, then stops as a disarm does. A failed write is a missed ack:
 //! counted, with the run of consecutive failures exposed for the watchdog.
 
 pub use crate::core::esc::EscPhase;
 use crate::core::esc::{
-    Cycle, CycleKind, CycleRunner, EscDriver, EscTiming, StopOutcome, StopReason,
+    Cycle, CycleKind, CycleRunner, EscDriver, EscTiming, MotorTest, StopOutcome, StopReason,
 };
 use crate::core::motor::MotorMap;
 use crate::hw::esc_bus::EscBus;
@@ -38,6 +39,8 @@ pub struct MotorCommand {
 #[derive(Debug, Default)]
 struct Requests {
     start: bool,
+    /// A motor test not yet taken (a newer one replaces it).
+    test: Option<MotorTest>,
     command: Option<MotorCommand>,
     new_command: bool,
     halt: Option<StopReason>,
@@ -123,11 +126,17 @@ impl EscMailbox {
         });
     }
 
-    /// Zero and disable now; `reason` is recorded. A start not yet taken is dropped: a
-    /// disarm right after an arm leaves the motors off.
+    /// Spin one motor alone (a motor test), from disabled or between flights.
+    pub fn test_motor(&self, test: MotorTest) {
+        self.with(|r| r.test = Some(test));
+    }
+
+    /// Zero and disable now; `reason` is recorded. A start or a motor test not yet taken is
+    /// dropped: a disarm right after an arm leaves the motors off.
     pub fn halt(&self, reason: StopReason) {
         self.with(|r| {
             r.start = false;
+            r.test = None;
             if r.halt.is_none() {
                 r.halt = Some(reason);
             }
@@ -138,6 +147,7 @@ impl EscMailbox {
     fn try_halt(&self, reason: StopReason) {
         if let Ok(mut r) = self.req.try_lock() {
             r.start = false;
+            r.test = None;
             if r.halt.is_none() {
                 r.halt = Some(reason);
             }
@@ -208,6 +218,7 @@ impl crate::core::flight::drive::EscEdges for MailboxEscs<'_> {
         match ask {
             EscAsk::Start => self.esc.start(),
             EscAsk::Stop(reason) => self.esc.halt(reason),
+            EscAsk::TestMotor(test) => self.esc.test_motor(test),
         }
     }
 
@@ -245,6 +256,7 @@ impl EscStatus {
             0 => EscPhase::Disabled,
             1 => EscPhase::Ramping,
             2 => EscPhase::Running,
+            4 => EscPhase::Testing,
             _ => EscPhase::Stopped,
         }
     }
@@ -378,6 +390,7 @@ enum Wake {
     Shutdown,
     Halt(StopReason),
     Start,
+    Test(MotorTest),
     Command(MotorCommand),
     Tick,
 }
@@ -398,7 +411,11 @@ fn wait(mailbox: &EscMailbox, deadline: Option<Instant>, accept_start: bool, spi
         }
         if accept_start && g.start {
             g.start = false;
+            g.test = None;
             return Wake::Start;
+        }
+        if accept_start && let Some(test) = g.test.take() {
+            return Wake::Test(test);
         }
         if g.new_command {
             g.new_command = false;
@@ -446,10 +463,11 @@ fn run(mut w: Writer, mailbox: &EscMailbox) {
             .next_wake_us()
             .map(|us| w.beats.start() + Duration::from_micros(us.max(0) as u64));
         let phase = driver.phase();
+        let on_the_ground = matches!(phase, EscPhase::Disabled | EscPhase::Testing);
         let wake = wait(
             mailbox,
             deadline,
-            phase == EscPhase::Disabled || driver.restartable(),
+            on_the_ground || driver.restartable(),
             may_spin && phase == EscPhase::Running,
         );
         let now_us = w.beats.us(Instant::now());
@@ -465,6 +483,9 @@ fn run(mut w: Writer, mailbox: &EscMailbox) {
                 // The restart is published (the last stop cleared) before its first write
                 // is reported to the watchdog: a halt from then on waits for its own stop.
                 w.finish(&driver);
+            }
+            Wake::Test(test) => {
+                driver.test_motor(test, now_us, &mut cycles);
             }
             Wake::Command(c) => {
                 if c.w_rad_s.iter().any(|v| !v.is_finite()) {
@@ -526,7 +547,10 @@ impl Writer {
         let phase = driver.phase();
         let starts = driver.starts();
         let restarted = starts != self.status.starts.load(Ordering::SeqCst);
-        if restarted {
+        // A flight's start, or a motor test's: the last stop is not this one's (a halt
+        // waits for its own stop's outcome).
+        let testing = phase == EscPhase::Testing && self.status.phase() != EscPhase::Testing;
+        if restarted || testing {
             if let Ok(mut g) = self.status.stop_reason.lock() {
                 *g = None;
             }
@@ -541,6 +565,16 @@ impl Writer {
                     reason = driver.stop_reason().map_or("", StopReason::name),
                     "ESCs zeroed and disabled"
                 ),
+                EscPhase::Testing => {
+                    if let Some(t) = driver.motor_test() {
+                        tracing::info!(
+                            motor = t.motor,
+                            value = t.value,
+                            seconds = t.duration_us as f64 / 1e6,
+                            "motor test: one motor alone"
+                        );
+                    }
+                }
                 EscPhase::Disabled | EscPhase::Ramping => {}
             }
         }

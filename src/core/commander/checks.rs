@@ -123,15 +123,20 @@ impl ArmFacts {
         if let Some(e) = &self.estimator {
             return Err(format!("estimator: {e}"));
         }
-        if !self.esc_silent.is_empty() {
-            let a: Vec<String> = self
-                .esc_silent
-                .iter()
-                .map(|a| format!("0x{a:02x}"))
-                .collect();
-            return Err(format!("esc: no acknowledgement from {}", a.join(", ")));
+        self.esc_verdict()
+    }
+
+    /// The `esc` check alone: every ESC acknowledged the last probe.
+    pub fn esc_verdict(&self) -> Result<(), String> {
+        if self.esc_silent.is_empty() {
+            return Ok(());
         }
-        Ok(())
+        let a: Vec<String> = self
+            .esc_silent
+            .iter()
+            .map(|a| format!("0x{a:02x}"))
+            .collect();
+        Err(format!("esc: no acknowledgement from {}", a.join(", ")))
     }
 }
 

@@ -33,11 +33,19 @@ pub enum Command {
     /// Calibrate the IMU at rest again (the gyros' offsets and the level), disarmed on the
     /// ground: a ground station's preflight calibration.
     Calibrate,
+    /// Spin one motor alone, disarmed on the ground: motor 1–4 (m0–m3 of the motor map) at
+    /// a throttle in % of the ESC's range above idle, for a time in s (a ground station's
+    /// motor test; `disarm` ends it early).
+    MotorTest {
+        motor: u8,
+        throttle_pct: f64,
+        duration_s: f64,
+    },
 }
 
 impl Command {
     /// Parses `arm`, `takeoff [ALT_M]`, `hold [X Y Z]`, `land`, `disarm`, `kill`, `start`,
-    /// `pause`, `resume`, `return`, `calibrate`, `move X Y Z`.
+    /// `pause`, `resume`, `return`, `calibrate`, `move X Y Z`, `motor M PCT S`.
     pub fn parse(line: &str) -> Result<Command, String> {
         let mut words = line.split_whitespace();
         let verb = words.next().unwrap_or("");
@@ -65,6 +73,14 @@ impl Command {
             ("calibrate", []) => Ok(Command::Calibrate),
             ("move", [x, y, z]) => Ok(Command::Move([*x, *y, *z])),
             ("move", _) => Err("move takes X Y Z in metres".into()),
+            ("motor", [m, pct, s]) if m.fract() == 0.0 && (0.0..=255.0).contains(m) => {
+                Ok(Command::MotorTest {
+                    motor: *m as u8,
+                    throttle_pct: *pct,
+                    duration_s: *s,
+                })
+            }
+            ("motor", _) => Err("motor takes MOTOR (1-4) THROTTLE_PCT SECONDS".into()),
             (
                 "arm" | "land" | "disarm" | "kill" | "start" | "pause" | "resume" | "return"
                 | "calibrate",
@@ -72,7 +88,7 @@ impl Command {
             ) => Err(format!("{verb} takes no arguments")),
             _ => Err(format!(
                 "unknown command {verb:?}: arm, takeoff [ALT_M], hold [X Y Z], land, disarm, \
-                 kill, start, pause, resume, return, calibrate, move X Y Z"
+                 kill, start, pause, resume, return, calibrate, move X Y Z, motor M PCT S"
             )),
         }
     }
@@ -92,6 +108,8 @@ impl Command {
             "resume",
             "return",
             "calibrate",
+            "move",
+            "motor",
         ]
         .contains(&verb)
     }
@@ -110,6 +128,7 @@ impl Command {
             Command::Return => "return",
             Command::Calibrate => "calibrate",
             Command::Move(_) => "move",
+            Command::MotorTest { .. } => "motor",
         }
     }
 }
@@ -120,6 +139,11 @@ impl fmt::Display for Command {
             Command::Takeoff(Some(a)) => write!(f, "takeoff {a}"),
             Command::Hold(Some([x, y, z])) => write!(f, "hold {x} {y} {z}"),
             Command::Move([x, y, z]) => write!(f, "move {x} {y} {z}"),
+            Command::MotorTest {
+                motor,
+                throttle_pct,
+                duration_s,
+            } => write!(f, "motor {motor} {throttle_pct} {duration_s}"),
             c => f.write_str(c.word()),
         }
     }

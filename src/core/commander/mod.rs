@@ -37,6 +37,7 @@ pub use refusal::Refusal;
 
 use crate::core::control::{Dir, ManualCommand};
 use crate::core::ekf::TestRatios;
+use crate::core::esc::{MOTOR_TEST_MAX_PCT, MOTOR_TEST_MAX_S, MotorTest};
 use crate::core::mission::{GainKey, GainTable, MissionPlan, MissionRun};
 use crate::core::model::GRAVITY_M_S2;
 use crate::core::path::{PathPoint, Segment};
@@ -215,6 +216,10 @@ pub enum EscRequest {
     Kill,
     /// The watchdog's halt for a crash or a flip (`crash`).
     Crash,
+    /// Spin one motor alone, disarmed (a ground station's motor test).
+    MotorTest(crate::core::esc::MotorTest),
+    /// Zero and disable the motor under test (a `disarm` during a motor test).
+    EndMotorTest,
 }
 
 /// One Kalman step as the commander sees it.
@@ -403,6 +408,8 @@ pub struct Commander {
     /// Disarmed after a flight: the ESCs cannot be started again in this run (only without
     /// [`Params::rearm`]).
     spent: bool,
+    /// The motor test under way: its motor (1-based) and when it ends, µs.
+    motor_test: Option<(u8, i64)>,
     /// The figures of the run's earlier flights, one per arming, in order; armings taken.
     past_flights: Vec<Figures>,
     flights: u32,
@@ -471,6 +478,7 @@ impl Commander {
             takeoff_baro_m: f64::NAN,
             observed: None,
             spent: false,
+            motor_test: None,
             past_flights: Vec::new(),
             flights: 0,
             climb: ClimbTrace::default(),
@@ -714,9 +722,42 @@ impl Commander {
         if let Some(why) = self.target_problem(cmd) {
             return Err(why);
         }
+        let testing = self.motor_test.filter(|&(_, until_us)| t_us < until_us);
         match cmd {
             Command::Kill => Ok(()),
             _ if m == Mode::Kill => Err(Killed),
+            // A throttle of 0 stops a test (a ground station's stop): taken whenever disarmed.
+            Command::MotorTest { throttle_pct, .. }
+                if m == Mode::Disarmed && throttle_pct == 0.0 =>
+            {
+                Ok(())
+            }
+            Command::MotorTest { .. } if m != Mode::Disarmed => Err(MotorTestNeedsDisarmed(m)),
+            Command::MotorTest {
+                motor,
+                throttle_pct,
+                duration_s,
+            } if !motor_test_bounded(motor, throttle_pct, duration_s) => {
+                Err(MotorTestOutOfBounds {
+                    motor,
+                    throttle_pct,
+                    duration_s,
+                })
+            }
+            // One motor at a time; the arm, a calibration at rest wait for its end.
+            Command::MotorTest { .. } | Command::Arm | Command::Calibrate if testing.is_some() => {
+                let (motor, until_us) = testing.unwrap_or_default();
+                Err(MotorTestRunning {
+                    motor,
+                    until_s: until_us as f64 / 1e6,
+                })
+            }
+            // After the one flight of a profile that flies once, the ESCs start no more.
+            Command::MotorTest { .. } if self.spent => Err(Landed),
+            // The verdict is the motor test's own checks' (the ESCs answer, no calibration at
+            // rest under way).
+            Command::MotorTest { .. } => arm_verdict.map_err(PreArm),
+            Command::Disarm if m == Mode::Disarmed && self.motor_test_may_run(t_us) => Ok(()),
             Command::Move(_) if m != Mode::Hold => Err(MoveNeedsHold(m)),
             Command::Move(_) if self.acting_failsafe().is_some() => {
                 Err(FailsafeActing(self.acting_failsafe()))
@@ -764,6 +805,21 @@ impl Commander {
         }
     }
 
+    /// A motor test under way at `t_us`: its motor (1-based).
+    pub fn motor_testing(&self, t_us: i64) -> Option<u8> {
+        self.motor_test
+            .filter(|&(_, until_us)| t_us < until_us)
+            .map(|(motor, _)| motor)
+    }
+
+    /// A motor test may still spin a motor at `t_us`: the ESC writer takes a test a little
+    /// after the commander (the time the input waited for its frame), so a `disarm` or a
+    /// stop just after the test's end still ends it.
+    fn motor_test_may_run(&self, t_us: i64) -> bool {
+        self.motor_test
+            .is_some_and(|(_, until_us)| t_us < until_us + MOTOR_TEST_LAG_US)
+    }
+
     /// The estimate is under the lowest hold above the takeoff point (or there is none).
     fn below_hold(&self, est: Option<&Observation>) -> bool {
         let ground_m = self.home_m.map_or(0.0, |h| h[2]);
@@ -789,6 +845,26 @@ impl Commander {
     ) -> Option<EscRequest> {
         let why = format!("command {cmd}");
         match cmd {
+            Command::MotorTest {
+                throttle_pct: 0.0, ..
+            } => {
+                let running = self.motor_test_may_run(t_us);
+                self.motor_test = None;
+                running.then_some(EscRequest::EndMotorTest)
+            }
+            Command::MotorTest {
+                motor,
+                throttle_pct,
+                duration_s,
+            } => {
+                let test = MotorTest::new(usize::from(motor) - 1, throttle_pct, duration_s);
+                self.motor_test = Some((motor, t_us + test.total_us()));
+                Some(EscRequest::MotorTest(test))
+            }
+            Command::Disarm if self.mode == Mode::Disarmed => {
+                self.motor_test = None;
+                Some(EscRequest::EndMotorTest)
+            }
             Command::Arm => {
                 self.begin_flight(t_us);
                 self.set_mode(Mode::Armed, t_us, &why, out);
@@ -1159,6 +1235,19 @@ fn smooth_baro(smoothed_m: f64, reading_m: f64) -> f64 {
     } else {
         smoothed_m + 0.05 * (reading_m - smoothed_m)
     }
+}
+
+/// How much later than the commander's clock says a motor test may end, µs (see
+/// `motor_test_may_run`).
+const MOTOR_TEST_LAG_US: i64 = 1_000_000;
+
+/// A motor test's motor (1 to 4), throttle and time within their bounds.
+fn motor_test_bounded(motor: u8, throttle_pct: f64, duration_s: f64) -> bool {
+    (1..=4).contains(&motor)
+        && throttle_pct > 0.0
+        && throttle_pct <= MOTOR_TEST_MAX_PCT
+        && duration_s > 0.0
+        && duration_s <= MOTOR_TEST_MAX_S
 }
 
 /// A group outside its gate (a ratio above 1, or not a number: a measurement that is not).

@@ -66,6 +66,16 @@ pub enum Refusal {
     MissionBeingFlown(Mode),
     /// Not applied within `commander.input_expiry_s` of its arrival.
     Expired { input_expiry_s: f64 },
+    /// A motor test while not disarmed.
+    MotorTestNeedsDisarmed(Mode),
+    /// A motor test's motor, throttle or time out of its bounds.
+    MotorTestOutOfBounds {
+        motor: u8,
+        throttle_pct: f64,
+        duration_s: f64,
+    },
+    /// A motor test runs (of this motor, 1-based) until this time of the run, s.
+    MotorTestRunning { motor: u8, until_s: f64 },
 }
 
 impl fmt::Display for Refusal {
@@ -141,6 +151,26 @@ impl fmt::Display for Refusal {
             MissionBeingFlown(m) => {
                 write!(f, "{}: a mission is being flown: pause it first", m.name())
             }
+            MotorTestNeedsDisarmed(m) => {
+                write!(f, "{}: a motor test runs only disarmed, on the ground", m.name())
+            }
+            MotorTestOutOfBounds {
+                motor,
+                throttle_pct,
+                duration_s,
+            } => write!(
+                f,
+                "motor {motor} at {throttle_pct} % for {duration_s} s: a motor test takes \
+                 motor 1 to 4, a throttle above 0 up to {} % (0 stops a test) and a time above \
+                 0 up to {} s",
+                crate::core::esc::MOTOR_TEST_MAX_PCT,
+                crate::core::esc::MOTOR_TEST_MAX_S
+            ),
+            MotorTestRunning { motor, until_s } => write!(
+                f,
+                "a motor test of motor {motor} runs until {until_s:.1} s: wait, or end it (disarm, \
+                 or a throttle of 0)"
+            ),
             Expired { input_expiry_s } => write!(
                 f,
                 "not applied within commander.input_expiry_s = {input_expiry_s} s of its \

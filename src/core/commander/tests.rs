@@ -1397,3 +1397,89 @@ fn an_asking_that_waited_past_the_expiry_is_refused_a_beat_never_expires() {
     );
     assert_eq!(c.mode(), Mode::Disarmed, "refused, not applied");
 }
+
+/// The refusal `ev` holds, its words.
+fn refusal_of(ev: &[Event]) -> Option<String> {
+    ev.iter().find_map(|e| match e {
+        Event::Refusal { why, .. } => Some(why.clone()),
+        _ => None,
+    })
+}
+
+#[test]
+fn a_motor_test_runs_one_motor_disarmed_within_its_bounds_and_holds_off_the_arm() {
+    let mut c = Commander::new(params());
+    let mut ev = Vec::new();
+    c.start(0, &mut ev);
+    let test = |motor, throttle_pct, duration_s| Command::MotorTest {
+        motor,
+        throttle_pct,
+        duration_s,
+    };
+    for (motor, pct, s) in [
+        (0, 10.0, 1.0),
+        (5, 10.0, 1.0),
+        (1, -1.0, 1.0),
+        (1, 31.0, 1.0),
+    ]
+    .into_iter()
+    .chain([(1, 10.0, 0.0), (1, 10.0, 5.5), (1, f64::NAN, 1.0)])
+    {
+        ev.clear();
+        let r = c.command(test(motor, pct, s), 0, Ok(()), None, &mut ev);
+        assert_eq!(r, None, "motor {motor} {pct} % {s} s");
+        let why = refusal_of(&ev).unwrap_or_default();
+        assert!(why.contains("motor 1 to 4"), "{why}");
+    }
+    ev.clear();
+    let why = "esc: no acknowledgement from 0x6b".to_string();
+    assert_eq!(
+        c.command(test(2, 10.0, 2.0), 0, Err(why.clone()), None, &mut ev),
+        None
+    );
+    assert_eq!(refusal_of(&ev), Some(why), "the motor test's own checks");
+    let r = c.command(test(2, 10.0, 2.0), 1_000_000, Ok(()), None, &mut ev);
+    let want = crate::core::esc::MotorTest::new(1, 10.0, 2.0);
+    assert_eq!(r, Some(EscRequest::MotorTest(want)));
+    assert_eq!(c.mode(), Mode::Disarmed, "a motor test arms nothing");
+    let end_us = 1_000_000 + want.total_us();
+    assert_eq!(c.motor_testing(end_us - 1), Some(2));
+    for cmd in [Command::Arm, Command::Calibrate, test(3, 10.0, 1.0)] {
+        ev.clear();
+        assert_eq!(c.command(cmd, end_us - 1, Ok(()), None, &mut ev), None);
+        let why = refusal_of(&ev).unwrap_or_default();
+        assert!(
+            why.contains("a motor test of motor 2 runs until 5.4 s"),
+            "{cmd}: {why}"
+        );
+    }
+    // A disarm ends it early, and so does a throttle of 0 (a ground station's stop); then
+    // the arm is taken.
+    let r = c.command(Command::Disarm, 2_000_000, Ok(()), None, &mut ev);
+    assert_eq!(r, Some(EscRequest::EndMotorTest));
+    assert_eq!(c.motor_testing(2_000_001), None);
+    c.command(test(2, 10.0, 2.0), 2_000_000, Ok(()), None, &mut ev);
+    let r = c.command(test(2, 0.0, 0.0), 2_000_000, Ok(()), None, &mut ev);
+    assert_eq!(r, Some(EscRequest::EndMotorTest));
+    ev.clear();
+    let r = c.command(test(1, 0.0, 0.0), 2_000_000, Ok(()), None, &mut ev);
+    assert_eq!(
+        (r, refusal_of(&ev)),
+        (None, None),
+        "a stop with nothing running"
+    );
+    assert_eq!(
+        c.command(Command::Arm, 2_000_001, Ok(()), None, &mut ev),
+        Some(EscRequest::Start)
+    );
+    // Armed: refused, named.
+    ev.clear();
+    assert_eq!(
+        c.command(test(1, 10.0, 1.0), 2_100_000, Ok(()), None, &mut ev),
+        None
+    );
+    assert_eq!(
+        refusal_of(&ev).as_deref(),
+        Some("armed: a motor test runs only disarmed, on the ground")
+    );
+}

@@ -24,6 +24,8 @@ pub enum EscAsk {
     Start,
     /// Zero, then disable them, for this reason.
     Stop(StopReason),
+    /// Spin one motor alone, disarmed (a motor test).
+    TestMotor(crate::core::esc::MotorTest),
 }
 
 /// What a driver does with the ESCs and with the end of its run.
@@ -51,6 +53,7 @@ pub fn act(action: OperatorAction, edges: &mut impl EscEdges) {
     match action {
         OperatorAction::StopEscs => edges.escs(EscAsk::Stop(StopReason::Disarmed)),
         OperatorAction::StartEscs => edges.escs(EscAsk::Start),
+        OperatorAction::TestMotor(test) => edges.escs(EscAsk::TestMotor(test)),
         OperatorAction::Quit => edges.quit(),
         OperatorAction::Nothing => {}
     }

@@ -589,6 +589,15 @@ impl EstimatorSide {
             ));
             return OperatorAction::StartEscs;
         }
+        if let Some(EscRequest::MotorTest(test)) = request {
+            out.record(FlightRecord::Note(format!(
+                "motor test: m{} alone at I2C {} for {:.1} s",
+                test.motor,
+                test.value,
+                test.duration_us as f64 / 1e6
+            )));
+            return OperatorAction::TestMotor(test);
+        }
         if self.esc_request(request, t_us, out) {
             OperatorAction::StopEscs
         } else {
@@ -616,21 +625,39 @@ impl EstimatorSide {
         }
     }
 
-    /// An `arm`'s pre-arm verdict: the facts' (the IMU's settling is this side's own), or the
-    /// one a replay recorded; none for other inputs.
+    /// An `arm`'s pre-arm verdict or a motor test's checks: the facts' (the IMU's settling is
+    /// this side's own), or the one a replay recorded; none for other inputs.
     fn arm_verdict(
         &self,
         input: &OperatorInput,
         arm: ArmCheck<'_>,
         t_us: i64,
     ) -> Option<Result<(), String>> {
-        if !matches!(input, OperatorInput::Command(commander::Command::Arm, _)) {
+        let OperatorInput::Command(cmd, _) = input else {
+            return None;
+        };
+        let test = matches!(cmd, commander::Command::MotorTest { .. });
+        if !(test || *cmd == commander::Command::Arm) {
             return None;
         }
         Some(match arm {
             ArmCheck::Recorded(v) => v.clone(),
+            ArmCheck::Facts(f) if test => self.motor_test_verdict(f),
             ArmCheck::Facts(f) => self.prearm_verdict(f, t_us),
         })
+    }
+
+    /// Whether a motor test may spin a motor now: every ESC answers, and no calibration at
+    /// rest is under way or about to begin (a spinning motor would shake it).
+    fn motor_test_verdict(&self, facts: &ArmFacts) -> Result<(), String> {
+        if self.at_rest && matches!(self.phase, Phase::Settle | Phase::Calibration) {
+            return Err(
+                "imu: calibrating at rest: a spinning motor would shake it (test once the \
+                 estimate runs)"
+                    .into(),
+            );
+        }
+        facts.esc_verdict()
     }
 
     /// The pre-arm checks' verdict at `t_us` on the driver's `facts` and this side's own
@@ -684,7 +711,9 @@ impl EstimatorSide {
                 out.watchdog(Event::Crash(t_us));
                 false
             }
-            Some(EscRequest::Start) | None => false,
+            // A motor test's motor stopped: no flight ends.
+            Some(EscRequest::EndMotorTest) => true,
+            Some(EscRequest::Start | EscRequest::MotorTest(_)) | None => false,
         }
     }
 
@@ -895,7 +924,7 @@ impl EstimatorSide {
                 self.record_events(out);
                 Some(self.abort(Abort::EscStopped(why)))
             }
-            EscPhase::Disabled | EscPhase::Ramping => None,
+            EscPhase::Disabled | EscPhase::Ramping | EscPhase::Testing => None,
         }
     }
 
@@ -969,7 +998,7 @@ impl EstimatorSide {
                 self.record_events(out);
                 self.abort(Abort::EscStopped(why))
             }
-            EscPhase::Disabled | EscPhase::Ramping => FrameAction::Wait,
+            EscPhase::Disabled | EscPhase::Ramping | EscPhase::Testing => FrameAction::Wait,
         }
     }
 
@@ -1136,6 +1165,8 @@ pub enum OperatorAction {
     /// An `arm` taken under a running estimate (`imu.calibrate = "before-arm"`): enable the
     /// ESCs and run their start-up ramp now.
     StartEscs,
+    /// A motor test the commander took: spin this motor alone.
+    TestMotor(crate::core::esc::MotorTest),
 }
 
 /// How an `arm` is checked.
