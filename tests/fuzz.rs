@@ -13,6 +13,8 @@
 //!   and the fixed-point printer the logs are written with;
 //! - `mavlink_frames`: the ground-station link's MAVLink decoder (`gcs::wire::Decoder`, as
 //!   datagrams and as a stream cut anywhere), the command mapping and parameter values.
+//! - `rc_frames`: the RC receiver's SBUS and CRSF decoders (`core::rc`, any split of the
+//!   stream), `sbus::parse`, and each protocol's frames decoded back to what was encoded.
 //!
 //! Each takes random input and structure-aware mutations of valid input (frames with bytes
 //! flipped, a TPV report with fields changed or cut, a shipped profile with values replaced by
@@ -1791,6 +1793,160 @@ fn mavlink_frames() {
                     _ => {}
                 }
             }
+            Ok(())
+        },
+    );
+}
+
+// ---------------------------------------------------------------------------------------------
+// 7. RC receiver frames (SBUS, CRSF)
+// ---------------------------------------------------------------------------------------------
+
+use uquad::core::rc::{LinkStats, RcEvent, RcFrame, TICKS_MAX, crsf, sbus};
+
+/// Bytes that matter to SBUS and CRSF: headers, addresses, lengths, types, end bytes.
+fn rc_byte() -> impl Strategy<Value = u8> {
+    prop_oneof![
+        select(vec![
+            0x0f, 0x00, 0x04, 0x14, 0x16, 0x18, 0x0c, 0xc8, 0xee, 0xea, 0xec, 0xff, 62, 63, 1, 2
+        ]),
+        any::<u8>()
+    ]
+}
+
+fn rc_frame() -> impl Strategy<Value = RcFrame> {
+    (any::<[u16; 16]>(), any::<bool>(), any::<bool>()).prop_map(|(ch, lost, failsafe)| RcFrame {
+        channels: ch.map(|c| c & TICKS_MAX),
+        frame_lost: lost,
+        failsafe,
+    })
+}
+
+/// A stream of one protocol's frames (channels and, for CRSF, link statistics) with noise
+/// before and edits after, or random bytes.
+fn rc_stream(crsf_frames: bool) -> impl Strategy<Value = Hex> {
+    prop_oneof![
+        vec(any::<u8>(), 0..300),
+        vec(rc_byte(), 0..300),
+        (
+            vec((rc_frame(), any::<(i16, u8, i8)>()), 1..6),
+            vec(rc_byte(), 0..8),
+            vec(byte_edit(), 0..6)
+        )
+            .prop_map(move |(frames, lead, edits)| {
+                let mut b = lead;
+                for (f, (rssi, lq, snr)) in &frames {
+                    if crsf_frames {
+                        b.extend(crsf::encode_channels(&f.channels));
+                        let link = LinkStats {
+                            rssi_dbm: *rssi,
+                            link_quality_pct: *lq,
+                            snr_db: *snr,
+                        };
+                        b.extend(crsf::encode_link(&link));
+                    } else {
+                        b.extend(sbus::encode(f));
+                    }
+                }
+                for e in &edits {
+                    apply_byte_edit(&mut b, e);
+                }
+                b
+            }),
+    ]
+    .prop_map(Hex)
+}
+
+/// Feeds `bytes` to a fresh decoder of either protocol in `chunks` (cycled), checking that
+/// less than a frame stays buffered and the counts match what came out.
+fn rc_decode(
+    bytes: &[u8],
+    chunks: &[usize],
+    crsf_frames: bool,
+) -> Result<Vec<RcEvent>, TestCaseError> {
+    use uquad::core::rc::Decoder;
+    let mut d = if crsf_frames {
+        Decoder::Crsf(crsf::CrsfDecoder::new())
+    } else {
+        Decoder::Sbus(sbus::SbusDecoder::new())
+    };
+    let max = if crsf_frames {
+        crsf::FRAME_MAX
+    } else {
+        sbus::FRAME_LEN
+    };
+    let mut out = Vec::new();
+    let (mut fed, mut k) = (0usize, 0usize);
+    while fed < bytes.len() {
+        let n = chunks[k % chunks.len()].clamp(1, bytes.len() - fed);
+        d.feed(&bytes[fed..fed + n], &mut out);
+        fed += n;
+        k += 1;
+        let buffered = match &d {
+            Decoder::Sbus(s) => s.buffered(),
+            Decoder::Crsf(c) => c.buffered(),
+        };
+        prop_assert!(buffered < max, "{buffered} bytes buffered");
+        let s = d.stats();
+        let channels = out
+            .iter()
+            .filter(|e| matches!(e, RcEvent::Channels(_)))
+            .count();
+        prop_assert_eq!(s.frames as usize, channels);
+        prop_assert!(s.discarded_bytes as usize <= fed);
+    }
+    for e in &out {
+        if let RcEvent::Channels(f) = e {
+            prop_assert!(f.channels.iter().all(|&c| c <= TICKS_MAX));
+        }
+    }
+    Ok(out)
+}
+
+#[test]
+fn rc_frames() {
+    let strategy = (
+        any::<bool>(),
+        any::<bool>().prop_flat_map(rc_stream).prop_map(|h| h.0),
+        vec(1usize..40, 1..6),
+        any::<[u8; sbus::FRAME_LEN]>(),
+        rc_frame(),
+    );
+    let tally = Tally::default();
+    fuzz(
+        "rc_frames",
+        strategy,
+        &tally,
+        |(crsf_frames, bytes, chunks, candidate, frame)| {
+            // However the stream is split, the same frames.
+            let split = rc_decode(&bytes, &chunks, crsf_frames)?;
+            let whole = rc_decode(&bytes, &[bytes.len().max(1)], crsf_frames)?;
+            prop_assert_eq!(&split, &whole);
+            tally.add(match (crsf_frames, split.is_empty()) {
+                (false, true) => "sbus: nothing",
+                (false, false) => "sbus: frames",
+                (true, true) => "crsf: nothing",
+                (true, false) => "crsf: frames",
+            });
+            // An SBUS candidate parses exactly when its header and end byte are right.
+            let mut c = candidate;
+            if c[1] % 2 == 0 {
+                c[0] = sbus::HEADER;
+                c[sbus::FRAME_LEN - 1] = 0;
+            }
+            let framed = c[0] == sbus::HEADER && [0, 4, 0x14, 0x24, 0x34].contains(&c[24]);
+            prop_assert_eq!(sbus::parse(&c).is_some(), framed);
+            // Each protocol's frame decodes to what was encoded.
+            prop_assert_eq!(sbus::parse(&sbus::encode(&frame)), Some(frame));
+            let mut d = crsf::CrsfDecoder::new();
+            let mut out = Vec::new();
+            d.feed(&crsf::encode_channels(&frame.channels), &mut out);
+            let plain = RcFrame {
+                frame_lost: false,
+                failsafe: false,
+                ..frame
+            };
+            prop_assert_eq!(out, vec![RcEvent::Channels(plain)]);
             Ok(())
         },
     );

@@ -22,6 +22,7 @@ pub mod model;
 pub mod motor;
 pub mod numfile;
 pub mod path;
+pub mod rc;
 pub mod status;
 pub mod torque;
 pub mod trim;

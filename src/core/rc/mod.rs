@@ -1,0 +1,147 @@
+//! A hobby RC receiver's serial protocols, decoded (spec: none; the original had no radio):
+//! SBUS ([`sbus`]) and CRSF ([`crsf`], ExpressLRS and TBS Crossfire). Each decoder takes the
+//! UART's bytes as they come, finds its frames again after noise or a cut, and gives
+//! [`RcEvent`]s: the 16 channels in the protocols' common 11-bit ticks (172 ≈ 988 µs, 992 the
+//! centre, 1811 ≈ 2012 µs), with the receiver's own failsafe flags, and (CRSF) the link's
+//! quality. Pure: no clock, no I/O.
+
+pub mod crsf;
+pub mod sbus;
+
+/// Channels a frame carries.
+pub const CHANNELS: usize = 16;
+/// The largest 11-bit channel value.
+pub const TICKS_MAX: u16 = 0x7ff;
+/// The centre of a stick's travel, ticks (1500 µs).
+pub const TICKS_MID: u16 = 992;
+
+/// One frame of channels, as the receiver sent it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RcFrame {
+    /// Channels 1–16, 11-bit ticks.
+    pub channels: [u16; CHANNELS],
+    /// The receiver says this frame was not received from the transmitter (SBUS's frame-lost
+    /// flag): the channels are the last good ones.
+    pub frame_lost: bool,
+    /// The receiver is in its failsafe (SBUS's failsafe flag): the transmitter is gone.
+    pub failsafe: bool,
+}
+
+/// The radio link as the receiver measures it (CRSF's LINK_STATISTICS, uplink).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LinkStats {
+    /// The active antenna's signal strength, dBm.
+    pub rssi_dbm: i16,
+    /// Packets received of the last 100, %.
+    pub link_quality_pct: u8,
+    pub snr_db: i8,
+}
+
+/// What a decoder found in the bytes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RcEvent {
+    Channels(RcFrame),
+    Link(LinkStats),
+}
+
+/// What a decoder has seen: frames taken, and bytes it could not place in a frame.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct DecoderStats {
+    /// Frames of channels taken.
+    pub frames: u64,
+    /// Other frames taken (CRSF's link statistics, frame types not read).
+    pub other_frames: u64,
+    /// Bytes dropped while looking for a frame's start.
+    pub discarded_bytes: u64,
+    /// Candidates whose end marker or CRC was wrong.
+    pub rejected_frames: u64,
+}
+
+/// A channel's ticks as a pulse width, µs (the protocols' own scale: 1500 + (t − 992)·5/8).
+pub fn us_from_ticks(ticks: u16) -> f64 {
+    1500.0 + (f64::from(ticks) - f64::from(TICKS_MID)) * 5.0 / 8.0
+}
+
+/// A pulse width as ticks, rounded and limited to 11 bits (for the simulated transmitter).
+pub fn ticks_from_us(us: f64) -> u16 {
+    let t = (f64::from(TICKS_MID) + (us - 1500.0) * 8.0 / 5.0).round();
+    if t.is_nan() {
+        return TICKS_MID;
+    }
+    t.clamp(0.0, f64::from(TICKS_MAX)) as u16
+}
+
+/// 16 channels of 11 bits packed least significant bit first (SBUS's and CRSF's layout).
+pub fn unpack_channels(packed: &[u8; 22]) -> [u16; CHANNELS] {
+    std::array::from_fn(|ch| {
+        let bit = ch * 11;
+        let (byte, shift) = (bit / 8, bit % 8);
+        let mut v = u32::from(packed[byte]) >> shift;
+        v |= u32::from(packed[byte + 1]) << (8 - shift);
+        if shift > 5 {
+            v |= u32::from(packed[byte + 2]) << (16 - shift);
+        }
+        (v & u32::from(TICKS_MAX)) as u16
+    })
+}
+
+/// The inverse of [`unpack_channels`]; values above 11 bits are cut to their low 11 bits.
+pub fn pack_channels(channels: &[u16; CHANNELS]) -> [u8; 22] {
+    let mut out = [0u8; 22];
+    for (ch, &v) in channels.iter().enumerate() {
+        let v = u32::from(v & TICKS_MAX);
+        let bit = ch * 11;
+        let (byte, shift) = (bit / 8, bit % 8);
+        let bits = v << shift;
+        out[byte] |= bits as u8;
+        out[byte + 1] |= (bits >> 8) as u8;
+        if shift > 5 {
+            out[byte + 2] |= (bits >> 16) as u8;
+        }
+    }
+    out
+}
+
+/// A byte stream's decoder, of either protocol.
+#[derive(Debug, Clone)]
+pub enum Decoder {
+    Sbus(sbus::SbusDecoder),
+    Crsf(crsf::CrsfDecoder),
+}
+
+impl Decoder {
+    /// Takes `bytes`, appending what completes to `out`.
+    pub fn feed(&mut self, bytes: &[u8], out: &mut Vec<RcEvent>) {
+        match self {
+            Decoder::Sbus(d) => d.feed(bytes, out),
+            Decoder::Crsf(d) => d.feed(bytes, out),
+        }
+    }
+
+    pub fn stats(&self) -> DecoderStats {
+        match self {
+            Decoder::Sbus(d) => d.stats(),
+            Decoder::Crsf(d) => d.stats(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn channels_pack_and_unpack_as_eleven_bit_fields() {
+        let channels: [u16; CHANNELS] = std::array::from_fn(|k| (k as u16 * 131 + 7) & TICKS_MAX);
+        assert_eq!(unpack_channels(&pack_channels(&channels)), channels);
+        let mut one = [0u16; CHANNELS];
+        one[1] = 1;
+        let packed = pack_channels(&one);
+        assert_eq!(packed[1], 0b0000_1000, "channel 2 starts at bit 11");
+        assert_eq!((us_from_ticks(172), us_from_ticks(992)), (987.5, 1500.0));
+        assert_eq!(us_from_ticks(1811), 2011.875);
+        assert_eq!(ticks_from_us(us_from_ticks(1811)), 1811);
+        assert_eq!(ticks_from_us(f64::NAN), TICKS_MID);
+        assert_eq!(ticks_from_us(1e9), TICKS_MAX);
+    }
+}
