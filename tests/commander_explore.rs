@@ -110,6 +110,7 @@ fn params() -> Params {
             yaw_acc_rad_s2: 1.0,
             return_m_s: 1.0,
         },
+        rc: None,
     }
 }
 
@@ -176,7 +177,7 @@ fn request(req: Option<EscRequest>, w: &mut World, seen: &mut Seen, why: &str) {
             w.motors = false;
         }
         // Both on the one list of causes that may cut the motors in the air.
-        Some(EscRequest::Kill | EscRequest::Crash) => w.motors = false,
+        Some(EscRequest::Kill | EscRequest::Crash | EscRequest::KillSwitch) => w.motors = false,
         None => {}
     }
 }

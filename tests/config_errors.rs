@@ -379,3 +379,46 @@ fn default_config_under_working_directory() {
         "{err}"
     );
 }
+
+/// The RC receiver's keys: a function on another's channel, a calibration out of order, an
+/// RC-loss action that kills, a mode switch of too many positions or an unknown mode, each
+/// refused naming its key.
+#[test]
+fn rc_keys_are_refused_with_their_key() {
+    let cases: [(&[&str], &str, &str); 5] = [
+        (
+            &["rc.yaw.channel=3"],
+            "rc.yaw.channel",
+            "no other function uses",
+        ),
+        (&["rc.roll.min=1000"], "rc.roll", "min < center < max"),
+        (
+            &["failsafe.rc_loss_action=\"kill\""],
+            "failsafe.rc_loss_action",
+            "\"land\", \"return\" or \"hold\"",
+        ),
+        (
+            &["rc.modes=[\"hold\",\"hold\",\"hold\",\"hold\",\"hold\",\"hold\",\"land\"]"],
+            "rc.modes",
+            "1 to 6 modes",
+        ),
+        (
+            &["failsafe.rc_timeout_s=0"],
+            "failsafe.rc_timeout_s",
+            "0.2 to 10 s",
+        ),
+    ];
+    for (sets, key, allowed) in cases {
+        let args: Vec<&str> = sets.iter().flat_map(|s| ["--set", s]).collect();
+        refused(
+            &root().join("config/uquad.toml"),
+            &args,
+            &["uquad.toml", key, allowed],
+        );
+    }
+    refused(
+        &root().join("config/uquad.toml"),
+        &["--set", "rc.modes=[\"acro\"]"],
+        &["rc.modes", "unknown variant"],
+    );
+}

@@ -151,6 +151,43 @@ pub struct SimReport {
     /// `sim --fast`: what the true vehicle did that the safety campaign judges.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub safety: Option<SafetyFigures>,
+    /// Each stop by the pilot's kill switch (`--rc`).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub kill_switch: Vec<KillFigures>,
+}
+
+/// A kill switch's stop as the simulated vehicle felt it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct KillFigures {
+    /// The frame that turned the switch on arrived, s.
+    pub frame_s: f64,
+    /// Every ESC had acknowledged its zero and its disable, s (none: never confirmed).
+    pub confirmed_s: Option<f64>,
+    /// The true height then, m, and the true vertical speed as the vehicle reached the
+    /// ground, m/s (up positive; none: it was on the ground, or had not come down).
+    pub height_m: f64,
+    pub impact_v_m_s: Option<f64>,
+}
+
+impl KillFigures {
+    fn text(&self) -> String {
+        let confirmed = self.confirmed_s.map_or("never confirmed".to_string(), |c| {
+            format!(
+                "zero and disable confirmed {:.0} ms later",
+                (c - self.frame_s) * 1e3
+            )
+        });
+        let fall = self.impact_v_m_s.map_or(String::new(), |v| {
+            format!(
+                ", fell from {:.2} m to the ground at {:.2} m/s",
+                self.height_m, -v
+            )
+        });
+        format!(
+            "\n  kill switch at {:.2} s: {confirmed}{fall}",
+            self.frame_s
+        )
+    }
 }
 
 /// Writes a report as pretty JSON to `path`.
@@ -359,6 +396,7 @@ pub struct SimSummary {
     pub esc_end: Vec<EscEnd>,
     /// `sim --fast`: what the true vehicle did that the safety campaign judges.
     pub safety: Option<SafetyFigures>,
+    pub kill_switch: Vec<KillFigures>,
 }
 
 impl SimSummary {
@@ -373,6 +411,7 @@ impl SimSummary {
             simulated_s: self.simulated_s,
             esc_end: self.esc_end.clone(),
             safety: self.safety.clone(),
+            kill_switch: self.kill_switch.clone(),
         }
     }
 
@@ -399,8 +438,9 @@ impl SimSummary {
             .truth
             .map(|(e, c)| format!("\n  {}", crate::sim::truth::text(&e, &c)))
             .unwrap_or_default();
+        let kills: String = self.kill_switch.iter().map(KillFigures::text).collect();
         format!(
-            "{}{track}{truth}\n  simulated {:.1} s; {hover}",
+            "{}{track}{truth}{kills}\n  simulated {:.1} s; {hover}",
             self.fly.text(),
             self.simulated_s
         )

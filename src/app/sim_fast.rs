@@ -15,7 +15,7 @@ use crate::app::report::{FlySummary, SimSummary};
 use crate::app::run_dir::{create_run_dir, new_run_id, write_run_config};
 use crate::app::sim::SimOptions;
 use crate::config::{GpsMode, Profile};
-use crate::core::commander::{ArmFacts, Command as OperatorCommand, Mode, OperatorInput};
+use crate::core::commander::{ArmFacts, Mode, OperatorInput};
 use crate::core::ekf::Ekf;
 use crate::core::esc::{CycleKind, CycleRunner, EscDriver, EscPhase, StopReason};
 use crate::core::flight::ArmCheck;
@@ -144,6 +144,11 @@ pub(crate) struct FastSim<'a> {
     fly: FlySummary,
     hover: HoverWindow,
     operator: SimOperator,
+    /// The pilot's radio (`--rc`), if any, and its kill switch's stops.
+    transmitter: Option<crate::sim::transmitter::Transmitter>,
+    kills: Vec<crate::app::report::KillFigures>,
+    /// The true vertical speed at the previous step, m/s (a kill's fall).
+    last_vz_m_s: f64,
     /// The operator's inputs due at this frame.
     inputs: Vec<(i64, OperatorInput)>,
     /// The newest fix simulated gpsd gave (the pre-arm GPS check).
@@ -299,6 +304,14 @@ impl<'a> FastSim<'a> {
                     operator
                 }
             },
+            transmitter: {
+                let script = crate::app::sim::script(opts, profile);
+                let lost_us = faults.at_us(Fault::RcLoss);
+                let timeout_s = cfg.failsafe.rc_timeout_s;
+                crate::sim::transmitter::Transmitter::new(&cfg.rc, timeout_s, &script.1, lost_us)
+            },
+            kills: Vec::new(),
+            last_vz_m_s: 0.0,
             inputs: Vec::with_capacity(4),
             newest_fix: None,
             prearm: prearm(cfg),
@@ -324,6 +337,20 @@ impl<'a> FastSim<'a> {
         // that waits past commander.input_expiry_s for one is refused, as in `fly`).
         if let Some(served) = &mut self.served {
             served.take_inputs(t, &mut self.inputs);
+        }
+        // The pilot's radio: its inputs are applied at the next frame, but its kill switch
+        // goes straight to the ESCs' stop, as fly's RC task sends it.
+        if let Some(tx) = &mut self.transmitter
+            && tx.due(t, &mut self.inputs)
+        {
+            self.driver
+                .stop(StopReason::KillSwitch, t, &mut self.cycles);
+            self.kills.push(crate::app::report::KillFigures {
+                frame_s: t as f64 / 1e6,
+                confirmed_s: None,
+                height_m: self.plant.position_m()[2],
+                impact_v_m_s: None,
+            });
         }
         self.escs.failing = self.faults.active(Fault::EscNack, t);
         if self.faults.active(Fault::ThrustLoss, t) {
@@ -354,6 +381,7 @@ impl<'a> FastSim<'a> {
             self.send_frame();
         }
         self.run_escs();
+        self.follow_kill();
         self.decide(|wd, t| wd.tick(t));
         self.execute_halt();
         self.sample_hover();
@@ -371,6 +399,24 @@ impl<'a> FastSim<'a> {
         !(ended && self.driver.stop_outcome().is_some())
     }
 
+    /// The newest kill switch's stop: when every ESC confirmed it, and how fast the vehicle
+    /// reached the ground.
+    fn follow_kill(&mut self) {
+        let vz_m_s = self.plant.velocity_m_s()[2];
+        let on_ground = self.plant.on_ground;
+        if let Some(k) = self.kills.last_mut() {
+            if k.confirmed_s.is_none()
+                && let Some(o) = self.driver.stop_outcome().filter(|o| o.confirmed())
+            {
+                k.confirmed_s = Some(o.settled_us as f64 / 1e6);
+            }
+            if k.impact_v_m_s.is_none() && on_ground && k.height_m > 0.05 {
+                k.impact_v_m_s = Some(self.last_vz_m_s);
+            }
+        }
+        self.last_vz_m_s = vz_m_s;
+    }
+
     /// The operator's inputs due now (the script's, and a paced run's links'), into the
     /// flight sequence before the frame; a ground station's is answered with its outcome.
     fn operate(&mut self) {
@@ -383,7 +429,7 @@ impl<'a> FastSim<'a> {
             let asked = crate::tasks::estimator::notice_of(&input, None).map(|_| input.clone());
             // Due while no frame came (a garbled IMU): past commander.input_expiry_s, refused.
             let input = self.flight.estimator.commander().aged(input, t - due_us);
-            let facts = if matches!(input, OperatorInput::Command(OperatorCommand::Arm, _)) {
+            let facts = if input.checked_against_facts() {
                 self.arm_facts()
             } else {
                 ArmFacts::default()
@@ -707,6 +753,7 @@ impl<'a> FastSim<'a> {
             truth: self.truth.figures(),
             simulated_s: self.t_us as f64 / 1e6,
             esc_end: self.escs.end_state(),
+            kill_switch: self.kills,
         })
     }
 }

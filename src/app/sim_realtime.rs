@@ -230,6 +230,7 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
     fly.commander.flights = result.flights;
     Ok(SimSummary {
         esc_end,
+        kill_switch: Vec::new(),
         fly,
         hover: result.hover,
         track: None,

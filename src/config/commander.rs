@@ -77,6 +77,11 @@ pub struct FailsafeConfig {
     /// An innovation test ratio above 1 for this long → `ekf_action`, s.
     pub ekf_bad_s: f64,
     pub ekf_action: Action,
+    /// With an RC receiver (`rc.protocol`): no valid frame for this long, or the receiver's
+    /// own failsafe flag → `rc_loss_action` ("land", "return" or "hold"; a return needs a
+    /// position, else the vehicle lands), s. PX4's COM_RC_LOSS_T; on the ground: disarmed.
+    pub rc_timeout_s: f64,
+    pub rc_loss_action: Action,
 }
 
 impl Default for FailsafeConfig {
@@ -89,6 +94,8 @@ impl Default for FailsafeConfig {
             gps_loss_action: Action::Land,
             ekf_bad_s: 2.0,
             ekf_action: Action::Land,
+            rc_timeout_s: 0.5,
+            rc_loss_action: Action::Return,
         }
     }
 }
@@ -150,6 +157,12 @@ impl super::Config {
             z_min_m: self.control.manual.z_min_m,
             z_max_m: self.control.manual.z_max_m,
             mission: self.mission.limits(),
+            rc: (self.rc.protocol != super::RcProtocol::None).then_some(
+                crate::core::commander::RcLossParams {
+                    timeout_s: f.rc_timeout_s,
+                    action: f.rc_loss_action,
+                },
+            ),
         }
     }
 }

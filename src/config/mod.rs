@@ -21,6 +21,7 @@ mod overrides;
 mod param_store;
 mod parameters;
 mod profile;
+mod rc;
 mod schema;
 mod validate;
 
@@ -35,6 +36,7 @@ pub use overrides::parse_set;
 pub use param_store::{Kept, ParamStore};
 pub use parameters::PARAMETERS;
 pub use profile::Profile;
+pub use rc::{RcChannel, RcConfig, RcMode, RcProtocol};
 pub use schema::{
     Config, Console, Control, Ekf, Esc, Gps, GpsMode, Imu, Integrals, Log, Motor, Sim, Vehicle,
     WatchdogConfig,

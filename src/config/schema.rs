@@ -25,6 +25,7 @@ pub struct Config {
     pub fence: super::Fence,
     pub gcs: super::GcsConfig,
     pub mission: super::MissionConfig,
+    pub rc: super::RcConfig,
 }
 
 /// The ESC writer (spec 6.3, 6.4).

@@ -283,6 +283,7 @@ fn all_rules(c: &Config) -> Vec<Check> {
         failsafe_rules(c),
         gcs_rules(c),
         mission_rules(c),
+        rc_rules(c),
     ];
     rules.into_iter().flatten().collect()
 }
@@ -805,6 +806,76 @@ fn gcs_rules(c: &Config) -> Vec<Check> {
             "at most 16 system ids, each 1 to 255 and not gcs.system_id (the vehicle's own)",
         ),
     ]
+}
+
+/// The RC receiver: each function on its own channel, each channel's calibration in order
+/// within 11 bits, sticks that ask what the vehicle can fly, a mode switch of 1 to 6
+/// positions, an RC-loss action a pilot can follow.
+fn rc_rules(c: &Config) -> Vec<Check> {
+    let rc = &c.rc;
+    let mut rules = Vec::new();
+    for (name, ch) in rc.functions() {
+        let key = |field: &str| format!("rc.{name}.{field}");
+        rules.push(in_range(&key("channel"), u32::from(ch.channel), 1..=16, ""));
+        let used_by: Vec<&str> = rc
+            .functions()
+            .into_iter()
+            .filter(|(other, o)| *other != name && o.channel == ch.channel)
+            .map(|(other, _)| other)
+            .collect();
+        rules.push(Check::new(
+            &key("channel"),
+            used_by.is_empty(),
+            ch.channel.to_string(),
+            format!("a channel no other function uses (also used by {used_by:?})"),
+        ));
+        rules.push(Check::new(
+            &format!("rc.{name}"),
+            ch.min < ch.center && ch.center < ch.max && ch.max <= crate::core::rc::TICKS_MAX,
+            format!("min {}, center {}, max {}", ch.min, ch.center, ch.max),
+            "min < center < max ≤ 2047 ticks",
+        ));
+        rules.push(in_range(&key("deadband"), ch.deadband, 0.0..=0.5, ""));
+    }
+    rules.extend([
+        in_range(
+            "rc.max_speed_m_s",
+            rc.max_speed_m_s,
+            positive_to(10.0),
+            "m/s",
+        ),
+        in_range(
+            "rc.max_climb_m_s",
+            rc.max_climb_m_s,
+            positive_to(5.0),
+            "m/s",
+        ),
+        in_range(
+            "rc.max_yaw_rate_rad_s",
+            rc.max_yaw_rate_rad_s,
+            positive_to(3.0),
+            "rad/s",
+        ),
+        Check::new(
+            "rc.modes",
+            (1..=6).contains(&rc.modes.len()),
+            format!("{} modes", rc.modes.len()),
+            "1 to 6 modes, one per position of the mode switch",
+        ),
+        in_range(
+            "failsafe.rc_timeout_s",
+            c.failsafe.rc_timeout_s,
+            0.2..=10.0,
+            "s",
+        ),
+        Check::new(
+            "failsafe.rc_loss_action",
+            c.failsafe.rc_loss_action != crate::core::commander::Action::Kill,
+            c.failsafe.rc_loss_action.name().to_string(),
+            "\"land\", \"return\" or \"hold\" (a pilot who lost the radio is not killed)",
+        ),
+    ]);
+    rules
 }
 
 /// How missions are flown: accelerations and rates a vehicle can follow.

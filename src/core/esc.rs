@@ -158,6 +158,9 @@ pub enum StopReason {
     Disarmed,
     /// A motor test's time ran out.
     MotorTestDone,
+    /// The pilot's kill switch: a halt named `kill` from any mode, after which the vehicle
+    /// is disarmed and may arm again (the switch off).
+    KillSwitch,
     /// The run ends: a signal, a quit, the program's end.
     Shutdown,
     /// A panic somewhere in the process.
@@ -171,16 +174,20 @@ pub enum StopReason {
 }
 
 impl StopReason {
-    /// A stop on the ground that the next flight (or motor test) may follow: a disarm's, a
-    /// motor test's end.
+    /// A stop that the next flight (or motor test) may follow: a disarm's, a motor test's
+    /// end, the kill switch's (the pilot's, unlike the watchdog's halts).
     pub fn on_the_ground(self) -> bool {
-        matches!(self, StopReason::Disarmed | StopReason::MotorTestDone)
+        matches!(
+            self,
+            StopReason::Disarmed | StopReason::MotorTestDone | StopReason::KillSwitch
+        )
     }
 
     pub fn name(self) -> &'static str {
         match self {
             StopReason::Disarmed => "disarmed",
             StopReason::MotorTestDone => "motor test done",
+            StopReason::KillSwitch => "kill",
             StopReason::Shutdown => "shutdown",
             StopReason::Panic => "panic",
             StopReason::NonFiniteCommand => "non-finite motor command",

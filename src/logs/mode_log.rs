@@ -102,6 +102,15 @@ pub fn write_input(
         OperatorInput::GpsFix => writeln!(out, "{t_us} fix"),
         OperatorInput::EscsRunning => writeln!(out, "{t_us} escs running"),
         OperatorInput::Param { key, value } => writeln!(out, "{t_us} param {key} {value}"),
+        OperatorInput::Rc(r) if r.lost => writeln!(out, "{t_us} rc lost"),
+        OperatorInput::Rc(r) => {
+            let [roll, pitch, yaw, throttle] = r.sticks;
+            let kill = if r.kill { "on" } else { "off" };
+            writeln!(
+                out,
+                "{t_us} rc kill {kill} sticks {roll} {pitch} {yaw} {throttle}"
+            )
+        }
         OperatorInput::Key(k) => writeln!(out, "{t_us} key {}", k.key()),
         OperatorInput::Mission(plan) => writeln!(
             out,
@@ -210,13 +219,15 @@ fn parse_input(
     let kind = parts.next().unwrap_or("");
     let rest = parts.next().unwrap_or("");
     let source = |name: &str| {
-        LinkSource::from_name(name).ok_or_else(|| format!("unknown link source {}", quote(name)))
+        LinkSource::from_any_name(name)
+            .ok_or_else(|| format!("unknown link source {}", quote(name)))
     };
     let input = match kind {
         "beat" => OperatorInput::Beat(source(rest)?),
         "fix" if rest.is_empty() => OperatorInput::GpsFix,
         "escs" if rest == "running" => OperatorInput::EscsRunning,
         "param" => parse_param(rest)?,
+        "rc" => OperatorInput::Rc(parse_rc(rest)?),
         "key" => {
             let k = rest.parse::<u8>().ok().and_then(ManualCommand::from_key);
             OperatorInput::Key(k.ok_or_else(|| format!("unknown key {}", quote(rest)))?)
@@ -244,6 +255,47 @@ fn parse_param(rest: &str) -> Result<OperatorInput, String> {
         .filter(|v| v.is_finite() && *v > 0.0)
         .ok_or_else(|| format!("param {key}: {} is not a number above 0", quote(value)))?;
     Ok(OperatorInput::Param { key, value })
+}
+
+/// `lost`, or `kill on|off sticks ROLL PITCH YAW THROTTLE` (each a number from -1 to 1): the
+/// pilot's radio.
+fn parse_rc(rest: &str) -> Result<crate::core::commander::RcReport, String> {
+    let bad = || {
+        format!(
+            "rc: {} is not `lost` nor `kill on|off sticks R P Y T`",
+            quote(rest)
+        )
+    };
+    if rest == "lost" {
+        return Ok(crate::core::commander::RcReport {
+            lost: true,
+            kill: false,
+            sticks: [0.0, 0.0, 0.0, -1.0],
+        });
+    }
+    let words: Vec<&str> = rest.split(' ').collect();
+    let (kill, sticks) = match words.as_slice() {
+        ["kill", k, "sticks", s @ ..] if s.len() == 4 => (*k, s),
+        _ => return Err(bad()),
+    };
+    let kill = match kill {
+        "on" => true,
+        "off" => false,
+        _ => return Err(bad()),
+    };
+    let mut v = [0.0; 4];
+    for (x, w) in v.iter_mut().zip(sticks) {
+        *x = w
+            .parse::<f64>()
+            .ok()
+            .filter(|x| (-1.0..=1.0).contains(x))
+            .ok_or_else(bad)?;
+    }
+    Ok(crate::core::commander::RcReport {
+        lost: false,
+        kill,
+        sticks: v,
+    })
 }
 
 /// `WAITED_US KIND ...`: an input that expired, recorded by its own line's kind and body.

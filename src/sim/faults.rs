@@ -35,10 +35,13 @@ pub enum Fault {
     GpsGlitch,
     /// The x gyro's bias steps by `sim.gyro_bias_step_rad_s`.
     GyroBias,
+    /// The pilot's radio is lost (with `rc.protocol`): an SBUS receiver sends its failsafe
+    /// flag, a CRSF receiver stops sending.
+    RcLoss,
 }
 
 impl Fault {
-    pub const NAMES: [(&'static str, Fault); 12] = [
+    pub const NAMES: [(&'static str, Fault); 13] = [
         ("imu-stall", Fault::ImuStall),
         ("esc-nack", Fault::EscNack),
         ("gps-loss", Fault::GpsLoss),
@@ -51,6 +54,7 @@ impl Fault {
         ("gust", Fault::Gust),
         ("gps-glitch", Fault::GpsGlitch),
         ("gyro-bias", Fault::GyroBias),
+        ("rc-loss", Fault::RcLoss),
     ];
 
     pub fn name(self) -> &'static str {

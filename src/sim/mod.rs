@@ -12,6 +12,7 @@ pub mod operator;
 pub mod physics;
 pub mod safety;
 pub mod track;
+pub mod transmitter;
 pub mod truth;
 
 use crate::config::Profile;

@@ -4,6 +4,7 @@
 //! ways of simulating read it.
 
 use crate::core::commander::{Command, LinkSource, OperatorInput};
+use crate::sim::transmitter::RcMove;
 use std::collections::VecDeque;
 
 /// The whole cycle, as `uquad sim` flies it without `--script`: arm once the estimator check
@@ -22,34 +23,43 @@ pub const MISSION_SCRIPT_AFTER_ARM: &str = "arm@2,start@10";
 /// Heartbeat period of the simulated ground station, µs.
 pub const BEAT_PERIOD_US: i64 = 1_000_000;
 
-/// Commands at simulated times, in time order.
+/// Commands at simulated times, in time order; and the pilot's moves of a simulated radio
+/// transmitter (`sticks`, `switch`), in time order.
 #[derive(Debug, Clone, Default, PartialEq)]
-pub struct Script(pub Vec<(i64, Command)>);
+pub struct Script(pub Vec<(i64, Command)>, pub Vec<(i64, RcMove)>);
 
 impl Script {
     /// Parses `COMMAND@T,...` (T in simulated seconds; a command may carry its arguments:
-    /// `takeoff 1.5@10`), or `none`.
+    /// `takeoff 1.5@10`; the pilot's moves too: `switch arm on@8`), or `none`.
     pub fn parse(text: &str) -> Result<Script, String> {
         if text.trim() == "none" {
             return Ok(Script::default());
         }
-        let mut items = Vec::new();
+        let (mut items, mut moves) = (Vec::new(), Vec::new());
         for item in text.split(',') {
-            let (cmd, at) = item.rsplit_once('@').ok_or_else(|| {
+            let (word, at) = item.rsplit_once('@').ok_or_else(|| {
                 format!("{item:?}: expected COMMAND@T, e.g. arm@7,takeoff@10,land@45, or none")
             })?;
-            let cmd = Command::parse(cmd).map_err(|e| format!("{item:?}: {e}"))?;
             let t_s = crate::config::parse_fault_time_s(at)
                 .map_err(|e| format!("{item:?}: the time {e}"))?;
-            items.push(((t_s * 1e6).round() as i64, cmd));
+            let t_us = (t_s * 1e6).round() as i64;
+            match RcMove::parse(word) {
+                Some(m) => moves.push((t_us, m.map_err(|e| format!("{item:?}: {e}"))?)),
+                None => {
+                    let cmd = Command::parse(word).map_err(|e| format!("{item:?}: {e}"))?;
+                    items.push((t_us, cmd));
+                }
+            }
         }
         items.sort_by_key(|(t, _)| *t);
-        Ok(Script(items))
+        moves.sort_by_key(|(t, _)| *t);
+        Ok(Script(items, moves))
     }
 
-    /// When the last command is due, µs.
+    /// When the last command or move is due, µs.
     pub fn end_us(&self) -> Option<i64> {
-        self.0.last().map(|(t, _)| *t)
+        let last = |v: &[(i64, _)]| v.last().map(|(t, _)| *t);
+        last(&self.0).max(self.1.last().map(|(t, _)| *t))
     }
 }
 
@@ -57,6 +67,8 @@ impl Script {
 #[derive(Debug, Clone)]
 pub struct SimOperator {
     script: VecDeque<(i64, Command)>,
+    /// When the pilot's last move of the radio is due (the transmitter makes them), µs.
+    moves_end_us: Option<i64>,
     next_beat_us: i64,
     /// `link-loss`: no heartbeats (and no commands) from this time on.
     silent_from_us: Option<i64>,
@@ -71,9 +83,10 @@ impl SimOperator {
     pub fn new(script: &Script, silent_from_us: Option<i64>) -> Self {
         SimOperator {
             script: script.0.iter().copied().collect(),
+            moves_end_us: script.1.last().map(|(t, _)| *t),
             next_beat_us: BEAT_PERIOD_US,
             silent_from_us,
-            present: !script.0.is_empty(),
+            present: !script.0.is_empty() || !script.1.is_empty(),
             links: false,
         }
     }
@@ -89,7 +102,8 @@ impl SimOperator {
     /// console flies the vehicle, as many flights as it likes, until `--duration` or a
     /// signal.
     pub fn done(&self, t_us: i64) -> bool {
-        (self.present || !self.links) && (self.script.is_empty() || self.silent(t_us))
+        let moved = self.moves_end_us.is_none_or(|end| t_us >= end);
+        (self.present || !self.links) && (self.script.is_empty() && moved || self.silent(t_us))
     }
 
     fn silent(&self, t_us: i64) -> bool {

@@ -336,7 +336,7 @@ impl EstimatorTask {
     }
 
     fn apply(&mut self, input: OperatorInput, t_us: i64) {
-        let facts = if matches!(input, OperatorInput::Command(Command::Arm, _)) {
+        let facts = if input.checked_against_facts() {
             self.arm_facts(t_us)
         } else {
             ArmFacts::default()

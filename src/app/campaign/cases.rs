@@ -69,9 +69,19 @@ pub struct Case {
     pub faults: (Fault, Option<Fault>),
 }
 
+/// The faults a campaign strikes: every one but `rc-loss` (the campaign's profile flies
+/// without a radio, on which it does nothing).
+fn campaign_faults() -> Vec<Fault> {
+    Fault::NAMES
+        .iter()
+        .map(|&(_, f)| f)
+        .filter(|&f| f != Fault::RcLoss)
+        .collect()
+}
+
 /// Every case: each fault alone in each phase, then each pair of faults in each phase.
 pub fn cases() -> Vec<Case> {
-    let faults = Fault::NAMES.map(|(_, f)| f);
+    let faults = campaign_faults();
     let mut out = Vec::new();
     for phase in PHASES {
         for &f in &faults {
@@ -161,7 +171,7 @@ mod tests {
     #[test]
     fn every_fault_in_every_phase_alone_and_in_pairs() {
         let all = cases();
-        let n = Fault::NAMES.len();
+        let n = campaign_faults().len();
         assert_eq!(all.len(), PHASES.len() * (n + n * (n - 1) / 2));
         let r = Run::nth(&all, all.len() as u64 + 3, 7);
         assert_eq!(

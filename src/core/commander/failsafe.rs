@@ -43,6 +43,8 @@ pub enum Failsafe {
     GpsLoss,
     Geofence,
     Estimator,
+    /// The pilot's radio lost (`failsafe.rc_timeout_s`, or the receiver's failsafe).
+    RcLoss,
 }
 
 impl Failsafe {
@@ -52,16 +54,18 @@ impl Failsafe {
             Failsafe::GpsLoss => "gps-loss",
             Failsafe::Geofence => "geofence",
             Failsafe::Estimator => "estimator",
+            Failsafe::RcLoss => "rc-loss",
         }
     }
 }
 
 impl Failsafe {
-    const ALL: [Failsafe; 4] = [
+    const ALL: [Failsafe; 5] = [
         Failsafe::LinkLoss,
         Failsafe::GpsLoss,
         Failsafe::Geofence,
         Failsafe::Estimator,
+        Failsafe::RcLoss,
     ];
 }
 
@@ -73,7 +77,8 @@ impl Commander {
         let p = &self.p;
         Failsafe::ALL.into_iter().find(|&k| {
             let action = match k {
-                Failsafe::LinkLoss => return false,
+                // A lost link or radio is not one: a command (a stick) is the link back.
+                Failsafe::LinkLoss | Failsafe::RcLoss => return false,
                 Failsafe::GpsLoss => p.gps_loss_action,
                 Failsafe::Geofence => p.fence_action,
                 Failsafe::Estimator => p.ekf_action,
@@ -144,7 +149,19 @@ impl Commander {
         } else {
             None
         };
-        link.or(gps)
+        let rc = p.rc.and_then(|rc| {
+            let lost = self.rc_lost_at(t_us);
+            self.edge(
+                Failsafe::RcLoss,
+                lost,
+                lost,
+                rc.action,
+                t_us,
+                est.as_ref(),
+                out,
+            )
+        });
+        link.or(gps).or(rc)
     }
 
     /// The GPS's failsafe at `t_us`: attitude and altitude held at once while stale, the

@@ -43,9 +43,12 @@ impl Commander {
     fn on_the_ground(&mut self, t_us: i64, out: &mut Vec<Event>) -> Option<EscRequest> {
         let p = self.p;
         let (link_lost, gps_stale) = self.timed_conditions(t_us);
+        let rc_lost = self.rc_lost_at(t_us);
+        let rc_action = p.rc.map_or(super::Action::Land, |rc| rc.action);
         let conditions = [
             (Failsafe::LinkLoss, link_lost, p.link_action),
             (Failsafe::GpsLoss, gps_stale, p.gps_loss_action),
+            (Failsafe::RcLoss, rc_lost, rc_action),
         ];
         if let Some((kind, _, action)) = conditions.into_iter().find(|c| c.1) {
             out.push(Event::Failsafe { t_us, kind, action });

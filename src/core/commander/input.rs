@@ -158,6 +158,9 @@ pub enum LinkSource {
     Console,
     /// A ground station (and the simulator's scripted operator, which stands for one).
     Gcs,
+    /// The pilot's radio (`rc.*`): not a link of `failsafe.link_sources` (its loss is
+    /// `rc-loss`).
+    Rc,
 }
 
 impl LinkSource {
@@ -168,11 +171,18 @@ impl LinkSource {
             LinkSource::Terminal => "terminal",
             LinkSource::Console => "console",
             LinkSource::Gcs => "gcs",
+            LinkSource::Rc => "rc",
         }
     }
 
+    /// A link of `failsafe.link_sources` by its name.
     pub fn from_name(s: &str) -> Option<LinkSource> {
         LinkSource::ALL.into_iter().find(|l| l.name() == s)
+    }
+
+    /// Any source by its name (mode.log's), the pilot's radio too.
+    pub fn from_any_name(s: &str) -> Option<LinkSource> {
+        LinkSource::from_name(s).or((s == "rc").then_some(LinkSource::Rc))
     }
 }
 
@@ -203,6 +213,9 @@ pub enum OperatorInput {
     /// (`imu.calibrate = "before-arm"`): the motors idle, a takeoff may follow. The
     /// actuator's, recorded so that a replay (which has no ESCs) sees it at the same step.
     EscsRunning,
+    /// The pilot's radio (`core::rc::link`): its kill switch and sticks, or its receiver's
+    /// failsafe; each report says the receiver is heard.
+    Rc(super::RcReport),
     /// A ground station's change of a parameter that takes effect in flight
     /// ([`super::IN_FLIGHT`]), checked and kept by the link: applied between two steps.
     Param {
@@ -228,6 +241,15 @@ impl OperatorInput {
         )
     }
 
+    /// An `arm` or a motor test: checked against what the driver observes (the pre-arm
+    /// checks; the ESCs answering).
+    pub fn checked_against_facts(&self) -> bool {
+        matches!(
+            self,
+            OperatorInput::Command(Command::Arm | Command::MotorTest { .. }, _)
+        )
+    }
+
     /// What a refusal of this input names: the command, the key or the mission.
     pub fn what(&self) -> String {
         match self {
@@ -238,6 +260,7 @@ impl OperatorInput {
             OperatorInput::GpsFix => "fix".into(),
             OperatorInput::EscsRunning => "escs running".into(),
             OperatorInput::Param { key, .. } => format!("param {key}"),
+            OperatorInput::Rc(_) => "rc".into(),
             OperatorInput::Expired { input, .. } => input.what(),
         }
     }

@@ -162,7 +162,31 @@ pub struct Params {
     pub z_max_m: f64,
     /// How missions and returns are flown.
     pub mission: crate::core::mission::Limits,
+    /// With an RC receiver: its loss's timeout and action (`failsafe.rc_*`).
+    pub rc: Option<RcLossParams>,
 }
+
+/// The `rc-loss` failsafe's parameters.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RcLossParams {
+    /// No report from the receiver for this long is a loss, s.
+    pub timeout_s: f64,
+    pub action: Action,
+}
+
+/// The pilot's radio as the commander hears it (`core::rc::link`): the receiver's failsafe,
+/// or the kill switch and the sticks (each −1…1: roll, pitch, yaw, throttle; throttle −1 is
+/// low). A report also says the receiver is heard.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RcReport {
+    /// The receiver says the transmitter is gone (its failsafe flag).
+    pub lost: bool,
+    pub kill: bool,
+    pub sticks: [f64; 4],
+}
+
+/// The throttle stick is low (an arm needs it): in the lowest 5 % of its travel.
+pub const RC_THROTTLE_LOW: f64 = -0.9;
 
 impl Params {
     /// The heights a set point may have above the takeoff point, m: within
@@ -220,6 +244,8 @@ pub enum EscRequest {
     MotorTest(crate::core::esc::MotorTest),
     /// Zero and disable the motor under test (a `disarm` during a motor test).
     EndMotorTest,
+    /// The pilot's kill switch: zero and disable now, from any mode; disarmed, the run goes on.
+    KillSwitch,
 }
 
 /// One Kalman step as the commander sees it.
@@ -382,8 +408,8 @@ pub struct Commander {
     /// Per failsafe, by [`Failsafe`] order: recorded, and its action taken, while its
     /// condition lasts (so the operator can choose another mode meanwhile; a new occurrence
     /// fires again).
-    recorded: [bool; 4],
-    acted: [bool; 4],
+    recorded: [bool; 5],
+    acted: [bool; 5],
     /// When the vehicle armed: the failsafes' clock starts here, inputs seen or not.
     armed_us: Option<i64>,
     /// The newest fix the receiver delivered (gps.mode = "gpsd").
@@ -410,6 +436,11 @@ pub struct Commander {
     spent: bool,
     /// The motor test under way: its motor (1-based) and when it ends, µs.
     motor_test: Option<(u8, i64)>,
+    /// The pilot's radio: when it was last heard, whether its receiver is in failsafe, and
+    /// its newest report.
+    rc_seen_us: Option<i64>,
+    rc_lost: bool,
+    rc: RcReport,
     /// The figures of the run's earlier flights, one per arming, in order; armings taken.
     past_flights: Vec<Figures>,
     flights: u32,
@@ -464,8 +495,8 @@ impl Commander {
             touchdown_since_us: None,
             ground_push_steps: 0,
             blind: None,
-            recorded: [false; 4],
-            acted: [false; 4],
+            recorded: [false; 5],
+            acted: [false; 5],
             armed_us: None,
             fix_rx_us: None,
             escs_running: false,
@@ -479,6 +510,13 @@ impl Commander {
             observed: None,
             spent: false,
             motor_test: None,
+            rc_seen_us: None,
+            rc_lost: false,
+            rc: RcReport {
+                lost: false,
+                kill: false,
+                sticks: [0.0, 0.0, 0.0, -1.0],
+            },
             past_flights: Vec::new(),
             flights: 0,
             climb: ClimbTrace::default(),
@@ -555,8 +593,8 @@ impl Commander {
             self.climb = ClimbTrace::default();
             self.descent = DescentTrace::default();
             self.touchdown = None;
-            self.recorded = [false; 4];
-            self.acted = [false; 4];
+            self.recorded = [false; 5];
+            self.acted = [false; 5];
             self.touchdown_since_us = None;
             self.ground_push_steps = 0;
             self.blind = None;
@@ -653,11 +691,73 @@ impl Commander {
         true
     }
 
-    /// A link source was heard from.
+    /// A link source was heard from (the pilot's radio is not one: its loss is `rc-loss`).
     pub fn link_beat(&mut self, source: LinkSource, t_us: i64) {
-        if self.p.link_sources[source as usize] {
+        if self
+            .p
+            .link_sources
+            .get(source as usize)
+            .is_some_and(|&counts| counts)
+        {
             self.link_seen_us = Some(t_us);
         }
+    }
+
+    /// The pilot's radio reported at `t_us`. Its kill switch turned on stops the motors
+    /// from any mode (a motor test's too) and disarms: the run goes on.
+    pub fn rc_report(
+        &mut self,
+        report: RcReport,
+        t_us: i64,
+        out: &mut Vec<Event>,
+    ) -> Option<EscRequest> {
+        self.rc_lost = report.lost;
+        if report.lost {
+            return None;
+        }
+        self.rc_seen_us = Some(t_us);
+        let kill_edge = report.kill && !self.rc.kill;
+        self.rc = report;
+        let spinning = !matches!(self.mode, Mode::Disarmed | Mode::Kill);
+        if !kill_edge || !(spinning || self.motor_test_may_run(t_us)) {
+            return None;
+        }
+        self.motor_test = None;
+        if spinning {
+            self.disarm(t_us, "kill switch", out);
+        }
+        Some(EscRequest::KillSwitch)
+    }
+
+    /// The radio is lost at `t_us`: configured, and its receiver in failsafe or silent for
+    /// `failsafe.rc_timeout_s` (or never heard).
+    pub(super) fn rc_lost_at(&self, t_us: i64) -> bool {
+        let Some(rc) = self.p.rc else {
+            return false;
+        };
+        self.rc_lost
+            || self
+                .rc_seen_us
+                .is_none_or(|s| (t_us - s) as f64 / 1e6 > rc.timeout_s)
+    }
+
+    /// Why an arm cannot be taken from the radio's side, if it cannot (the `rc` pre-arm
+    /// check, with a receiver configured): frames arriving, the kill switch off, the
+    /// throttle low.
+    fn rc_problem(&self, t_us: i64) -> Option<String> {
+        self.p.rc?;
+        if self.rc_lost_at(t_us) {
+            return Some("rc: no frames from the receiver (or it is in failsafe)".into());
+        }
+        if self.rc.kill {
+            return Some("rc: kill switch on".into());
+        }
+        (self.rc.sticks[3] > RC_THROTTLE_LOW).then(|| {
+            format!(
+                "rc: throttle not low ({:.2}; at most {RC_THROTTLE_LOW})",
+                self.rc.sticks[3]
+            )
+        })
     }
 
     /// An `arm` would get past the commander's own rules now (disarmed, never killed in this
@@ -768,6 +868,9 @@ impl Commander {
             Command::Calibrate => Ok(()),
             Command::Arm if m != Mode::Disarmed => Err(Already(m)),
             Command::Arm if self.spent => Err(Landed),
+            Command::Arm if self.rc_problem(t_us).is_some() => {
+                Err(PreArm(self.rc_problem(t_us).unwrap_or_default()))
+            }
             Command::Arm => arm_verdict.map_err(PreArm),
             Command::Disarm if m.airborne() => Err(InTheAir(m)),
             Command::Disarm if m == Mode::Disarmed => Err(Already(m)),

@@ -43,6 +43,7 @@ pub(super) fn params() -> Params {
             yaw_acc_rad_s2: 1.0,
             return_m_s: 1.0,
         },
+        rc: None,
     }
 }
 
@@ -1482,4 +1483,150 @@ fn a_motor_test_runs_one_motor_disarmed_within_its_bounds_and_holds_off_the_arm(
         refusal_of(&ev).as_deref(),
         Some("armed: a motor test runs only disarmed, on the ground")
     );
+}
+
+fn rc_params() -> Params {
+    Params {
+        rc: Some(RcLossParams {
+            timeout_s: 0.5,
+            action: Action::Return,
+        }),
+        ..params()
+    }
+}
+
+fn rc(kill: bool, throttle: f64) -> RcReport {
+    RcReport {
+        lost: false,
+        kill,
+        sticks: [0.0, 0.0, 0.0, throttle],
+    }
+}
+
+/// Armed with a radio, taken off and holding at 1 m by 6 s, the radio reporting every 0.1 s.
+fn holding_with_radio() -> (Commander, Vec<Event>) {
+    let mut c = Commander::new(rc_params());
+    let mut ev = Vec::new();
+    c.start(0, &mut ev);
+    c.rc_report(rc(false, -1.0), 0, &mut ev);
+    assert_eq!(
+        c.command(Command::Arm, 0, Ok(()), None, &mut ev),
+        Some(EscRequest::Start)
+    );
+    c.escs_running();
+    c.on_estimate(&at(0, 0.0), &mut ev);
+    c.command(
+        Command::Takeoff(None),
+        10_000,
+        Ok(()),
+        Some(&at(10_000, 0.0)),
+        &mut ev,
+    );
+    let mut t = 20_000;
+    while t <= 6_000_000 {
+        if t % 100_000 == 0 {
+            c.rc_report(rc(false, 0.0), t, &mut ev);
+        }
+        let g = c.guidance();
+        let mut o = at(t, g.pos_m[2]);
+        o.vz_m_s = g.vz_m_s;
+        c.tick(t, &mut ev);
+        c.on_estimate(&o, &mut ev);
+        t += STEP_US;
+    }
+    assert_eq!(c.mode(), Mode::Hold, "{ev:?}");
+    (c, ev)
+}
+
+#[test]
+fn with_a_radio_an_arm_needs_its_frames_the_kill_switch_off_and_the_throttle_low() {
+    let mut c = Commander::new(rc_params());
+    let mut ev = Vec::new();
+    c.start(0, &mut ev);
+    let arm = |c: &mut Commander, t_us| {
+        let mut ev = Vec::new();
+        c.command(Command::Arm, t_us, Ok(()), None, &mut ev);
+        refusals(&ev).first().cloned().unwrap_or_default()
+    };
+    assert!(arm(&mut c, 0).starts_with("rc: no frames"));
+    c.rc_report(rc(true, -1.0), 1_000_000, &mut ev);
+    assert_eq!(arm(&mut c, 1_000_000), "rc: kill switch on");
+    c.rc_report(rc(false, 0.2), 1_100_000, &mut ev);
+    assert!(arm(&mut c, 1_100_000).starts_with("rc: throttle not low (0.20"));
+    c.rc_report(rc(false, -1.0), 1_200_000, &mut ev);
+    assert!(
+        arm(&mut c, 1_800_000).starts_with("rc: no frames"),
+        "0.6 s silent"
+    );
+    let lost = RcReport {
+        lost: true,
+        ..rc(false, -1.0)
+    };
+    c.rc_report(lost, 1_900_000, &mut ev);
+    assert!(
+        arm(&mut c, 1_900_000).starts_with("rc: no frames"),
+        "in failsafe"
+    );
+    c.rc_report(rc(false, -1.0), 2_000_000, &mut ev);
+    assert_eq!(arm(&mut c, 2_000_000), "");
+    assert_eq!(c.mode(), Mode::Armed);
+}
+
+#[test]
+fn the_kill_switch_stops_the_motors_in_the_air_and_the_vehicle_may_arm_again_once_it_is_off() {
+    let (mut c, mut ev) = holding_with_radio();
+    ev.clear();
+    let r = c.rc_report(rc(true, 0.0), 6_010_000, &mut ev);
+    assert_eq!(
+        (r, c.mode()),
+        (Some(EscRequest::KillSwitch), Mode::Disarmed)
+    );
+    assert!(
+        ev.iter()
+            .any(|e| matches!(e, Event::Mode { why, .. } if why == "kill switch")),
+        "{ev:?}"
+    );
+    assert_eq!(c.rc_report(rc(true, 0.0), 6_020_000, &mut ev), None, "once");
+    ev.clear();
+    c.command(Command::Arm, 6_030_000, Ok(()), None, &mut ev);
+    assert_eq!(refusals(&ev), ["rc: kill switch on"]);
+    c.rc_report(rc(false, -1.0), 6_040_000, &mut ev);
+    assert_eq!(
+        c.command(Command::Arm, 6_050_000, Ok(()), None, &mut ev),
+        Some(EscRequest::Start)
+    );
+}
+
+#[test]
+fn a_lost_radio_returns_in_the_air_and_disarms_on_the_ground() {
+    let (mut c, mut ev) = holding_with_radio();
+    ev.clear();
+    // Silent from 6 s: lost after rc_timeout_s (0.5 s), acted on once.
+    let mut t = 6_010_000;
+    while t <= 7_000_000 {
+        c.tick(t, &mut ev);
+        t += STEP_US;
+    }
+    let failsafes: Vec<(i64, Failsafe, Action)> = ev
+        .iter()
+        .filter_map(|e| match e {
+            Event::Failsafe { t_us, kind, action } => Some((*t_us, *kind, *action)),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(failsafes, [(6_510_000, Failsafe::RcLoss, Action::Return)]);
+    assert_eq!(c.mode(), Mode::Return);
+    // On the ground, armed: a lost radio disarms.
+    let mut c = Commander::new(rc_params());
+    let mut ev = Vec::new();
+    c.start(0, &mut ev);
+    c.rc_report(rc(false, -1.0), 0, &mut ev);
+    c.command(Command::Arm, 0, Ok(()), None, &mut ev);
+    let lost = RcReport {
+        lost: true,
+        ..rc(false, -1.0)
+    };
+    c.rc_report(lost, 100_000, &mut ev);
+    assert_eq!(c.tick(110_000, &mut ev), Some(EscRequest::Stop));
+    assert_eq!(c.mode(), Mode::Disarmed);
 }

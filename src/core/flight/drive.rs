@@ -54,6 +54,7 @@ pub fn act(action: OperatorAction, edges: &mut impl EscEdges) {
         OperatorAction::StopEscs => edges.escs(EscAsk::Stop(StopReason::Disarmed)),
         OperatorAction::StartEscs => edges.escs(EscAsk::Start),
         OperatorAction::TestMotor(test) => edges.escs(EscAsk::TestMotor(test)),
+        OperatorAction::KillSwitch => edges.escs(EscAsk::Stop(StopReason::KillSwitch)),
         OperatorAction::Quit => edges.quit(),
         OperatorAction::Nothing => {}
     }

@@ -537,6 +537,7 @@ impl EstimatorSide {
                 self.commander.escs_running();
                 None
             }
+            OperatorInput::Rc(report) => self.commander.rc_report(report, t_us, &mut self.events),
             OperatorInput::Param { key, value } => {
                 let note = if self.commander.set_param(key, value) {
                     format!("parameter {key} = {value}: in effect from this step")
@@ -544,6 +545,14 @@ impl EstimatorSide {
                     format!("parameter {key} = {value}: not a parameter of the flight, ignored")
                 };
                 out.record(FlightRecord::Note(note));
+                None
+            }
+            // The arm switch turned off on the ground (after a landing's disarm): nothing to do,
+            // and no refusal to tell.
+            OperatorInput::Command(commander::Command::Disarm, commander::LinkSource::Rc)
+                if self.commander.mode() == Mode::Disarmed
+                    && self.commander.motor_testing(t_us).is_none() =>
+            {
                 None
             }
             OperatorInput::Command(cmd, src) => {
@@ -588,6 +597,12 @@ impl EstimatorSide {
                 "armed: ESC start-up ramp under the running estimate".into(),
             ));
             return OperatorAction::StartEscs;
+        }
+        if request == Some(EscRequest::KillSwitch) {
+            self.record_events(out);
+            out.watchdog(Event::Disarming(t_us));
+            self.between_flights();
+            return OperatorAction::KillSwitch;
         }
         if let Some(EscRequest::MotorTest(test)) = request {
             out.record(FlightRecord::Note(format!(
@@ -713,7 +728,9 @@ impl EstimatorSide {
             }
             // A motor test's motor stopped: no flight ends.
             Some(EscRequest::EndMotorTest) => true,
-            Some(EscRequest::Start | EscRequest::MotorTest(_)) | None => false,
+            Some(EscRequest::Start | EscRequest::MotorTest(_) | EscRequest::KillSwitch) | None => {
+                false
+            }
         }
     }
 
@@ -1167,6 +1184,8 @@ pub enum OperatorAction {
     StartEscs,
     /// A motor test the commander took: spin this motor alone.
     TestMotor(crate::core::esc::MotorTest),
+    /// The pilot's kill switch: zero and disable now (named `kill`); the run goes on.
+    KillSwitch,
 }
 
 /// How an `arm` is checked.

@@ -6,7 +6,9 @@
 //! quality. Pure: no clock, no I/O.
 
 pub mod crsf;
+pub mod link;
 pub mod sbus;
+pub mod sticks;
 
 /// Channels a frame carries.
 pub const CHANNELS: usize = 16;

@@ -1,0 +1,149 @@
+//! The `rc` section: the pilot's radio receiver on a UART (`core::rc`): its protocol and
+//! device, which channel carries each function and how each channel's travel is read, and
+//! how far the sticks may push the vehicle.
+
+pub use crate::core::rc::link::RcMode;
+use crate::core::rc::sticks::{ChannelCal, RcMap};
+use serde::{Deserialize, Serialize};
+use std::path::PathBuf;
+
+/// The receiver's protocol.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RcProtocol {
+    /// No receiver (the default): the vehicle is flown by typed commands and ground stations.
+    None,
+    /// SBUS: 100 000 baud, 8E2, inverted.
+    Sbus,
+    /// CRSF (ExpressLRS, TBS Crossfire): 420 000 baud, 8N1.
+    Crsf,
+}
+
+/// One function's channel and how its travel is read (PX4's RCn_MIN, TRIM, MAX, REV, DZ).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct RcChannel {
+    /// 1 to 16.
+    pub channel: u8,
+    /// The channel's ticks (SBUS's and CRSF's 11 bits: 172 ≈ 988 µs, 992 = 1500 µs, 1811 ≈
+    /// 2012 µs) at the low end, at rest (a stick centred) and at the high end.
+    pub min: u16,
+    pub center: u16,
+    pub max: u16,
+    /// The channel moves the other way.
+    pub reversed: bool,
+    /// Around the centre, this share of the half travel reads 0.
+    pub deadband: f64,
+}
+
+impl RcChannel {
+    /// A stick or a switch on `channel`, calibrated to the protocols' nominal range.
+    const fn on(channel: u8, deadband: f64) -> Self {
+        RcChannel {
+            channel,
+            min: 172,
+            center: 992,
+            max: 1811,
+            reversed: false,
+            deadband,
+        }
+    }
+
+    fn cal(&self) -> ChannelCal {
+        ChannelCal {
+            channel: self.channel,
+            min: self.min,
+            center: self.center,
+            max: self.max,
+            reversed: self.reversed,
+            deadband: self.deadband,
+        }
+    }
+}
+
+impl Default for RcChannel {
+    fn default() -> Self {
+        RcChannel::on(1, 0.0)
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct RcConfig {
+    pub protocol: RcProtocol,
+    /// The UART the receiver is wired to (SBUS needs an inverter, or a UART that inverts).
+    pub device: PathBuf,
+    /// In `position`: the horizontal speed of a stick at its end, m/s; the climb rate of the
+    /// throttle stick at its end (both modes), m/s; the yaw rate of the yaw stick, rad/s.
+    pub max_speed_m_s: f64,
+    pub max_climb_m_s: f64,
+    pub max_yaw_rate_rad_s: f64,
+    /// What each position of the mode switch selects, from its low end (1 to 6 positions:
+    /// its travel split into as many equal bands).
+    pub modes: Vec<RcMode>,
+    /// Each function's channel (AETR: roll 1, pitch 2, throttle 3, yaw 4; then the arm
+    /// switch 5, the kill switch 6, the mode switch 7).
+    pub roll: RcChannel,
+    pub pitch: RcChannel,
+    pub throttle: RcChannel,
+    pub yaw: RcChannel,
+    pub arm: RcChannel,
+    pub kill: RcChannel,
+    pub mode: RcChannel,
+}
+
+impl Default for RcConfig {
+    fn default() -> Self {
+        RcConfig {
+            protocol: RcProtocol::None,
+            device: PathBuf::new(),
+            max_speed_m_s: 3.0,
+            max_climb_m_s: 1.0,
+            max_yaw_rate_rad_s: 1.0,
+            modes: vec![
+                RcMode::Position,
+                RcMode::Altitude,
+                RcMode::Hold,
+                RcMode::Mission,
+                RcMode::Return,
+                RcMode::Land,
+            ],
+            roll: RcChannel::on(1, 0.05),
+            pitch: RcChannel::on(2, 0.05),
+            throttle: RcChannel::on(3, 0.05),
+            yaw: RcChannel::on(4, 0.05),
+            arm: RcChannel::on(5, 0.0),
+            kill: RcChannel::on(6, 0.0),
+            mode: RcChannel::on(7, 0.0),
+        }
+    }
+}
+
+impl RcConfig {
+    /// The functions by name, in the order the checks name them.
+    pub fn functions(&self) -> [(&'static str, &RcChannel); 7] {
+        [
+            ("roll", &self.roll),
+            ("pitch", &self.pitch),
+            ("throttle", &self.throttle),
+            ("yaw", &self.yaw),
+            ("arm", &self.arm),
+            ("kill", &self.kill),
+            ("mode", &self.mode),
+        ]
+    }
+
+    /// How the core reads the channels.
+    pub fn map(&self) -> RcMap {
+        RcMap {
+            roll: self.roll.cal(),
+            pitch: self.pitch.cal(),
+            yaw: self.yaw.cal(),
+            throttle: self.throttle.cal(),
+            arm: self.arm.cal(),
+            kill: self.kill.cal(),
+            mode: self.mode.cal(),
+            mode_positions: self.modes.len().max(1),
+        }
+    }
+}
