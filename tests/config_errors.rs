@@ -398,7 +398,7 @@ fn rc_keys_are_refused_with_their_key() {
             "\"land\", \"return\" or \"hold\"",
         ),
         (
-            &["rc.modes=[\"hold\",\"hold\",\"hold\",\"hold\",\"hold\",\"hold\",\"land\"]"],
+            &["rc.modes=[\"hold\",\"land\",\"hold\"]"],
             "rc.modes",
             "1 to 6 modes",
         ),

@@ -147,6 +147,8 @@ pub(crate) struct FastSim<'a> {
     /// The pilot's radio (`--rc`), if any, and its kill switch's stops.
     transmitter: Option<crate::sim::transmitter::Transmitter>,
     kills: Vec<crate::app::report::KillFigures>,
+    /// The last frame read had the kill switch on.
+    kill_on: bool,
     /// The true vertical speed at the previous step, m/s (a kill's fall).
     last_vz_m_s: f64,
     /// The operator's inputs due at this frame.
@@ -311,6 +313,7 @@ impl<'a> FastSim<'a> {
                 crate::sim::transmitter::Transmitter::new(&cfg.rc, timeout_s, &script.1, lost_us)
             },
             kills: Vec::new(),
+            kill_on: false,
             last_vz_m_s: 0.0,
             inputs: Vec::with_capacity(4),
             newest_fix: None,
@@ -341,16 +344,21 @@ impl<'a> FastSim<'a> {
         // The pilot's radio: its inputs are applied at the next frame, but its kill switch
         // goes straight to the ESCs' stop, as fly's RC task sends it.
         if let Some(tx) = &mut self.transmitter
-            && tx.due(t, &mut self.inputs)
+            && let Some(kill) = tx.due(t, &mut self.inputs)
         {
-            self.driver
-                .stop(StopReason::KillSwitch, t, &mut self.cycles);
-            self.kills.push(crate::app::report::KillFigures {
-                frame_s: t as f64 / 1e6,
-                confirmed_s: None,
-                height_m: self.plant.position_m()[2],
-                impact_v_m_s: None,
-            });
+            if kill {
+                self.driver
+                    .stop(StopReason::KillSwitch, t, &mut self.cycles);
+            }
+            if kill && !self.kill_on {
+                self.kills.push(crate::app::report::KillFigures {
+                    frame_s: t as f64 / 1e6,
+                    confirmed_s: None,
+                    height_m: self.plant.position_m()[2],
+                    impact_v_m_s: None,
+                });
+            }
+            self.kill_on = kill;
         }
         self.escs.failing = self.faults.active(Fault::EscNack, t);
         if self.faults.active(Fault::ThrustLoss, t) {

@@ -4,7 +4,7 @@
 
 pub use crate::core::rc::link::RcMode;
 use crate::core::rc::sticks::{ChannelCal, RcMap};
-use serde::{Deserialize, Serialize};
+use serde::{Deserialize, Deserializer, Serialize};
 use std::path::PathBuf;
 
 /// The receiver's protocol.
@@ -82,14 +82,76 @@ pub struct RcConfig {
     /// its travel split into as many equal bands).
     pub modes: Vec<RcMode>,
     /// Each function's channel (AETR: roll 1, pitch 2, throttle 3, yaw 4; then the arm
-    /// switch 5, the kill switch 6, the mode switch 7).
+    /// switch 5, the kill switch 6, the mode switch 7). A table that gives some of its keys
+    /// keeps its function's defaults for the others.
+    #[serde(deserialize_with = "roll")]
     pub roll: RcChannel,
+    #[serde(deserialize_with = "pitch")]
     pub pitch: RcChannel,
+    #[serde(deserialize_with = "throttle")]
     pub throttle: RcChannel,
+    #[serde(deserialize_with = "yaw")]
     pub yaw: RcChannel,
+    #[serde(deserialize_with = "arm")]
     pub arm: RcChannel,
+    #[serde(deserialize_with = "kill")]
     pub kill: RcChannel,
+    #[serde(deserialize_with = "mode")]
     pub mode: RcChannel,
+}
+
+/// A function's table as written: the keys it gives.
+#[derive(Deserialize)]
+struct Given {
+    channel: Option<u8>,
+    min: Option<u16>,
+    center: Option<u16>,
+    max: Option<u16>,
+    reversed: Option<bool>,
+    deadband: Option<f64>,
+}
+
+impl Given {
+    fn over(self, d: RcChannel) -> RcChannel {
+        RcChannel {
+            channel: self.channel.unwrap_or(d.channel),
+            min: self.min.unwrap_or(d.min),
+            center: self.center.unwrap_or(d.center),
+            max: self.max.unwrap_or(d.max),
+            reversed: self.reversed.unwrap_or(d.reversed),
+            deadband: self.deadband.unwrap_or(d.deadband),
+        }
+    }
+}
+
+/// Reads a function's table over its defaults (`defaults` is `RcConfig::default()`'s).
+fn function<'de, D: Deserializer<'de>>(
+    d: D,
+    defaults: fn(&RcConfig) -> RcChannel,
+) -> Result<RcChannel, D::Error> {
+    Ok(Given::deserialize(d)?.over(defaults(&RcConfig::default())))
+}
+
+fn roll<'de, D: Deserializer<'de>>(d: D) -> Result<RcChannel, D::Error> {
+    function(d, |c| c.roll)
+}
+fn pitch<'de, D: Deserializer<'de>>(d: D) -> Result<RcChannel, D::Error> {
+    function(d, |c| c.pitch)
+}
+fn throttle<'de, D: Deserializer<'de>>(d: D) -> Result<RcChannel, D::Error> {
+    function(d, |c| c.throttle)
+}
+fn yaw<'de, D: Deserializer<'de>>(d: D) -> Result<RcChannel, D::Error> {
+    function(d, |c| c.yaw)
+}
+fn arm<'de, D: Deserializer<'de>>(d: D) -> Result<RcChannel, D::Error> {
+    function(d, |c| c.arm)
+}
+fn kill<'de, D: Deserializer<'de>>(d: D) -> Result<RcChannel, D::Error> {
+    function(d, |c| c.kill)
+}
+fn mode<'de, D: Deserializer<'de>>(d: D) -> Result<RcChannel, D::Error> {
+    function(d, |c| c.mode)
 }
 
 impl Default for RcConfig {
@@ -100,14 +162,8 @@ impl Default for RcConfig {
             max_speed_m_s: 3.0,
             max_climb_m_s: 1.0,
             max_yaw_rate_rad_s: 1.0,
-            modes: vec![
-                RcMode::Position,
-                RcMode::Altitude,
-                RcMode::Hold,
-                RcMode::Mission,
-                RcMode::Return,
-                RcMode::Land,
-            ],
+            // A three-position switch, the commonest.
+            modes: vec![RcMode::Position, RcMode::Hold, RcMode::Land],
             roll: RcChannel::on(1, 0.05),
             pitch: RcChannel::on(2, 0.05),
             throttle: RcChannel::on(3, 0.05),
@@ -145,5 +201,20 @@ impl RcConfig {
             mode: self.mode.cal(),
             mode_positions: self.modes.len().max(1),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_function_table_keeps_its_own_defaults_for_the_keys_it_leaves_out() {
+        let rc: RcConfig = toml::from_str("[kill]\nreversed = true\n[yaw]\nchannel = 9\n").unwrap();
+        assert_eq!((rc.kill.channel, rc.kill.reversed), (6, true));
+        assert_eq!((rc.yaw.channel, rc.yaw.deadband), (9, 0.05));
+        assert_eq!(rc.roll, RcConfig::default().roll);
+        let back: RcConfig = toml::from_str(&toml::to_string(&rc).unwrap()).unwrap();
+        assert_eq!(back, rc);
     }
 }

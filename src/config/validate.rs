@@ -858,9 +858,17 @@ fn rc_rules(c: &Config) -> Vec<Check> {
         ),
         Check::new(
             "rc.modes",
-            (1..=6).contains(&rc.modes.len()),
-            format!("{} modes", rc.modes.len()),
-            "1 to 6 modes, one per position of the mode switch",
+            (1..=6).contains(&rc.modes.len())
+                && rc
+                    .modes
+                    .iter()
+                    .enumerate()
+                    .all(|(i, m)| !rc.modes[..i].contains(m)),
+            format!(
+                "{:?}",
+                rc.modes.iter().map(|m| m.name()).collect::<Vec<_>>()
+            ),
+            "1 to 6 modes, each once, one per position of the mode switch",
         ),
         in_range(
             "failsafe.rc_timeout_s",

@@ -133,10 +133,11 @@ impl Transmitter {
     }
 
     /// The frames due by `t_us`: sent, received and read; the inputs they make, stamped with
-    /// their frame's time, into `out`. True when a frame turned the kill switch on (the
-    /// caller stops the motors at once, as `fly`'s RC task does).
-    pub fn due(&mut self, t_us: i64, out: &mut Vec<(i64, OperatorInput)>) -> bool {
-        let mut kill = false;
+    /// their frame's time, into `out`. Whether the last frame read has the kill switch on
+    /// (the caller stops the motors at once, as `fly`'s RC task does); none when no frame
+    /// was read.
+    pub fn due(&mut self, t_us: i64, out: &mut Vec<(i64, OperatorInput)>) -> Option<bool> {
+        let mut kill = None;
         while self.next_us <= t_us {
             let at = self.next_us;
             self.next_us += self.period_us;
@@ -154,8 +155,9 @@ impl Transmitter {
             self.decoder.feed(&bytes, &mut self.events);
             let mut inputs = Vec::new();
             for e in &self.events {
-                if let RcEvent::Channels(f) = e {
-                    kill |= self.link.frame(f, at, &mut inputs);
+                match e {
+                    RcEvent::Channels(f) => kill = Some(self.link.frame(f, at, &mut inputs)),
+                    RcEvent::Link(stats) => self.link.link(stats, &mut inputs),
                 }
             }
             out.extend(inputs.into_iter().map(|i| (at, i)));
@@ -253,10 +255,13 @@ mod tests {
             ];
             let mut tx = Transmitter::new(&rc, 0.5, &moves, Some(4_000_000)).unwrap();
             let mut out = Vec::new();
-            let mut kills = Vec::new();
+            let (mut kills, mut on) = (Vec::new(), false);
             for t in (0..=5_000_000).step_by(1000) {
-                if tx.due(t, &mut out) {
-                    kills.push(t);
+                if let Some(kill) = tx.due(t, &mut out) {
+                    if kill && !on {
+                        kills.push(t);
+                    }
+                    on = kill;
                 }
             }
             let commands: Vec<String> = out

@@ -360,7 +360,11 @@ impl Commander {
             Action::Kill => return Some(EscRequest::Kill),
             Action::Return if self.hold_xy => self.begin_return(est, t_us, &why, out),
             Action::Land | Action::Return => self.begin_land(est, t_us, &why, out),
-            Action::Hold if self.mode != Mode::Hold => self.set_mode(Mode::Hold, t_us, &why, out),
+            // A landing goes on: a hold would leave a vehicle that was coming down (a pilot's
+            // or another failsafe's landing) hovering on.
+            Action::Hold if !matches!(self.mode, Mode::Hold | Mode::Land) => {
+                self.set_mode(Mode::Hold, t_us, &why, out)
+            }
             Action::Hold => {}
         }
         None

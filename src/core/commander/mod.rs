@@ -441,6 +441,8 @@ pub struct Commander {
     rc_seen_us: Option<i64>,
     rc_lost: bool,
     rc: RcReport,
+    /// Killed in the air at this time: no arm until the vehicle is seen at rest.
+    killed_aloft_us: Option<i64>,
     /// The figures of the run's earlier flights, one per arming, in order; armings taken.
     past_flights: Vec<Figures>,
     flights: u32,
@@ -512,6 +514,7 @@ impl Commander {
             motor_test: None,
             rc_seen_us: None,
             rc_lost: false,
+            killed_aloft_us: None,
             rc: RcReport {
                 lost: false,
                 kill: false,
@@ -724,9 +727,22 @@ impl Commander {
         }
         self.motor_test = None;
         if spinning {
+            if self.mode.airborne() {
+                self.killed_aloft_us = Some(t_us);
+            }
             self.disarm(t_us, "kill switch", out);
         }
         Some(EscRequest::KillSwitch)
+    }
+
+    /// Why the radio stops the motors from starting, if it does (a motor test too): lost, or
+    /// its kill switch on.
+    fn rc_holds_motors(&self, t_us: i64) -> Option<String> {
+        self.p.rc?;
+        if self.rc_lost_at(t_us) {
+            return Some("rc: no frames from the receiver (or it is in failsafe)".into());
+        }
+        self.rc.kill.then(|| "rc: kill switch on".to_string())
     }
 
     /// The radio is lost at `t_us`: configured, and its receiver in failsafe or silent for
@@ -745,13 +761,15 @@ impl Commander {
     /// check, with a receiver configured): frames arriving, the kill switch off, the
     /// throttle low.
     fn rc_problem(&self, t_us: i64) -> Option<String> {
+        if let Some(why) = self.rc_holds_motors(t_us) {
+            return Some(why);
+        }
+        if self.killed_aloft_us.is_some() {
+            return Some(
+                "rc: killed in the air: the vehicle has not been seen at rest since".into(),
+            );
+        }
         self.p.rc?;
-        if self.rc_lost_at(t_us) {
-            return Some("rc: no frames from the receiver (or it is in failsafe)".into());
-        }
-        if self.rc.kill {
-            return Some("rc: kill switch on".into());
-        }
         (self.rc.sticks[3] > RC_THROTTLE_LOW).then(|| {
             format!(
                 "rc: throttle not low ({:.2}; at most {RC_THROTTLE_LOW})",
@@ -854,6 +872,10 @@ impl Commander {
             }
             // After the one flight of a profile that flies once, the ESCs start no more.
             Command::MotorTest { .. } if self.spent => Err(Landed),
+            // The pilot's kill switch holds every motor, and a lost radio could not release it.
+            Command::MotorTest { .. } if self.rc_holds_motors(t_us).is_some() => {
+                Err(PreArm(self.rc_holds_motors(t_us).unwrap_or_default()))
+            }
             // The verdict is the motor test's own checks' (the ESCs answer, no calibration at
             // rest under way).
             Command::MotorTest { .. } => arm_verdict.map_err(PreArm),
@@ -918,7 +940,7 @@ impl Commander {
     /// A motor test may still spin a motor at `t_us`: the ESC writer takes a test a little
     /// after the commander (the time the input waited for its frame), so a `disarm` or a
     /// stop just after the test's end still ends it.
-    fn motor_test_may_run(&self, t_us: i64) -> bool {
+    pub fn motor_test_may_run(&self, t_us: i64) -> bool {
         self.motor_test
             .is_some_and(|(_, until_us)| t_us < until_us + MOTOR_TEST_LAG_US)
     }
@@ -1139,6 +1161,13 @@ impl Commander {
             .clamp(0.0, 0.1);
         self.last_t_us = Some(o.t_us);
         self.observed = Some(*o);
+        // Killed in the air: at rest once it has fallen and stopped (a second after the kill).
+        if let Some(k) = self.killed_aloft_us
+            && o.t_us - k >= 1_000_000
+            && o.vz_m_s.abs() < 0.2
+        {
+            self.killed_aloft_us = None;
+        }
         self.baro_m = smooth_baro(self.baro_m, o.baro_alt_m);
         self.yaw_cal_rad = o.yaw_cal_rad;
         self.note_fix(o);

@@ -1505,7 +1505,11 @@ fn rc(kill: bool, throttle: f64) -> RcReport {
 
 /// Armed with a radio, taken off and holding at 1 m by 6 s, the radio reporting every 0.1 s.
 fn holding_with_radio() -> (Commander, Vec<Event>) {
-    let mut c = Commander::new(rc_params());
+    holding_with(rc_params())
+}
+
+fn holding_with(p: Params) -> (Commander, Vec<Event>) {
+    let mut c = Commander::new(p);
     let mut ev = Vec::new();
     c.start(0, &mut ev);
     c.rc_report(rc(false, -1.0), 0, &mut ev);
@@ -1590,11 +1594,63 @@ fn the_kill_switch_stops_the_motors_in_the_air_and_the_vehicle_may_arm_again_onc
     ev.clear();
     c.command(Command::Arm, 6_030_000, Ok(()), None, &mut ev);
     assert_eq!(refusals(&ev), ["rc: kill switch on"]);
+    // A motor test is held by the switch too.
+    let test = Command::MotorTest {
+        motor: 1,
+        throttle_pct: 10.0,
+        duration_s: 1.0,
+    };
+    ev.clear();
+    c.command(test, 6_035_000, Ok(()), None, &mut ev);
+    assert_eq!(refusals(&ev), ["rc: kill switch on"]);
+    // Off: not while it falls; once seen at rest, a second after the kill.
     c.rc_report(rc(false, -1.0), 6_040_000, &mut ev);
+    ev.clear();
+    c.command(Command::Arm, 6_050_000, Ok(()), None, &mut ev);
     assert_eq!(
-        c.command(Command::Arm, 6_050_000, Ok(()), None, &mut ev),
+        refusals(&ev),
+        ["rc: killed in the air: the vehicle has not been seen at rest since"]
+    );
+    let mut falling = at(6_500_000, 0.5);
+    falling.vz_m_s = -3.0;
+    c.on_estimate(&falling, &mut ev);
+    c.on_estimate(&at(7_100_000, 0.0), &mut ev);
+    c.rc_report(rc(false, -1.0), 7_100_000, &mut ev);
+    assert_eq!(
+        c.command(Command::Arm, 7_110_000, Ok(()), None, &mut ev),
         Some(EscRequest::Start)
     );
+}
+
+#[test]
+fn a_lost_radios_hold_does_not_stop_a_landing() {
+    let p = Params {
+        rc: Some(RcLossParams {
+            timeout_s: 0.5,
+            action: Action::Hold,
+        }),
+        ..params()
+    };
+    let (mut c, mut ev) = holding_with(p);
+    c.command(Command::Land, 6_010_000, Ok(()), None, &mut ev);
+    assert_eq!(c.mode(), Mode::Land);
+    let lost = RcReport {
+        lost: true,
+        ..rc(false, 0.0)
+    };
+    c.rc_report(lost, 6_020_000, &mut ev);
+    c.tick(6_030_000, &mut ev);
+    assert!(
+        ev.iter().any(|e| matches!(
+            e,
+            Event::Failsafe {
+                kind: Failsafe::RcLoss,
+                ..
+            }
+        )),
+        "{ev:?}"
+    );
+    assert_eq!(c.mode(), Mode::Land, "the landing goes on");
 }
 
 #[test]

@@ -551,7 +551,7 @@ impl EstimatorSide {
             // and no refusal to tell.
             OperatorInput::Command(commander::Command::Disarm, commander::LinkSource::Rc)
                 if self.commander.mode() == Mode::Disarmed
-                    && self.commander.motor_testing(t_us).is_none() =>
+                    && !self.commander.motor_test_may_run(t_us) =>
             {
                 None
             }

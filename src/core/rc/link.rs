@@ -15,8 +15,14 @@ use crate::core::commander::{Command, LinkSource, OperatorInput, RcReport};
 /// a frame or two lost in between is not a loss.
 pub const REPORTS_PER_TIMEOUT: f64 = 2.5;
 
-/// Sticks are reported to this resolution (a share of their half travel).
-const STICK_STEP: f64 = 0.001;
+/// Sticks are reported to this resolution (a share of their half travel, about 8 ticks): a
+/// gimbal's jitter of a tick or two is not a change.
+const STICK_STEP: f64 = 0.01;
+
+/// The mode switch acts once its new position has been read on this many frames in a row: a
+/// knob turned across the bands, or a switch's travel between two positions, is not a
+/// choice of each mode it passes.
+pub const MODE_FRAMES: u32 = 3;
 
 /// What a position of the mode switch selects.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -66,6 +72,12 @@ pub struct RcLink {
     /// The last report sent, and when.
     reported: Option<(RcReport, i64)>,
     lost: bool,
+    /// The receiver's link statistics say no packet arrives (CRSF, link quality 0): its
+    /// channels are its failsafe's, not the pilot's.
+    link_down: bool,
+    /// The mode switch's position acted on, and a new one being read (its frames so far).
+    mode: Option<usize>,
+    mode_seen: (usize, u32),
     /// An unchanged report is sent again this often, µs.
     report_period_us: i64,
 }
@@ -80,6 +92,9 @@ impl RcLink {
             last: None,
             reported: None,
             lost: false,
+            link_down: false,
+            mode: None,
+            mode_seen: (0, 0),
             report_period_us: (timeout_s / REPORTS_PER_TIMEOUT * 1e6).max(10_000.0) as i64,
         }
     }
@@ -93,21 +108,37 @@ impl RcLink {
         self.modes.iter().position(|&m| m == mode)
     }
 
-    /// A frame at `t_us`: the inputs it makes, appended to `out`. True when its kill switch
-    /// has just turned on (the caller stops the motors at once, before the commander hears
-    /// of it). A frame the receiver marks lost is not a frame of the pilot's.
+    /// The receiver's link statistics: a link quality of 0 is a loss (a CRSF receiver set to
+    /// hold or preset its channels keeps sending them).
+    pub fn link(&mut self, stats: &crate::core::rc::LinkStats, out: &mut Vec<OperatorInput>) {
+        self.link_down = stats.link_quality_pct == 0;
+        if self.link_down {
+            self.lose(out);
+        }
+    }
+
+    fn lose(&mut self, out: &mut Vec<OperatorInput>) {
+        if self.lost {
+            return;
+        }
+        self.lost = true;
+        self.last = None;
+        self.reported = None;
+        self.mode = None;
+        out.push(OperatorInput::Rc(RcReport {
+            lost: true,
+            kill: false,
+            sticks: [0.0, 0.0, 0.0, -1.0],
+        }));
+    }
+
+    /// A frame at `t_us`: the inputs it makes, appended to `out`. True while its kill switch
+    /// is on (the caller stops the motors at once, every such frame, before the commander
+    /// hears of it). A frame the receiver marks lost, or sends while its link is down, is not
+    /// a frame of the pilot's.
     pub fn frame(&mut self, f: &RcFrame, t_us: i64, out: &mut Vec<OperatorInput>) -> bool {
-        if f.failsafe {
-            if !self.lost {
-                self.lost = true;
-                self.last = None;
-                self.reported = None;
-                out.push(OperatorInput::Rc(RcReport {
-                    lost: true,
-                    kill: false,
-                    sticks: [0.0, 0.0, 0.0, -1.0],
-                }));
-            }
+        if f.failsafe || self.link_down {
+            self.lose(out);
             return false;
         }
         if f.frame_lost {
@@ -125,32 +156,45 @@ impl RcLink {
         let due = self
             .reported
             .is_none_or(|(r, at)| r != report || t_us - at >= self.report_period_us);
-        let kill_edge = input.kill && self.last.is_some_and(|l| !l.kill);
         if due {
             self.reported = Some((report, t_us));
             out.push(OperatorInput::Rc(report));
         }
-        if let Some(last) = self.last {
-            self.moves(&last, &input, out);
-        }
-        self.last = Some(input);
-        kill_edge
-    }
-
-    /// The switches' moves since `last` as commands.
-    fn moves(&self, last: &RcInput, now: &RcInput, out: &mut Vec<OperatorInput>) {
-        let rc = |c| OperatorInput::Command(c, LinkSource::Rc);
-        if now.arm != last.arm {
-            out.push(rc(if now.arm {
+        if let Some(last) = self.last
+            && input.arm != last.arm
+        {
+            let arm = if input.arm {
                 Command::Arm
             } else {
                 Command::Disarm
-            }));
+            };
+            out.push(OperatorInput::Command(arm, LinkSource::Rc));
         }
-        if now.mode != last.mode
-            && let Some(c) = self.modes.get(now.mode).and_then(|m| m.command())
-        {
-            out.push(rc(c));
+        self.mode_switch(input.mode, out);
+        self.last = Some(input);
+        input.kill
+    }
+
+    /// The mode switch read at `position`: a position held for [`MODE_FRAMES`] frames, not
+    /// the one acted on, is its mode's command (the first one read, or after a loss, is where
+    /// the switch is: not a move).
+    fn mode_switch(&mut self, position: usize, out: &mut Vec<OperatorInput>) {
+        let (seen, n) = self.mode_seen;
+        self.mode_seen = if seen == position {
+            (seen, n.saturating_add(1))
+        } else {
+            (position, 1)
+        };
+        if self.mode_seen.1 < MODE_FRAMES || self.mode == Some(position) {
+            return;
+        }
+        let first = self.mode.is_none();
+        self.mode = Some(position);
+        if first {
+            return;
+        }
+        if let Some(c) = self.modes.get(position).and_then(|m| m.command()) {
+            out.push(OperatorInput::Command(c, LinkSource::Rc));
         }
     }
 }
@@ -182,7 +226,7 @@ mod tests {
         RcLink::new(map, vec![RcMode::Position, RcMode::Hold, RcMode::Land], 0.5)
     }
 
-    fn frame(l: &RcLink, arm: bool, kill: bool, mode: usize, throttle: f64) -> RcFrame {
+    fn frame(m: &RcMap, arm: bool, kill: bool, mode: usize, throttle: f64) -> RcFrame {
         let input = RcInput {
             sticks: Sticks {
                 throttle,
@@ -193,7 +237,7 @@ mod tests {
             mode,
         };
         RcFrame {
-            channels: l.map().frame_for(&input),
+            channels: m.frame_for(&input),
             frame_lost: false,
             failsafe: false,
         }
@@ -208,69 +252,105 @@ mod tests {
             .collect()
     }
 
+    /// Feeds `n` frames 10 ms apart from `t_us`; the time after them.
+    fn feed(l: &mut RcLink, f: &RcFrame, t_us: i64, n: i64, out: &mut Vec<OperatorInput>) -> i64 {
+        for k in 0..n {
+            l.frame(f, t_us + k * 10_000, out);
+        }
+        t_us + n * 10_000
+    }
+
     #[test]
     fn switches_move_the_commander_and_reports_keep_the_receiver_heard() {
         let mut l = link();
+        let m = l.map().clone();
         let mut out = Vec::new();
-        // On at the start: not a move.
-        assert!(!l.frame(&frame(&l, true, false, 1, -1.0), 0, &mut out));
-        assert_eq!(commands(&out), Vec::<String>::new());
+        // On at the start: not a move; the mode switch where it is: not a move either.
+        assert!(!l.frame(&frame(&m, true, false, 1, -1.0), 0, &mut out));
         assert_eq!(out.len(), 1, "the first report");
-        out.clear();
-        l.frame(&frame(&l, true, false, 1, -1.0), 10_000, &mut out);
-        assert!(out.is_empty(), "nothing changed, a report is not due");
-        l.frame(&frame(&l, false, false, 1, -1.0), 20_000, &mut out);
-        l.frame(&frame(&l, true, false, 1, -1.0), 30_000, &mut out);
-        l.frame(&frame(&l, true, false, 2, -1.0), 40_000, &mut out);
-        l.frame(&frame(&l, true, false, 0, -1.0), 50_000, &mut out);
-        assert_eq!(
-            commands(&out),
-            ["disarm", "arm", "land"],
-            "position has no command"
+        let t = feed(
+            &mut l,
+            &frame(&m, true, false, 1, -1.0),
+            10_000,
+            3,
+            &mut out,
         );
+        assert_eq!(out.len(), 1, "nothing changed, a report is not due");
+        let t = feed(&mut l, &frame(&m, false, false, 1, -1.0), t, 1, &mut out);
+        let t = feed(&mut l, &frame(&m, true, false, 1, -1.0), t, 1, &mut out);
+        // The mode switch: land held three frames; a pass through position (two frames) is
+        // not a choice.
+        let t = feed(&mut l, &frame(&m, true, false, 2, -1.0), t, 3, &mut out);
+        let t = feed(&mut l, &frame(&m, true, false, 0, -1.0), t, 2, &mut out);
+        let t = feed(&mut l, &frame(&m, true, false, 1, -1.0), t, 3, &mut out);
+        assert_eq!(commands(&out), ["disarm", "arm", "land", "hold"]);
         out.clear();
-        l.frame(&frame(&l, true, false, 0, -1.0), 250_000, &mut out);
+        let t = feed(
+            &mut l,
+            &frame(&m, true, false, 1, -1.0),
+            t + 200_000,
+            1,
+            &mut out,
+        );
         assert_eq!(out.len(), 1, "a report every 0.2 s");
         out.clear();
-        l.frame(&frame(&l, true, false, 0, 0.5), 260_000, &mut out);
+        l.frame(&frame(&m, true, false, 1, 0.5), t, &mut out);
         let OperatorInput::Rc(r) = out[0] else {
             panic!("{out:?}")
         };
         assert_eq!((r.kill, r.sticks[3]), (false, 0.5), "the throttle as sent");
-        assert!(
-            l.frame(&frame(&l, true, true, 0, 0.5), 270_000, &mut out),
-            "kill"
-        );
-        assert!(
-            !l.frame(&frame(&l, true, true, 0, 0.5), 280_000, &mut out),
-            "once"
-        );
+        // The kill switch is a level: every frame with it on stops the motors.
+        assert!(l.frame(&frame(&m, true, true, 1, 0.5), t + 10_000, &mut out));
+        assert!(l.frame(&frame(&m, true, true, 1, 0.5), t + 20_000, &mut out));
+        assert!(!l.frame(&frame(&m, true, false, 1, 0.5), t + 30_000, &mut out));
     }
 
     #[test]
     fn the_receivers_failsafe_is_a_loss_and_the_switches_start_afresh_after_it() {
         let mut l = link();
+        let m = l.map().clone();
         let mut out = Vec::new();
-        l.frame(&frame(&l, false, false, 1, -1.0), 0, &mut out);
-        let mut lost = frame(&l, false, false, 1, -1.0);
+        l.frame(&frame(&m, false, false, 1, -1.0), 0, &mut out);
+        let mut lost = frame(&m, false, false, 1, -1.0);
         lost.failsafe = true;
         l.frame(&lost, 10_000, &mut out);
         l.frame(&lost, 20_000, &mut out);
-        let losses = out
-            .iter()
-            .filter(|i| matches!(i, OperatorInput::Rc(r) if r.lost))
-            .count();
-        assert_eq!(losses, 1);
+        let losses = |out: &[OperatorInput]| {
+            out.iter()
+                .filter(|i| matches!(i, OperatorInput::Rc(r) if r.lost))
+                .count()
+        };
+        assert_eq!(losses(&out), 1);
         out.clear();
         // Back with the arm switch on: not an arm.
-        l.frame(&frame(&l, true, false, 1, -1.0), 30_000, &mut out);
+        l.frame(&frame(&m, true, false, 1, -1.0), 30_000, &mut out);
         assert_eq!(commands(&out), Vec::<String>::new());
         assert!(matches!(out[0], OperatorInput::Rc(r) if !r.lost));
         // A frame the receiver marks lost is no frame: no report, no move.
         out.clear();
-        let mut dropped = frame(&l, false, false, 1, -1.0);
+        let mut dropped = frame(&m, false, false, 1, -1.0);
         dropped.frame_lost = true;
         l.frame(&dropped, 40_000, &mut out);
         assert!(out.is_empty());
+        // A CRSF receiver that holds its channels: link quality 0 is the loss, and its
+        // channels are not the pilot's until the link is back.
+        let down = crate::core::rc::LinkStats {
+            rssi_dbm: -120,
+            link_quality_pct: 0,
+            snr_db: -20,
+        };
+        l.link(&down, &mut out);
+        assert_eq!(losses(&out), 1);
+        assert!(!l.frame(&frame(&m, true, true, 1, -1.0), 50_000, &mut out));
+        assert_eq!(out.len(), 1, "held channels are not read");
+        l.link(
+            &crate::core::rc::LinkStats {
+                link_quality_pct: 90,
+                ..down
+            },
+            &mut out,
+        );
+        l.frame(&frame(&m, true, false, 1, -1.0), 60_000, &mut out);
+        assert!(matches!(out.last(), Some(OperatorInput::Rc(r)) if !r.lost));
     }
 }
