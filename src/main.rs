@@ -691,14 +691,6 @@ impl FlyArgs {
         let profile = self.profile.load_kept(self.log_dir.as_deref())?;
         let profile = with_mission(profile, self.mission.as_deref())?;
         let cfg = &profile.config;
-        if cfg.rc.protocol != config::RcProtocol::None {
-            return Err(Refused(
-                "rc.protocol: fly's RC receiver task is not built yet (the radio flies in \
-                 sim --fast and --mode paced); set rc.protocol = \"none\""
-                    .into(),
-            )
-            .into());
-        }
         // Before any device is opened: a flight without real-time guarantees is refused.
         if !self.allow_no_rt
             && let Err(why) = uquad::tasks::realtime_permitted()
@@ -718,7 +710,13 @@ impl FlyArgs {
             ..FlyOptions::default()
         };
         let summary = on_runtime(Duration::from_millis(200), async {
+            let rc = match cfg.rc.protocol {
+                config::RcProtocol::None => None,
+                p => Some(Box::new(uquad::hw::serial::open_rc(&cfg.rc.device, p)?)
+                    as Box<dyn tokio::io::AsyncRead + Send + Unpin>),
+            };
             let edges = Edges {
+                rc,
                 operator: None,
                 imu: Box::new(uquad::hw::serial::open_imu(&cfg.imu.device, cfg.imu.baud)?),
                 bus: Box::new(uquad::hw::esc_bus::LinuxEscBus::open(
@@ -761,14 +759,6 @@ impl SimArgs {
         }
         let profile = self.profile.load_kept(self.log_dir.as_deref())?;
         let profile = with_mission(profile, self.mission.as_deref())?;
-        if mode == SimMode::Realtime && profile.config.rc.protocol != config::RcProtocol::None {
-            return Err(Refused(
-                "rc.protocol: the pilot's radio flies in --fast and --mode paced (its frames \
-                 through the decoder); --realtime's receiver task over a pty is not built yet"
-                    .into(),
-            )
-            .into());
-        }
         let moves_radio = self.script.as_ref().is_some_and(|s| !s.1.is_empty());
         if moves_radio && profile.config.rc.protocol == config::RcProtocol::None {
             return Err(Refused(

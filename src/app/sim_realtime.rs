@@ -52,6 +52,9 @@ struct SimThread {
     trace: CycleTrace,
     /// Where the frames' true states go.
     truth: TruthFile,
+    /// The pilot's radio (`--rc`): its transmitter, and the pty's end the receiver's frames
+    /// are written into (`fly`'s RC reader opens the other end as a UART).
+    rc: Option<(crate::sim::transmitter::Transmitter, serialport::TTYPort)>,
 }
 
 /// What the simulator thread measured.
@@ -133,6 +136,36 @@ fn place_truth(tmp: &std::path::Path, whole: bool, fly: &mut crate::app::report:
     let _ = std::fs::remove_file(tmp);
 }
 
+/// With `--rc`: the simulated transmitter, the pty's end it writes into, and the other end
+/// opened as `fly` opens `rc.device` (tokio-serial, the protocol's line settings).
+#[allow(clippy::type_complexity)]
+fn radio(
+    profile: &Profile,
+    opts: &SimOptions,
+    faults: &FaultSchedule,
+) -> anyhow::Result<(
+    Option<(crate::sim::transmitter::Transmitter, serialport::TTYPort)>,
+    Option<Box<dyn tokio::io::AsyncRead + Send + Unpin>>,
+)> {
+    use anyhow::Context;
+    let cfg = &profile.config;
+    let script = crate::app::sim::script(opts, profile);
+    let Some(tx) = crate::sim::transmitter::Transmitter::new(
+        &cfg.rc,
+        cfg.failsafe.rc_timeout_s,
+        &script.1,
+        faults.at_us(Fault::RcLoss),
+    ) else {
+        return Ok((None, None));
+    };
+    let (master, slave) = serialport::TTYPort::pair().context("cannot open a pty for the radio")?;
+    let path = serialport::SerialPort::name(&slave).context("the radio's pty has no name")?;
+    let port = crate::hw::serial::open_rc(std::path::Path::new(&path), cfg.rc.protocol)?;
+    // The slave's first handle may close: the reader holds its own.
+    drop(slave);
+    Ok((Some((tx, master)), Some(Box::new(port))))
+}
+
 pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSummary> {
     let cfg = &profile.config;
     let duration = Duration::from_secs_f64(crate::app::sim::duration_s(opts, profile));
@@ -148,6 +181,7 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
     let (operator_tx, operator_rx) = mpsc::channel(64);
     let faults = FaultSchedule::new(&opts.inject);
     let cancel = CancellationToken::new();
+    let (rc, rc_port) = radio(profile, opts, &faults)?;
     let thread = SimThread {
         profile: profile.clone(),
         seed,
@@ -169,6 +203,7 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
         stop: stop.clone(),
         rt: tokio::runtime::Handle::current(),
         truth: TruthFile::create(seed),
+        rc,
     };
     let truth_tmp = thread.truth.path.clone();
     let sim_thread =
@@ -193,6 +228,7 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
         gps_fixes: Some(gps_rx),
         live: Some(live_tx),
         operator: Some(operator_rx),
+        rc: rc_port,
     };
     let log_stall = faults.at_us(Fault::LogStall).map(|at| LogStall {
         stream: crate::logs::Stream::XHat,
@@ -241,6 +277,18 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
 }
 
 impl SimThread {
+    /// The radio's frames due by `t_us`, into the pty (a write that fails loses them: the
+    /// reader's rc-loss follows, as with a receiver unplugged).
+    fn send_radio(&mut self, t_us: i64) {
+        use std::io::Write;
+        if let Some((tx, port)) = &mut self.rc {
+            let bytes = tx.air_due(t_us);
+            if !bytes.is_empty() && port.write_all(&bytes).is_err() {
+                self.rc = None;
+            }
+        }
+    }
+
     /// Steps the physics on the wall clock until told to stop; returns the simulated time and
     /// the hover figures.
     fn run(mut self) -> SimResult {
@@ -277,6 +325,7 @@ impl SimThread {
             {
                 tx.send_replace(Some(fix));
             }
+            self.send_radio(t_us);
             if t_us % FRAME_US != 0 {
                 continue;
             }

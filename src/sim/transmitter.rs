@@ -165,6 +165,27 @@ impl Transmitter {
         kill
     }
 
+    /// The bytes of the frames due by `t_us`, as the receiver puts them on its UART
+    /// (`--realtime`: written into a pty that `fly`'s RC reader reads).
+    pub fn air_due(&mut self, t_us: i64) -> Vec<u8> {
+        let mut bytes = Vec::new();
+        while self.next_us <= t_us {
+            let at = self.next_us;
+            self.next_us += self.period_us;
+            while let Some(&(when, m)) = self.moves.front()
+                && when <= at
+            {
+                self.moves.pop_front();
+                self.apply(m);
+            }
+            if let Some(b) = self.air(at) {
+                self.frames += 1;
+                bytes.extend(b);
+            }
+        }
+        bytes
+    }
+
     fn apply(&mut self, m: RcMove) {
         match m {
             RcMove::Sticks([roll, pitch, yaw, throttle]) => {

@@ -11,6 +11,7 @@ pub mod latency;
 pub mod logger;
 pub mod notices;
 pub mod prearm;
+pub mod rc_reader;
 pub mod status;
 pub mod watchdog;
 

@@ -562,6 +562,7 @@ pub async fn fly_with<F: std::future::Future<Output = ()>>(
                     gps_fixes: None,
                     live: None,
                     operator: None,
+                    rc: None,
                 },
                 uquad::app::fly::FlyOptions {
                     log_dir: Some(log_dir),

@@ -61,6 +61,8 @@ pub struct Edges {
     pub live: Option<watch::Sender<Option<Live>>>,
     /// More operator inputs beside stdin and the consoles (the simulator's scripted operator).
     pub operator: Option<mpsc::Receiver<OperatorInput>>,
+    /// The RC receiver's UART (`rc.protocol`), opened: its reader runs beside the flight.
+    pub rc: Option<Box<dyn tokio::io::AsyncRead + Send + Unpin>>,
 }
 
 /// How a run behaves beyond its configuration.
@@ -214,6 +216,9 @@ pub async fn run(
             h.cancel.clone(),
         ));
     }
+    if let Some(port) = edges.rc.take() {
+        tokio::spawn(rc_reader(profile, &h, &operator_tx).run(port, h.cancel.clone()));
+    }
     h.cancel.cancelled().await;
     drop(operator_tx);
     let threads = Threads {
@@ -223,6 +228,34 @@ pub async fn run(
         gcs,
     };
     Ok(shut_down(h, threads, loggers).await)
+}
+
+/// The RC receiver's reader: frames to operator inputs, the kill switch to the ESC writer.
+fn rc_reader(
+    profile: &Profile,
+    h: &RunHandles,
+    operator: &mpsc::Sender<OperatorInput>,
+) -> crate::tasks::rc_reader::RcReader {
+    use crate::config::RcProtocol;
+    use crate::core::rc::{Decoder, crsf::CrsfDecoder, sbus::SbusDecoder};
+    let cfg = &profile.config;
+    let decoder = match cfg.rc.protocol {
+        RcProtocol::Crsf => Decoder::Crsf(CrsfDecoder::new()),
+        RcProtocol::Sbus | RcProtocol::None => Decoder::Sbus(SbusDecoder::new()),
+    };
+    let link = crate::core::rc::link::RcLink::new(
+        cfg.rc.map(),
+        cfg.rc.modes.clone(),
+        cfg.failsafe.rc_timeout_s,
+    );
+    crate::tasks::rc_reader::RcReader {
+        decoder,
+        link,
+        mailbox: h.mailbox.clone(),
+        operator: operator.clone(),
+        beats: h.beats.clone(),
+        stats: Arc::default(),
+    }
 }
 
 /// Operator inputs queued for the control path (it takes them at each frame; beyond this,

@@ -1,0 +1,103 @@
+//! RC receiver reader: the pilot's radio from a UART (SBUS or CRSF).
+//!
+//! In: the receiver's bytes (tokio-serial; a pty in tests). Out: the operator inputs its frames
+//! make (`core::rc::link`) into the flight's operator queue, and — before anything else — a
+//! halt named `kill` to the ESC writer's mailbox for every frame with the kill switch on: the
+//! pilot's kill reaches the motors without waiting for a control step. Counters in
+//! [`RcStats`]. Rate: as the receiver sends (SBUS every 7 or 14 ms, CRSF up to 500 Hz).
+//! Ends: on cancel, or when the device fails (logged; the commander's `rc-loss` failsafe then
+//! acts on the silence).
+
+use crate::core::commander::OperatorInput;
+use crate::core::esc::StopReason;
+use crate::core::rc::link::RcLink;
+use crate::core::rc::{Decoder, RcEvent};
+use crate::tasks::esc_writer::EscMailbox;
+use crate::tasks::heartbeats::Heartbeats;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicI64, AtomicU64, Ordering};
+use std::time::Instant;
+use tokio::io::{AsyncRead, AsyncReadExt};
+use tokio::sync::mpsc;
+use tokio_util::sync::CancellationToken;
+
+/// What the reader has seen, readable from any thread.
+#[derive(Debug, Default)]
+pub struct RcStats {
+    pub frames: AtomicU64,
+    pub discarded_bytes: AtomicU64,
+    pub rejected_frames: AtomicU64,
+    /// Inputs the flight's queue refused (full): counted, never waited for.
+    pub dropped_inputs: AtomicU64,
+    /// When the newest frame with the kill switch on arrived, µs since start (-1: none yet).
+    pub last_kill_us: AtomicI64,
+}
+
+/// The reader's parts.
+pub struct RcReader {
+    pub decoder: Decoder,
+    pub link: RcLink,
+    pub mailbox: Arc<EscMailbox>,
+    pub operator: mpsc::Sender<OperatorInput>,
+    pub beats: Arc<Heartbeats>,
+    pub stats: Arc<RcStats>,
+}
+
+impl RcReader {
+    /// Reads `port` until cancel or a read error.
+    pub async fn run(mut self, mut port: impl AsyncRead + Unpin, cancel: CancellationToken) {
+        self.stats.last_kill_us.store(-1, Ordering::Relaxed);
+        let mut buf = [0u8; 256];
+        let (mut events, mut inputs) = (Vec::new(), Vec::new());
+        loop {
+            let n = tokio::select! {
+                _ = cancel.cancelled() => return,
+                r = port.read(&mut buf) => r,
+            };
+            let n = match n {
+                Ok(0) => {
+                    tracing::error!("RC receiver: the device closed; rc-loss follows");
+                    return;
+                }
+                Ok(n) => n,
+                Err(e) => {
+                    tracing::error!("RC receiver: {e}; rc-loss follows");
+                    return;
+                }
+            };
+            let at = Instant::now();
+            events.clear();
+            self.decoder.feed(&buf[..n], &mut events);
+            self.take(&events, at, &mut inputs);
+            for input in inputs.drain(..) {
+                if self.operator.try_send(input).is_err() {
+                    self.stats.dropped_inputs.fetch_add(1, Ordering::Relaxed);
+                }
+            }
+        }
+    }
+
+    /// The frames read at `at`: the kill switch to the ESCs at once, the rest as inputs.
+    fn take(&mut self, events: &[RcEvent], at: Instant, inputs: &mut Vec<OperatorInput>) {
+        let t_us = self.beats.us(at);
+        for e in events {
+            match e {
+                RcEvent::Channels(f) => {
+                    if self.link.frame(f, t_us, inputs) {
+                        self.mailbox.halt(StopReason::KillSwitch);
+                        self.stats.last_kill_us.store(t_us, Ordering::Relaxed);
+                    }
+                }
+                RcEvent::Link(s) => self.link.link(s, inputs),
+            }
+        }
+        let d = self.decoder.stats();
+        self.stats.frames.store(d.frames, Ordering::Relaxed);
+        self.stats
+            .discarded_bytes
+            .store(d.discarded_bytes, Ordering::Relaxed);
+        self.stats
+            .rejected_frames
+            .store(d.rejected_frames, Ordering::Relaxed);
+    }
+}
