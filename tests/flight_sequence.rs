@@ -394,3 +394,62 @@ fn calibrated_before_arming_the_estimate_runs_and_an_arm_starts_the_escs_under_i
     assert!(b.out.notes().contains(&"ESC ramp done; idling"));
     assert_eq!(b.estimator.mode(), Mode::Armed);
 }
+
+/// The radio's reader stops the ESCs at a kill frame before its report reaches the flight:
+/// a start-up ramp stopped so is the pilot's kill, not a failed start-up. The run goes on,
+/// disarmed, the kill recorded as the radio's report (a replay takes it at the same step).
+#[test]
+fn escs_stopped_by_the_kill_switch_during_their_ramp_disarm_and_the_run_goes_on() {
+    use uquad::core::commander::{ArmFacts, Command, LinkSource, Mode, OperatorInput};
+    use uquad::core::flight::ArmCheck;
+    let mut b = Bench::with(
+        1_000,
+        &["imu.calibrate=\"before-arm\"", "gps.mode=\"fake-zero\""],
+    );
+    let facts = ArmFacts {
+        imu_stable: true,
+        realtime: true,
+        ..ArmFacts::default()
+    };
+    b.until(Phase::Estimating, 800);
+    while !b.estimator.ready_to_arm(b.t_us) {
+        b.frame();
+    }
+    let input = OperatorInput::Command(Command::Arm, LinkSource::Console);
+    b.estimator
+        .operator(input, b.t_us, ArmCheck::Facts(&facts), &mut b.out);
+    b.start_requests += 1;
+    b.esc = EscPhase::Ramping;
+    b.frame();
+    b.esc = EscPhase::Stopped;
+    b.esc_reason = Some(StopReason::KillSwitch);
+    for _ in 0..10 {
+        assert!(!matches!(b.frame(), FrameAction::Abort(_)));
+    }
+    assert!(b.aborts.is_empty(), "{:?}", b.aborts);
+    assert_eq!(b.estimator.mode(), Mode::Disarmed);
+    let kills = b
+        .out
+        .records
+        .iter()
+        .filter(|r| {
+            matches!(
+                r,
+                FlightRecord::Operator {
+                    input: OperatorInput::Rc(rc),
+                    ..
+                } if rc.kill
+            )
+        })
+        .count();
+    assert_eq!(kills, 1, "{:?}", b.out.notes());
+    let why = b.out.records.iter().rev().find_map(|r| match r {
+        FlightRecord::Commander(uquad::core::commander::Event::Mode {
+            mode: Mode::Disarmed,
+            why,
+            ..
+        }) => Some(why.clone()),
+        _ => None,
+    });
+    assert_eq!(why.as_deref(), Some("kill switch"));
+}

@@ -222,25 +222,7 @@ def arm(s):
 def after_ramp(s, cmd, p):
     """Sends `cmd`, again while the ESCs' start-up ramp runs (armed under an estimate that ran
     before arming, the ramp follows the arm), until it is accepted."""
-    ramp = "start-up ramp is not done"
-    end = time.time() + LONG
-    while time.time() < end:
-        told = sum(ramp in t for t in s.texts)
-        s.conn.mav.command_long_send(1, 1, cmd, 0, *p)
-        ack = s.wait(
-            f"COMMAND_ACK of {cmd}",
-            lambda m: m.get_type() == "COMMAND_ACK" and m.command == cmd,
-        )
-        if ack.result == mav.MAV_RESULT_ACCEPTED:
-            return
-        # The refusal's text may still be coming (a long text goes in chunks).
-        until = time.time() + 2.0
-        while sum(ramp in t for t in s.texts) == told and time.time() < until:
-            s.pump()
-        if sum(ramp in t for t in s.texts) == told:
-            fail(f"command {cmd} refused ({ack.result}): {s.texts}")
-        time.sleep(0.3)
-    fail(f"command {cmd} never taken")
+    until_taken(s, cmd, p, ["start-up ramp is not done"])
 
 
 def take_off(s, height_m):
@@ -965,8 +947,10 @@ def until_taken(s, cmd, p, waiting):
         )
         if ack.result == mav.MAV_RESULT_ACCEPTED:
             return
+        # The refusal's text may still be coming (a long text goes in chunks; another text
+        # may come first).
         until = time.time() + 2.0
-        while len(s.texts) == told and time.time() < until:
+        while not any("refused" in t for t in s.texts[told:]) and time.time() < until:
             s.pump()
         if not any(w in t for t in s.texts[told:] for w in waiting):
             fail(f"command {cmd} refused ({ack.result}): {s.texts[told:]}")

@@ -159,6 +159,18 @@ fn radio(
         return Ok((None, None));
     };
     let (master, slave) = serialport::TTYPort::pair().context("cannot open a pty for the radio")?;
+    // Never blocking the simulator's real-time thread: a frame the pty has no room for is
+    // lost, as on a wire nobody reads.
+    {
+        use std::os::fd::AsRawFd;
+        let fd = master.as_raw_fd();
+        // SAFETY: fcntl on a descriptor this function owns; no memory is passed.
+        let flags = unsafe { libc::fcntl(fd, libc::F_GETFL) };
+        // SAFETY: as above.
+        if flags < 0 || unsafe { libc::fcntl(fd, libc::F_SETFL, flags | libc::O_NONBLOCK) } < 0 {
+            anyhow::bail!("cannot make the radio's pty non-blocking");
+        }
+    }
     let path = serialport::SerialPort::name(&slave).context("the radio's pty has no name")?;
     let port = crate::hw::serial::open_rc(std::path::Path::new(&path), cfg.rc.protocol)?;
     // The slave's first handle may close: the reader holds its own.
@@ -277,14 +289,17 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
 }
 
 impl SimThread {
-    /// The radio's frames due by `t_us`, into the pty (a write that fails loses them: the
-    /// reader's rc-loss follows, as with a receiver unplugged).
+    /// The radio's frames due by `t_us`, into the pty without waiting (what finds no room is
+    /// lost; a pty whose reader is gone ends the radio: its rc-loss follows, as with a
+    /// receiver unplugged).
     fn send_radio(&mut self, t_us: i64) {
         use std::io::Write;
         if let Some((tx, port)) = &mut self.rc {
             let bytes = tx.air_due(t_us);
-            if !bytes.is_empty() && port.write_all(&bytes).is_err() {
-                self.rc = None;
+            match port.write(&bytes) {
+                Ok(_) => {}
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {}
+                Err(_) => self.rc = None,
             }
         }
     }

@@ -3,7 +3,9 @@
 //! how far the sticks may push the vehicle.
 
 pub use crate::core::rc::link::RcMode;
-use crate::core::rc::sticks::{ChannelCal, RcMap};
+/// One function's channel and how its travel is read (PX4's RCn_MIN, TRIM, MAX, REV, DZ).
+pub use crate::core::rc::sticks::ChannelCal as RcChannel;
+use crate::core::rc::sticks::RcMap;
 use serde::{Deserialize, Deserializer, Serialize};
 use std::path::PathBuf;
 
@@ -17,54 +19,6 @@ pub enum RcProtocol {
     Sbus,
     /// CRSF (ExpressLRS, TBS Crossfire): 420 000 baud, 8N1.
     Crsf,
-}
-
-/// One function's channel and how its travel is read (PX4's RCn_MIN, TRIM, MAX, REV, DZ).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
-pub struct RcChannel {
-    /// 1 to 16.
-    pub channel: u8,
-    /// The channel's ticks (SBUS's and CRSF's 11 bits: 172 ≈ 988 µs, 992 = 1500 µs, 1811 ≈
-    /// 2012 µs) at the low end, at rest (a stick centred) and at the high end.
-    pub min: u16,
-    pub center: u16,
-    pub max: u16,
-    /// The channel moves the other way.
-    pub reversed: bool,
-    /// Around the centre, this share of the half travel reads 0.
-    pub deadband: f64,
-}
-
-impl RcChannel {
-    /// A stick or a switch on `channel`, calibrated to the protocols' nominal range.
-    const fn on(channel: u8, deadband: f64) -> Self {
-        RcChannel {
-            channel,
-            min: 172,
-            center: 992,
-            max: 1811,
-            reversed: false,
-            deadband,
-        }
-    }
-
-    fn cal(&self) -> ChannelCal {
-        ChannelCal {
-            channel: self.channel,
-            min: self.min,
-            center: self.center,
-            max: self.max,
-            reversed: self.reversed,
-            deadband: self.deadband,
-        }
-    }
-}
-
-impl Default for RcChannel {
-    fn default() -> Self {
-        RcChannel::on(1, 0.0)
-    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -164,13 +118,13 @@ impl Default for RcConfig {
             max_yaw_rate_rad_s: 1.0,
             // A three-position switch, the commonest.
             modes: vec![RcMode::Position, RcMode::Hold, RcMode::Land],
-            roll: RcChannel::on(1, 0.05),
-            pitch: RcChannel::on(2, 0.05),
-            throttle: RcChannel::on(3, 0.05),
-            yaw: RcChannel::on(4, 0.05),
-            arm: RcChannel::on(5, 0.0),
-            kill: RcChannel::on(6, 0.0),
-            mode: RcChannel::on(7, 0.0),
+            roll: RcChannel::nominal(1, 0.05),
+            pitch: RcChannel::nominal(2, 0.05),
+            throttle: RcChannel::nominal(3, 0.05),
+            yaw: RcChannel::nominal(4, 0.05),
+            arm: RcChannel::nominal(5, 0.0),
+            kill: RcChannel::nominal(6, 0.0),
+            mode: RcChannel::nominal(7, 0.0),
         }
     }
 }
@@ -192,13 +146,13 @@ impl RcConfig {
     /// How the core reads the channels.
     pub fn map(&self) -> RcMap {
         RcMap {
-            roll: self.roll.cal(),
-            pitch: self.pitch.cal(),
-            yaw: self.yaw.cal(),
-            throttle: self.throttle.cal(),
-            arm: self.arm.cal(),
-            kill: self.kill.cal(),
-            mode: self.mode.cal(),
+            roll: self.roll,
+            pitch: self.pitch,
+            yaw: self.yaw,
+            throttle: self.throttle,
+            arm: self.arm,
+            kill: self.kill,
+            mode: self.mode,
             mode_positions: self.modes.len().max(1),
         }
     }

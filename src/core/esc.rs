@@ -394,7 +394,11 @@ impl EscDriver {
         if self.phase == EscPhase::Stopped {
             // Between flights the motors are already off: a halt (or any stop but the run's
             // end) makes the stop final, and is settled by the disarm's confirmed stop, now.
-            if self.restartable() && reason != StopReason::Shutdown {
+            // A held kill switch asks again every frame: the stop stands as it settled.
+            if self.restartable()
+                && reason != StopReason::Shutdown
+                && self.stop_reason != Some(reason)
+            {
                 self.stop_reason = Some(reason);
                 self.outcome = self.outcome.map(|o| StopOutcome {
                     settled_us: now_us,

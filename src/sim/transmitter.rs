@@ -138,19 +138,7 @@ impl Transmitter {
     /// was read.
     pub fn due(&mut self, t_us: i64, out: &mut Vec<(i64, OperatorInput)>) -> Option<bool> {
         let mut kill = None;
-        while self.next_us <= t_us {
-            let at = self.next_us;
-            self.next_us += self.period_us;
-            while let Some(&(when, m)) = self.moves.front()
-                && when <= at
-            {
-                self.moves.pop_front();
-                self.apply(m);
-            }
-            let Some(bytes) = self.air(at) else {
-                continue;
-            };
-            self.frames += 1;
+        for (at, bytes) in self.frames_due(t_us) {
             self.events.clear();
             self.decoder.feed(&bytes, &mut self.events);
             let mut inputs = Vec::new();
@@ -168,7 +156,16 @@ impl Transmitter {
     /// The bytes of the frames due by `t_us`, as the receiver puts them on its UART
     /// (`--realtime`: written into a pty that `fly`'s RC reader reads).
     pub fn air_due(&mut self, t_us: i64) -> Vec<u8> {
-        let mut bytes = Vec::new();
+        self.frames_due(t_us)
+            .into_iter()
+            .flat_map(|(_, bytes)| bytes)
+            .collect()
+    }
+
+    /// Each frame period due by `t_us`: the pilot's moves made by then, and what reaches the
+    /// UART, with its time (a lost CRSF receiver's periods send nothing).
+    fn frames_due(&mut self, t_us: i64) -> Vec<(i64, Vec<u8>)> {
+        let mut frames = Vec::new();
         while self.next_us <= t_us {
             let at = self.next_us;
             self.next_us += self.period_us;
@@ -178,12 +175,12 @@ impl Transmitter {
                 self.moves.pop_front();
                 self.apply(m);
             }
-            if let Some(b) = self.air(at) {
+            if let Some(bytes) = self.air(at) {
                 self.frames += 1;
-                bytes.extend(b);
+                frames.push((at, bytes));
             }
         }
-        bytes
+        frames
     }
 
     fn apply(&mut self, m: RcMove) {

@@ -137,9 +137,7 @@ impl EscMailbox {
         self.with(|r| {
             r.start = false;
             r.test = None;
-            if r.halt.is_none() {
-                r.halt = Some(reason);
-            }
+            r.halt = Some(stronger(r.halt, reason));
         });
     }
 
@@ -148,9 +146,7 @@ impl EscMailbox {
         if let Ok(mut r) = self.req.try_lock() {
             r.start = false;
             r.test = None;
-            if r.halt.is_none() {
-                r.halt = Some(reason);
-            }
+            r.halt = Some(stronger(r.halt, reason));
             self.seq.fetch_add(1, Ordering::SeqCst);
             drop(r);
             self.wake.notify_all();
@@ -160,6 +156,17 @@ impl EscMailbox {
     /// Zero, disable and end the writer thread.
     pub fn shutdown(&self) {
         self.with(|r| r.shutdown = true);
+    }
+}
+
+/// The halt that stands when `reason` comes with `waiting` not yet taken: the first, unless
+/// it is one the run goes on after (a disarm's, the kill switch's: a held switch sends one
+/// every frame) and `reason` is final (the watchdog's, a panic's, the run's end).
+fn stronger(waiting: Option<StopReason>, reason: StopReason) -> StopReason {
+    match waiting {
+        Some(w) if w.on_the_ground() && !reason.on_the_ground() => reason,
+        Some(w) => w,
+        None => reason,
     }
 }
 

@@ -200,8 +200,23 @@ impl EstimatorTask {
 
     /// An operator input taken from the queue, applied at the next frame. A beat or a fix
     /// replaces a held one of its kind (the newest is the fact): while no frame comes they
-    /// cannot fill the held inputs and shut the operator's commands out.
+    /// cannot fill the held inputs and shut the operator's commands out. A radio's report
+    /// replaces the last held input only when that is a report too: its order against the
+    /// radio's commands (the throttle before an arm) and its newest state both stay.
     fn hold(&mut self, input: OperatorInput) {
+        if let OperatorInput::Rc(_) = input {
+            match self.held.back_mut() {
+                Some(h) if matches!(h.input, OperatorInput::Rc(_)) => {
+                    (h.input, h.at) = (input, Instant::now());
+                }
+                _ => self.held.push_back(Held {
+                    input,
+                    at: Instant::now(),
+                    answered: false,
+                }),
+            }
+            return;
+        }
         if !input.expires()
             && let Some(h) = self.held.iter_mut().find(|h| h.input == input)
         {

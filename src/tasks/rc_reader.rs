@@ -33,6 +33,11 @@ pub struct RcStats {
     pub last_kill_us: AtomicI64,
 }
 
+/// The radio's commands (arm, disarm, the mode switch's) waiting for room in the flight's
+/// queue, at most this many: a switch's move is sent once, so it is kept, not dropped, while
+/// the queue is full (a report is sent again anyway).
+const PENDING_MAX: usize = 16;
+
 /// The reader's parts.
 pub struct RcReader {
     pub decoder: Decoder,
@@ -49,32 +54,65 @@ impl RcReader {
         self.stats.last_kill_us.store(-1, Ordering::Relaxed);
         let mut buf = [0u8; 256];
         let (mut events, mut inputs) = (Vec::new(), Vec::new());
+        let mut pending = std::collections::VecDeque::new();
         loop {
             let n = tokio::select! {
                 _ = cancel.cancelled() => return,
                 r = port.read(&mut buf) => r,
             };
             let n = match n {
-                Ok(0) => {
-                    tracing::error!("RC receiver: the device closed; rc-loss follows");
-                    return;
-                }
+                Ok(0) => return self.ended("the device closed"),
                 Ok(n) => n,
-                Err(e) => {
-                    tracing::error!("RC receiver: {e}; rc-loss follows");
-                    return;
-                }
+                Err(e) => return self.ended(&e.to_string()),
             };
             let at = Instant::now();
             events.clear();
             self.decoder.feed(&buf[..n], &mut events);
             self.take(&events, at, &mut inputs);
-            for input in inputs.drain(..) {
-                if self.operator.try_send(input).is_err() {
+            self.send(&mut inputs, &mut pending);
+        }
+    }
+
+    /// The inputs to the flight's queue, the commands kept before them first; what finds no
+    /// room is counted (a command kept for the next frame, up to [`PENDING_MAX`]).
+    fn send(
+        &self,
+        inputs: &mut Vec<OperatorInput>,
+        pending: &mut std::collections::VecDeque<OperatorInput>,
+    ) {
+        pending.extend(inputs.drain(..));
+        while let Some(input) = pending.pop_front() {
+            let command = matches!(input, OperatorInput::Command(..));
+            match self.operator.try_send(input) {
+                Ok(()) => {}
+                Err(mpsc::error::TrySendError::Full(input)) if command => {
+                    pending.push_front(input);
+                    break;
+                }
+                Err(_) => {
                     self.stats.dropped_inputs.fetch_add(1, Ordering::Relaxed);
                 }
             }
         }
+        // Reports behind a kept command are sent again anyway: only commands wait.
+        pending.retain(|i| matches!(i, OperatorInput::Command(..)));
+        while pending.len() > PENDING_MAX {
+            pending.pop_front();
+            self.stats.dropped_inputs.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// The device failed: said once with the reader's counts; the commander's rc-loss acts
+    /// on the silence.
+    fn ended(&self, why: &str) {
+        let s = &self.stats;
+        tracing::error!(
+            frames = s.frames.load(Ordering::Relaxed),
+            discarded_bytes = s.discarded_bytes.load(Ordering::Relaxed),
+            rejected_frames = s.rejected_frames.load(Ordering::Relaxed),
+            dropped_inputs = s.dropped_inputs.load(Ordering::Relaxed),
+            "RC receiver: {why}; rc-loss follows"
+        );
     }
 
     /// The frames read at `at`: the kill switch to the ESCs at once, the rest as inputs.

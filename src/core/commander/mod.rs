@@ -745,6 +745,11 @@ impl Commander {
         self.rc.kill.then(|| "rc: kill switch on".to_string())
     }
 
+    /// The sticks of the radio's newest report (roll, pitch, yaw, throttle).
+    pub fn rc_sticks(&self) -> [f64; 4] {
+        self.rc.sticks
+    }
+
     /// The radio is lost at `t_us`: configured, and its receiver in failsafe or silent for
     /// `failsafe.rc_timeout_s` (or never heard).
     pub(super) fn rc_lost_at(&self, t_us: i64) -> bool {

@@ -599,9 +599,8 @@ impl EstimatorSide {
             return OperatorAction::StartEscs;
         }
         if request == Some(EscRequest::KillSwitch) {
-            self.record_events(out);
-            out.watchdog(Event::Disarming(t_us));
-            self.between_flights();
+            // Disarmed as by a disarm's stop; the ESCs' stop is named the kill switch's.
+            self.esc_request(Some(EscRequest::Stop), t_us, out);
             return OperatorAction::KillSwitch;
         }
         if let Some(EscRequest::MotorTest(test)) = request {
@@ -932,6 +931,10 @@ impl EstimatorSide {
                 self.phase = Phase::Flight;
                 None
             }
+            EscPhase::Stopped if esc.stop_reason == Some(StopReason::KillSwitch) => {
+                self.kill_switch_seen(t_us, out);
+                None
+            }
             EscPhase::Stopped => {
                 let why = esc
                     .stop_reason
@@ -1006,6 +1009,10 @@ impl EstimatorSide {
                 self.phase = Phase::Calibration;
                 FrameAction::Wait
             }
+            EscPhase::Stopped if esc.stop_reason == Some(StopReason::KillSwitch) => {
+                self.kill_switch_seen(t_us, out);
+                FrameAction::Wait
+            }
             EscPhase::Stopped => {
                 let why = esc
                     .stop_reason
@@ -1017,6 +1024,24 @@ impl EstimatorSide {
             }
             EscPhase::Disabled | EscPhase::Ramping | EscPhase::Testing => FrameAction::Wait,
         }
+    }
+
+    /// The ESCs were stopped by the pilot's kill switch before its report reached the
+    /// commander (the radio's reader stops them first): the report is taken now, recorded as
+    /// the radio's so that a replay takes it at the same step, and the vehicle is disarmed
+    /// as the switch does; the run goes on. A report taken already changes nothing.
+    fn kill_switch_seen(&mut self, t_us: i64, out: &mut impl Outputs) {
+        if self.commander.mode() == Mode::Disarmed {
+            return;
+        }
+        let report = commander::RcReport {
+            lost: false,
+            kill: true,
+            sticks: self.commander.rc_sticks(),
+        };
+        let recorded = ArmCheck::Recorded(&Ok(()));
+        // The ESCs are stopped already: what the input asks of them is done.
+        let _ = self.operator(OperatorInput::Rc(report), t_us, recorded, out);
     }
 
     fn abort(&mut self, why: Abort) -> FrameAction {

@@ -4,8 +4,8 @@
 
 use super::{CHANNELS, RcFrame};
 
-/// Where a function is and how its channel's travel is read.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// Where a function is and how its channel's travel is read (the `rc.*` tables).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ChannelCal {
     /// 1 to 16.
     pub channel: u8,
@@ -20,6 +20,18 @@ pub struct ChannelCal {
 }
 
 impl ChannelCal {
+    /// A stick or a switch on `channel`, calibrated to the protocols' nominal range.
+    pub const fn nominal(channel: u8, deadband: f64) -> Self {
+        ChannelCal {
+            channel,
+            min: 172,
+            center: super::TICKS_MID,
+            max: 1811,
+            reversed: false,
+            deadband,
+        }
+    }
+
     /// The channel in `f` read as −1 (min) … 0 (center) … 1 (max), reversed if it is, its
     /// deadband taken out (the rest scaled to the whole travel). A channel out of the frame's
     /// range reads 0.
