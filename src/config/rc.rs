@@ -2,24 +2,13 @@
 //! device, which channel carries each function and how each channel's travel is read, and
 //! how far the sticks may push the vehicle.
 
+pub use crate::core::rc::RcProtocol;
 pub use crate::core::rc::link::RcMode;
 /// One function's channel and how its travel is read (PX4's RCn_MIN, TRIM, MAX, REV, DZ).
 pub use crate::core::rc::sticks::ChannelCal as RcChannel;
 use crate::core::rc::sticks::RcMap;
 use serde::{Deserialize, Deserializer, Serialize};
 use std::path::PathBuf;
-
-/// The receiver's protocol.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum RcProtocol {
-    /// No receiver (the default): the vehicle is flown by typed commands and ground stations.
-    None,
-    /// SBUS: 100 000 baud, 8E2, inverted.
-    Sbus,
-    /// CRSF (ExpressLRS, TBS Crossfire): 420 000 baud, 8N1.
-    Crsf,
-}
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]

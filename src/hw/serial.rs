@@ -7,8 +7,8 @@ use tokio_serial::{DataBits, FlowControl, Parity, SerialPortBuilderExt, SerialSt
 /// Opens the IMU port in raw 8N1 mode at `baud`.
 /// The RC receiver's UART: SBUS at 100 000 baud, 8E2 (the line inverted before it: the
 /// board's inverter); CRSF at 420 000 baud, 8N1.
-pub fn open_rc(path: &Path, protocol: crate::config::RcProtocol) -> anyhow::Result<SerialStream> {
-    use crate::config::RcProtocol;
+pub fn open_rc(path: &Path, protocol: crate::core::rc::RcProtocol) -> anyhow::Result<SerialStream> {
+    use crate::core::rc::RcProtocol;
     let (baud, parity, stop) = match protocol {
         RcProtocol::Sbus => (100_000, Parity::Even, StopBits::Two),
         RcProtocol::Crsf => (420_000, Parity::None, StopBits::One),

@@ -10,6 +10,18 @@ pub mod link;
 pub mod sbus;
 pub mod sticks;
 
+/// The receiver's protocol.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RcProtocol {
+    /// No receiver (the default): the vehicle is flown by typed commands and ground stations.
+    None,
+    /// SBUS: 100 000 baud, 8E2, inverted.
+    Sbus,
+    /// CRSF (ExpressLRS, TBS Crossfire): 420 000 baud, 8N1.
+    Crsf,
+}
+
 /// Channels a frame carries.
 pub const CHANNELS: usize = 16;
 /// The largest 11-bit channel value.
