@@ -58,6 +58,16 @@ fn the_kill_switch_stops_the_motors_at_its_frame_and_the_run_goes_on() {
     assert!(kill["height_m"].as_f64().unwrap() > 0.9, "{kill}");
     let impact = kill["impact_v_m_s"].as_f64().unwrap();
     assert!(impact < -3.5, "a free fall from a metre: {kill}");
+    // The receiver's counts: every frame a frame, none refused.
+    let rc = &r["rc"];
+    assert!(rc["frames"].as_u64().unwrap_or(0) > 4_000, "{rc}");
+    assert_eq!(
+        (
+            rc["rejected_frames"].as_u64(),
+            rc["discarded_bytes"].as_u64()
+        ),
+        (Some(0), Some(0))
+    );
     assert_replays_same(&run, &["mode.log", "w.log", "x_hat.log"]);
 }
 

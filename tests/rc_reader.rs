@@ -57,8 +57,16 @@ fn wait(limit: Duration, mut done: impl FnMut() -> bool) -> bool {
     done()
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn the_arm_switch_reaches_the_flight_and_the_kill_switch_stops_the_escs_at_its_frame() {
+/// The reader runs on its own runtime, as in `fly`; this thread writes the receiver's frames
+/// and waits on the ESC writer's status (blocking: it is not a runtime's).
+#[test]
+fn the_arm_switch_reaches_the_flight_and_the_kill_switch_stops_the_escs_at_its_frame() {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .expect("a runtime");
+    let _in_rt = rt.enter();
     let cfg = Config {
         rc: uquad::config::RcConfig {
             protocol: RcProtocol::Sbus,
@@ -105,7 +113,7 @@ async fn the_arm_switch_reaches_the_flight_and_the_kill_switch_stops_the_escs_at
         stats: stats.clone(),
     };
     let cancel = tokio_util::sync::CancellationToken::new();
-    let task = tokio::spawn(reader.run(port, cancel.clone()));
+    let task = rt.spawn(reader.run(port, cancel.clone()));
 
     // The arm switch off, then on: `arm` from the radio.
     for arm in [false, false, true, true] {
@@ -113,13 +121,14 @@ async fn the_arm_switch_reaches_the_flight_and_the_kill_switch_stops_the_escs_at
         std::thread::sleep(Duration::from_millis(7));
     }
     let mut inputs = Vec::new();
-    let deadline = tokio::time::Instant::now() + Duration::from_secs(5);
-    while !inputs.contains(&OperatorInput::Command(Command::Arm, LinkSource::Rc)) {
-        match tokio::time::timeout_at(deadline, rx.recv()).await {
-            Ok(Some(i)) => inputs.push(i),
-            _ => panic!("no arm from the switch; inputs {inputs:?}"),
+    let arm = OperatorInput::Command(Command::Arm, LinkSource::Rc);
+    let armed = wait(Duration::from_secs(5), || {
+        while let Ok(i) = rx.try_recv() {
+            inputs.push(i);
         }
-    }
+        inputs.contains(&arm)
+    });
+    assert!(armed, "no arm from the switch; inputs {inputs:?}");
 
     let mut latencies_ms = Vec::new();
     for trial in 0..trials() {
@@ -139,7 +148,6 @@ async fn the_arm_switch_reaches_the_flight_and_the_kill_switch_stops_the_escs_at
         let outcome = status.stop_outcome().unwrap();
         assert!(outcome.confirmed(), "trial {trial}: {outcome:?}");
         assert_eq!(status.stop_reason(), Some(StopReason::KillSwitch));
-        assert_eq!(StopReason::KillSwitch.name(), "kill");
         let settled = beats.start() + Duration::from_micros(outcome.settled_us as u64);
         latencies_ms.push(settled.saturating_duration_since(sent).as_secs_f64() * 1e3);
         // Zero, then disable, to every ESC, after the kill frame.
@@ -161,14 +169,13 @@ async fn the_arm_switch_reaches_the_flight_and_the_kill_switch_stops_the_escs_at
     latencies_ms.sort_by(f64::total_cmp);
     let pct = |p: f64| latencies_ms[((latencies_ms.len() - 1) as f64 * p).round() as usize];
     eprintln!(
-        "kill switch, frame written to stop confirmed over {} trials: median {:.2} ms, p99 {:.2} ms, max {:.2} ms",
+        "kill switch, frame written to stop confirmed over {} trials: median {:.2} ms, max {:.2} ms",
         latencies_ms.len(),
         pct(0.5),
-        pct(0.99),
         latencies_ms.last().copied().unwrap_or(f64::NAN)
     );
     cancel.cancel();
-    let _ = task.await;
+    let _ = rt.block_on(task);
     mailbox.shutdown();
     let _ = writer.join();
     assert!(stats.frames.load(std::sync::atomic::Ordering::Relaxed) >= 4);

@@ -47,6 +47,8 @@ pub struct FlySummary {
     pub stderr_drops: u64,
     /// The ground-station link's counters, when it was served.
     pub gcs: Option<crate::tasks::gcs::GcsReport>,
+    /// The RC receiver's counters, with a radio (`rc.protocol`).
+    pub rc: Option<RcCounts>,
     /// Records written per stream.
     pub log_records: PerStream<u64>,
     /// Frame arrival → ESC write and its stages, µs (all 0 in lock-step runs).
@@ -119,6 +121,9 @@ pub struct FlyReport {
     pub stderr_drops: u64,
     /// The ground-station link (null when it was not served).
     pub gcs: Option<crate::tasks::gcs::GcsReport>,
+    /// The RC receiver, with a radio.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rc: Option<RcCounts>,
     pub esc: EscReport,
     pub imu: ImuReport,
     pub gps: GpsReport,
@@ -197,6 +202,16 @@ pub fn write_json(report: &impl Serialize, path: &Path) -> anyhow::Result<()> {
         .with_context(|| format!("cannot write the report {}", path.display()))
 }
 
+pub use crate::core::rc::RcCounts;
+
+/// err.log's line of the RC receiver's counts.
+fn rc_line(rc: &RcCounts) -> String {
+    format!(
+        "RC receiver: {} frames, {} bytes outside frames, {} frames refused, {} inputs dropped",
+        rc.frames, rc.discarded_bytes, rc.rejected_frames, rc.dropped_inputs
+    )
+}
+
 impl FlySummary {
     /// A summary with nothing counted yet.
     pub fn empty(run_dir: PathBuf) -> Self {
@@ -243,6 +258,7 @@ impl FlySummary {
             console_drops: self.console_drops,
             stderr_drops: self.stderr_drops,
             gcs: self.gcs,
+            rc: self.rc,
             esc: EscReport {
                 commands: self.esc_commands,
                 writes: self.esc_writes,
@@ -289,6 +305,9 @@ impl FlySummary {
                 "log stream {}: {n} failed writes",
                 s.name()
             )));
+        }
+        if let Some(rc) = &self.rc {
+            lines.push(Record::note(rc_line(rc)));
         }
         if self.stderr_drops > 0 {
             lines.push(Record::note(format!(

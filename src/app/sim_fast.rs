@@ -741,6 +741,10 @@ impl<'a> FastSim<'a> {
         }
         fly.discarded_bytes = self.decoder.stats().discarded_bytes;
         fly.rejected_frames = self.decoder.stats().rejected_frames;
+        fly.rc = self
+            .transmitter
+            .as_ref()
+            .map(crate::sim::transmitter::Transmitter::counts);
         for r in fly.closing_records() {
             self.out.log(r);
         }

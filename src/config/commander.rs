@@ -77,9 +77,10 @@ pub struct FailsafeConfig {
     /// An innovation test ratio above 1 for this long → `ekf_action`, s.
     pub ekf_bad_s: f64,
     pub ekf_action: Action,
-    /// With an RC receiver (`rc.protocol`): no valid frame for this long, or the receiver's
-    /// own failsafe flag → `rc_loss_action` ("land", "return" or "hold"; a return needs a
-    /// position, else the vehicle lands), s. PX4's COM_RC_LOSS_T; on the ground: disarmed.
+    /// With an RC receiver (`rc.protocol`): the receiver silent (lost at most this long after
+    /// its last frame), or its own failsafe → `rc_loss_action` ("land", "return" or "hold";
+    /// a return needs a position, else the vehicle lands), s. PX4's COM_RC_LOSS_T; on the
+    /// ground: disarmed.
     pub rc_timeout_s: f64,
     pub rc_loss_action: Action,
 }

@@ -823,11 +823,16 @@ fn rc_rules(c: &Config) -> Vec<Check> {
             .filter(|(other, o)| *other != name && o.channel == ch.channel)
             .map(|(other, _)| other)
             .collect();
+        let value = if used_by.is_empty() {
+            ch.channel.to_string()
+        } else {
+            format!("{} (also {})", ch.channel, used_by.join(", "))
+        };
         rules.push(Check::new(
             &key("channel"),
             used_by.is_empty(),
-            ch.channel.to_string(),
-            format!("a channel no other function uses (also used by {used_by:?})"),
+            value,
+            "a channel no other function uses",
         ));
         rules.push(Check::new(
             &format!("rc.{name}"),

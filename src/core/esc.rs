@@ -312,10 +312,10 @@ impl EscDriver {
         self.starts
     }
 
-    /// Stopped by a disarm (or a motor test's end), and every ESC acknowledged the stop: a
-    /// start may follow (the next flight of the run). Every other stop is final: a halt, a bad
-    /// command, the run's end, or a disarm's stop some ESC never acknowledged (its motor may
-    /// be spinning).
+    /// Stopped by a disarm, a motor test's end or the pilot's kill switch, and every ESC
+    /// acknowledged the stop: a start may follow (the next flight of the run). Every other
+    /// stop is final: the watchdog's halt, a bad command, the run's end, or a stop some ESC
+    /// never acknowledged (its motor may be spinning).
     pub fn restartable(&self) -> bool {
         self.phase == EscPhase::Stopped
             && self.stop_reason.is_some_and(StopReason::on_the_ground)

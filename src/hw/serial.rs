@@ -1,10 +1,9 @@
-//! The IMU's serial port: 115200 8N1, raw (spec 1.1).
+//! The serial ports: the IMU's, 115200 8N1, raw (spec 1.1); the RC receiver's (SBUS, CRSF).
 
 use anyhow::Context;
 use std::path::Path;
 use tokio_serial::{DataBits, FlowControl, Parity, SerialPortBuilderExt, SerialStream, StopBits};
 
-/// Opens the IMU port in raw 8N1 mode at `baud`.
 /// The RC receiver's UART: SBUS at 100 000 baud, 8E2 (the line inverted before it: the
 /// board's inverter); CRSF at 420 000 baud, 8N1.
 pub fn open_rc(path: &Path, protocol: crate::core::rc::RcProtocol) -> anyhow::Result<SerialStream> {
@@ -24,6 +23,7 @@ pub fn open_rc(path: &Path, protocol: crate::core::rc::RcProtocol) -> anyhow::Re
         .with_context(|| format!("cannot open the RC receiver rc.device = {}", path.display()))
 }
 
+/// Opens the IMU port in raw 8N1 mode at `baud`.
 pub fn open_imu(path: &Path, baud: u32) -> anyhow::Result<SerialStream> {
     let name = path.to_string_lossy();
     tokio_serial::new(name.as_ref(), baud)

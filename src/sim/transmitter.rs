@@ -89,8 +89,6 @@ pub struct Transmitter {
     /// The mode switch's position, by mode (a mode the switch does not have leaves it).
     positions: Vec<RcMode>,
     events: Vec<RcEvent>,
-    /// Frames sent.
-    pub frames: u64,
 }
 
 impl Transmitter {
@@ -103,12 +101,13 @@ impl Transmitter {
         moves: &[(i64, RcMove)],
         lost_from_us: Option<i64>,
     ) -> Option<Self> {
-        let (decoder, period_us) = match rc.protocol {
+        let period_us = match rc.protocol {
             RcProtocol::None => return None,
             // A high-speed SBUS receiver's 7 ms; ExpressLRS at 250 Hz.
-            RcProtocol::Sbus => (Decoder::Sbus(sbus::SbusDecoder::new()), 7_000),
-            RcProtocol::Crsf => (Decoder::Crsf(crsf::CrsfDecoder::new()), 4_000),
+            RcProtocol::Sbus => 7_000,
+            RcProtocol::Crsf => 4_000,
         };
+        let decoder = Decoder::new(rc.protocol);
         Some(Transmitter {
             protocol: rc.protocol,
             hands: RcInput {
@@ -128,7 +127,6 @@ impl Transmitter {
             link: RcLink::new(rc.map(), rc.modes.clone(), timeout_s),
             positions: rc.modes.clone(),
             events: Vec::new(),
-            frames: 0,
         })
     }
 
@@ -176,11 +174,22 @@ impl Transmitter {
                 self.apply(m);
             }
             if let Some(bytes) = self.air(at) {
-                self.frames += 1;
                 frames.push((at, bytes));
             }
         }
         frames
+    }
+
+    /// What the receiver's decoder made of the frames (the lock-step modes'; nothing is
+    /// dropped between it and the flight).
+    pub fn counts(&self) -> crate::core::rc::RcCounts {
+        let d = self.decoder.stats();
+        crate::core::rc::RcCounts {
+            frames: d.frames,
+            discarded_bytes: d.discarded_bytes,
+            rejected_frames: d.rejected_frames,
+            dropped_inputs: 0,
+        }
     }
 
     fn apply(&mut self, m: RcMove) {

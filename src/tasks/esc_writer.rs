@@ -1,6 +1,7 @@
 //! ESC writer: the last line of defence, on its own OS thread (the I2C ioctls block).
 //!
-//! In: start request, motor commands (newest wins), halt and shutdown, through [`EscMailbox`].
+//! In: start request, motor test, motor commands (newest wins), halt (the watchdog's, a
+//! disarm's, the pilot's kill switch) and shutdown, through [`EscMailbox`].
 //! Out: I2C transactions on the [`EscBus`]; [`EscStatus`] counters and phase.
 //! Rate: re-sends the last speeds every `resend_ms` (2 ms); wakes at once on a new command.
 //! Ends: on shutdown, after writing zero to every ESC and disabling them all (retried until
@@ -10,9 +11,10 @@
 //! start-up ramp (spec 6.4), then idle (I2C 50) until flight commands arrive. A flight command
 //! older than `command_timeout` or not finite, a halt, or shutdown: zero, then disable (the
 //! disable is attempted even when writes keep failing), written again until every ESC
-//! acknowledged both or the retry time ran out; no request is taken meanwhile. A disarm's
-//! stop that every ESC acknowledged leaves the writer probing until the next flight's start
-//! (the same enable and ramp); every other stop is final. Disarmed, a motor test spins one
+//! acknowledged both or the retry time ran out; no request is taken meanwhile. A disarm's,
+//! a motor test's or the kill switch's stop that every ESC acknowledged leaves the writer
+//! probing until the next flight's start (the same enable and ramp); every other stop is
+//! final. Disarmed, a motor test spins one
 //! ESC alone for its time, then stops as a disarm does. A failed write is a missed ack:
 //! counted, with the run of consecutive failures exposed for the watchdog.
 

@@ -11,11 +11,11 @@
 use crate::core::commander::OperatorInput;
 use crate::core::esc::StopReason;
 use crate::core::rc::link::RcLink;
-use crate::core::rc::{Decoder, RcEvent};
+use crate::core::rc::{Decoder, RcCounts, RcEvent};
 use crate::tasks::esc_writer::EscMailbox;
 use crate::tasks::heartbeats::Heartbeats;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicI64, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 use tokio::io::{AsyncRead, AsyncReadExt};
 use tokio::sync::mpsc;
@@ -27,10 +27,22 @@ pub struct RcStats {
     pub frames: AtomicU64,
     pub discarded_bytes: AtomicU64,
     pub rejected_frames: AtomicU64,
-    /// Inputs the flight's queue refused (full): counted, never waited for.
+    /// Inputs the flight's queue had no room for: reports dropped (they are sent again), and
+    /// commands beyond the few kept for the next read.
     pub dropped_inputs: AtomicU64,
-    /// When the newest frame with the kill switch on arrived, µs since start (-1: none yet).
-    pub last_kill_us: AtomicI64,
+}
+
+impl RcStats {
+    /// The counts, for the run's summary.
+    pub fn counts(&self) -> RcCounts {
+        let load = |a: &AtomicU64| a.load(Ordering::Relaxed);
+        RcCounts {
+            frames: load(&self.frames),
+            discarded_bytes: load(&self.discarded_bytes),
+            rejected_frames: load(&self.rejected_frames),
+            dropped_inputs: load(&self.dropped_inputs),
+        }
+    }
 }
 
 /// The radio's commands (arm, disarm, the mode switch's) waiting for room in the flight's
@@ -51,7 +63,6 @@ pub struct RcReader {
 impl RcReader {
     /// Reads `port` until cancel or a read error.
     pub async fn run(mut self, mut port: impl AsyncRead + Unpin, cancel: CancellationToken) {
-        self.stats.last_kill_us.store(-1, Ordering::Relaxed);
         let mut buf = [0u8; 256];
         let (mut events, mut inputs) = (Vec::new(), Vec::new());
         let mut pending = std::collections::VecDeque::new();
@@ -123,7 +134,6 @@ impl RcReader {
                 RcEvent::Channels(f) => {
                     if self.link.frame(f, t_us, inputs) {
                         self.mailbox.halt(StopReason::KillSwitch);
-                        self.stats.last_kill_us.store(t_us, Ordering::Relaxed);
                     }
                 }
                 RcEvent::Link(s) => self.link.link(s, inputs),

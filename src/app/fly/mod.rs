@@ -151,6 +151,8 @@ struct Threads {
     watchdog: JoinHandle<()>,
     control: JoinHandle<anyhow::Result<control::Reports>>,
     gcs: Option<tokio::task::JoinHandle<()>>,
+    /// The RC receiver reader's counters (it ends at cancel).
+    rc: Option<Arc<crate::tasks::rc_reader::RcStats>>,
 }
 
 /// Runs a flight until `cancel` fires (a signal, a quit key, the IMU stream ending, a start-up
@@ -216,9 +218,12 @@ pub async fn run(
             h.cancel.clone(),
         ));
     }
-    if let Some(port) = edges.rc.take() {
-        tokio::spawn(rc_reader(profile, &h, &operator_tx).run(port, h.cancel.clone()));
-    }
+    let rc_stats = edges.rc.take().map(|port| {
+        let reader = rc_reader(profile, &h, &operator_tx);
+        let stats = reader.stats.clone();
+        tokio::spawn(reader.run(port, h.cancel.clone()));
+        stats
+    });
     h.cancel.cancelled().await;
     drop(operator_tx);
     let threads = Threads {
@@ -226,6 +231,7 @@ pub async fn run(
         watchdog,
         control,
         gcs,
+        rc: rc_stats,
     };
     Ok(shut_down(h, threads, loggers).await)
 }
@@ -236,13 +242,8 @@ fn rc_reader(
     h: &RunHandles,
     operator: &mpsc::Sender<OperatorInput>,
 ) -> crate::tasks::rc_reader::RcReader {
-    use crate::config::RcProtocol;
-    use crate::core::rc::{Decoder, crsf::CrsfDecoder, sbus::SbusDecoder};
     let cfg = &profile.config;
-    let decoder = match cfg.rc.protocol {
-        RcProtocol::Crsf => Decoder::Crsf(CrsfDecoder::new()),
-        RcProtocol::Sbus | RcProtocol::None => Decoder::Sbus(SbusDecoder::new()),
-    };
+    let decoder = crate::core::rc::Decoder::new(cfg.rc.protocol);
     let link = crate::core::rc::link::RcLink::new(
         cfg.rc.map(),
         cfg.rc.modes.clone(),
@@ -444,6 +445,7 @@ async fn shut_down(h: RunHandles, threads: Threads, loggers: Loggers) -> FlySumm
         tracing::error!("{e}");
     }
     let mut summary = summarise(&h, reports, error);
+    summary.rc = threads.rc.map(|s| s.counts());
     for r in summary.closing_records() {
         h.logs.log(r);
     }
@@ -495,6 +497,7 @@ fn summarise(h: &RunHandles, r: control::Reports, error: Option<String>) -> FlyS
         log_drops: h.logs.dropped(),
         log_io_errors: h.logs.io_errors(),
         console_drops: load(&h.console_drops),
+        rc: None,
         gcs: h
             .gcs_stats
             .as_ref()

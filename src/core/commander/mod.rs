@@ -7,7 +7,9 @@
 //! Modes: `disarmed` (calibrated at rest, estimating) → `arm` → `armed` (ESC start-up ramp,
 //! motors idling; or the ramp, then the IMU calibration, in the original's order) →
 //! `takeoff` → `hold` → `land` → touchdown → `disarmed`; `kill` (the watchdog's halt) from any
-//! mode. Heights are above the point where the takeoff started (the ground).
+//! mode; the pilot's kill switch disarms from any mode (the run goes on). Disarmed, a motor
+//! test spins one motor alone. Heights are above the point where the takeoff started (the
+//! ground).
 //!
 //! Here the modes and their transitions; beside it the operator's words (`input`), the
 //! pre-arm checks (`checks`), the vertical set point's profile (`profile`), the failsafes
@@ -1168,8 +1170,8 @@ impl Commander {
         self.observed = Some(*o);
         // Killed in the air: at rest once it has fallen and stopped (a second after the kill).
         if let Some(k) = self.killed_aloft_us
-            && o.t_us - k >= 1_000_000
-            && o.vz_m_s.abs() < 0.2
+            && o.t_us - k >= KILLED_FALL_US
+            && o.vz_m_s.abs() < AT_REST_VZ_M_S
         {
             self.killed_aloft_us = None;
         }
@@ -1373,6 +1375,11 @@ fn smooth_baro(smoothed_m: f64, reading_m: f64) -> f64 {
         smoothed_m + 0.05 * (reading_m - smoothed_m)
     }
 }
+
+/// After a kill in the air: the vehicle is taken to be at rest no sooner than this after the
+/// kill, µs, and once its vertical speed is under this, m/s.
+const KILLED_FALL_US: i64 = 1_000_000;
+const AT_REST_VZ_M_S: f64 = 0.2;
 
 /// How much later than the commander's clock says a motor test may end, µs (see
 /// `motor_test_may_run`).

@@ -28,9 +28,9 @@ pub const MODE_FRAMES: u32 = 3;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum RcMode {
-    /// Sticks → horizontal velocity, climb rate and yaw rate; centred sticks hold the point.
+    /// Sticks → horizontal velocity, climb rate and yaw rate (not flown yet).
     Position,
-    /// Sticks → tilt and yaw rate, throttle → climb rate; no GPS needed.
+    /// Sticks → tilt and yaw rate, throttle → climb rate (not flown yet).
     Altitude,
     Hold,
     Mission,
@@ -101,11 +101,6 @@ impl RcLink {
 
     pub fn map(&self) -> &RcMap {
         &self.map
-    }
-
-    /// The mode switch's position that selects `mode`, if one does.
-    pub fn position_of(&self, mode: RcMode) -> Option<usize> {
-        self.modes.iter().position(|&m| m == mode)
     }
 
     /// The receiver's link statistics: a link quality of 0 is a loss (a CRSF receiver set to

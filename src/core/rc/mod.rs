@@ -71,18 +71,14 @@ pub struct DecoderStats {
     pub rejected_frames: u64,
 }
 
-/// A channel's ticks as a pulse width, µs (the protocols' own scale: 1500 + (t − 992)·5/8).
-pub fn us_from_ticks(ticks: u16) -> f64 {
-    1500.0 + (f64::from(ticks) - f64::from(TICKS_MID)) * 5.0 / 8.0
-}
-
-/// A pulse width as ticks, rounded and limited to 11 bits (for the simulated transmitter).
-pub fn ticks_from_us(us: f64) -> u16 {
-    let t = (f64::from(TICKS_MID) + (us - 1500.0) * 8.0 / 5.0).round();
-    if t.is_nan() {
-        return TICKS_MID;
-    }
-    t.clamp(0.0, f64::from(TICKS_MAX)) as u16
+/// What the RC receiver's bytes gave: frames of channels, bytes outside any frame, candidates
+/// refused (end byte, CRC), and inputs the flight's queue had no room for.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct RcCounts {
+    pub frames: u64,
+    pub discarded_bytes: u64,
+    pub rejected_frames: u64,
+    pub dropped_inputs: u64,
 }
 
 /// 16 channels of 11 bits packed least significant bit first (SBUS's and CRSF's layout).
@@ -124,6 +120,14 @@ pub enum Decoder {
 }
 
 impl Decoder {
+    /// The decoder of `protocol` (SBUS's for none: it then reads nothing it is given).
+    pub fn new(protocol: RcProtocol) -> Self {
+        match protocol {
+            RcProtocol::Crsf => Decoder::Crsf(crsf::CrsfDecoder::new()),
+            RcProtocol::Sbus | RcProtocol::None => Decoder::Sbus(sbus::SbusDecoder::new()),
+        }
+    }
+
     /// Takes `bytes`, appending what completes to `out`.
     pub fn feed(&mut self, bytes: &[u8], out: &mut Vec<RcEvent>) {
         match self {
@@ -152,10 +156,5 @@ mod tests {
         one[1] = 1;
         let packed = pack_channels(&one);
         assert_eq!(packed[1], 0b0000_1000, "channel 2 starts at bit 11");
-        assert_eq!((us_from_ticks(172), us_from_ticks(992)), (987.5, 1500.0));
-        assert_eq!(us_from_ticks(1811), 2011.875);
-        assert_eq!(ticks_from_us(us_from_ticks(1811)), 1811);
-        assert_eq!(ticks_from_us(f64::NAN), TICKS_MID);
-        assert_eq!(ticks_from_us(1e9), TICKS_MAX);
     }
 }

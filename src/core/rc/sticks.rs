@@ -274,7 +274,7 @@ mod tests {
                 assert_eq!((s.yaw, s.throttle), (0.0, -1.0));
             }
         }
-        // A three-position switch on a two-band reading: low and high.
+        // A three-position switch read in three bands: low, middle, high.
         let mut ch = [992; CHANNELS];
         ch[6] = 172;
         assert_eq!(m.mode.position(&frame(ch), 3), 0);
