@@ -847,45 +847,14 @@ impl Commander {
         if let Some(why) = self.target_problem(cmd) {
             return Err(why);
         }
-        let testing = self.motor_test.filter(|&(_, until_us)| t_us < until_us);
         match cmd {
             Command::Kill => Ok(()),
             _ if m == Mode::Kill => Err(Killed),
-            // A throttle of 0 stops a test (a ground station's stop): taken whenever disarmed.
-            Command::MotorTest { throttle_pct, .. }
-                if m == Mode::Disarmed && throttle_pct == 0.0 =>
-            {
-                Ok(())
+            Command::MotorTest { .. } => self.check_motor_test(cmd, t_us, arm_verdict),
+            // The arm, a calibration at rest wait for a motor test's end.
+            Command::Arm | Command::Calibrate if self.motor_test_running(t_us).is_some() => {
+                Err(self.motor_test_running(t_us).unwrap_or(Killed))
             }
-            Command::MotorTest { .. } if m != Mode::Disarmed => Err(MotorTestNeedsDisarmed(m)),
-            Command::MotorTest {
-                motor,
-                throttle_pct,
-                duration_s,
-            } if !motor_test_bounded(motor, throttle_pct, duration_s) => {
-                Err(MotorTestOutOfBounds {
-                    motor,
-                    throttle_pct,
-                    duration_s,
-                })
-            }
-            // One motor at a time; the arm, a calibration at rest wait for its end.
-            Command::MotorTest { .. } | Command::Arm | Command::Calibrate if testing.is_some() => {
-                let (motor, until_us) = testing.unwrap_or_default();
-                Err(MotorTestRunning {
-                    motor,
-                    until_s: until_us as f64 / 1e6,
-                })
-            }
-            // After the one flight of a profile that flies once, the ESCs start no more.
-            Command::MotorTest { .. } if self.spent => Err(Landed),
-            // The pilot's kill switch holds every motor, and a lost radio could not release it.
-            Command::MotorTest { .. } if self.rc_holds_motors(t_us).is_some() => {
-                Err(PreArm(self.rc_holds_motors(t_us).unwrap_or_default()))
-            }
-            // The verdict is the motor test's own checks' (the ESCs answer, no calibration at
-            // rest under way).
-            Command::MotorTest { .. } => arm_verdict.map_err(PreArm),
             Command::Disarm if m == Mode::Disarmed && self.motor_test_may_run(t_us) => Ok(()),
             Command::Move(_) if m != Mode::Hold => Err(MoveNeedsHold(m)),
             Command::Move(_) if self.acting_failsafe().is_some() => {
@@ -935,6 +904,61 @@ impl Commander {
             }
             Command::Hold(_) | Command::Land | Command::Return | Command::Pause => Ok(()),
         }
+    }
+
+    /// Why a motor test cannot be run now, if it cannot: a throttle of 0 (a ground station's
+    /// stop) is taken whenever disarmed; a test needs disarmed, its bounds, no other test
+    /// running, ESCs that may start (no spent profile, the kill switch off, the radio heard)
+    /// and its own checks' verdict (the ESCs answer, no calibration at rest under way).
+    fn check_motor_test(
+        &self,
+        cmd: Command,
+        t_us: i64,
+        verdict: Result<(), String>,
+    ) -> Result<(), Refusal> {
+        use Refusal::*;
+        let Command::MotorTest {
+            motor,
+            throttle_pct,
+            duration_s,
+        } = cmd
+        else {
+            return Ok(());
+        };
+        let m = self.mode;
+        if m == Mode::Disarmed && throttle_pct == 0.0 {
+            return Ok(());
+        }
+        if m != Mode::Disarmed {
+            return Err(MotorTestNeedsDisarmed(m));
+        }
+        if !motor_test_bounded(motor, throttle_pct, duration_s) {
+            return Err(MotorTestOutOfBounds {
+                motor,
+                throttle_pct,
+                duration_s,
+            });
+        }
+        if let Some(running) = self.motor_test_running(t_us) {
+            return Err(running);
+        }
+        if self.spent {
+            return Err(Landed);
+        }
+        if let Some(why) = self.rc_holds_motors(t_us) {
+            return Err(PreArm(why));
+        }
+        verdict.map_err(PreArm)
+    }
+
+    /// The refusal a motor test running at `t_us` gives (one motor at a time), if one runs.
+    fn motor_test_running(&self, t_us: i64) -> Option<Refusal> {
+        self.motor_test
+            .filter(|&(_, until_us)| t_us < until_us)
+            .map(|(motor, until_us)| Refusal::MotorTestRunning {
+                motor,
+                until_s: until_us as f64 / 1e6,
+            })
     }
 
     /// A motor test under way at `t_us`: its motor (1-based).
