@@ -10,6 +10,7 @@
 use std::collections::{HashSet, VecDeque};
 use uquad::core::commander::{
     Action, ArmFacts, Command, Commander, EscRequest, LinkSource, Mode, Observation, Params, Start,
+    StickLimits, StickMode,
 };
 use uquad::core::ekf::TestRatios;
 use uquad::core::model::GRAVITY_M_S2;
@@ -29,7 +30,7 @@ enum Input {
     Wait,
 }
 
-const INPUTS: [Input; 16] = [
+const INPUTS: [Input; 17] = [
     Input::Command(Command::Arm),
     Input::Command(Command::Takeoff(None)),
     Input::Command(Command::Land),
@@ -38,6 +39,7 @@ const INPUTS: [Input; 16] = [
     Input::Command(Command::Return),
     Input::Command(Command::Hold(None)),
     Input::Command(Command::Start),
+    Input::Command(Command::Sticks(StickMode::Position)),
     Input::Command(Command::MotorTest {
         motor: 1,
         throttle_pct: 10.0,
@@ -111,6 +113,12 @@ fn params() -> Params {
             return_m_s: 1.0,
         },
         rc: None,
+        sticks: StickLimits {
+            max_speed_m_s: 3.0,
+            max_climb_m_s: 1.0,
+            max_yaw_rate_rad_s: 1.0,
+            max_tilt_rad: 0.27,
+        },
     }
 }
 

@@ -648,6 +648,30 @@ fn a_preflight_calibration_calibrates_again_on_the_ground_and_is_denied_in_the_a
     assert_replays_same(run, &["mode.log", "w.log", "x_hat.log"]);
 }
 
+/// A joystick on the ground station (MANUAL_CONTROL) flies the radio's stick path: Position
+/// chosen on the ground, the throttle raised takes off into it, the pitch stick flies
+/// forward and centred holds; Hold ignores the sticks; the run replays exactly.
+#[test]
+fn a_ground_station_joystick_takes_off_and_flies_in_position_and_hold_ignores_it() {
+    let flown = fly_paced(&["joystick"], &[]);
+    let (m, r) = (&flown.measured, &flown.report);
+    let moved = m["moved_m"].as_f64().unwrap_or(f64::NAN);
+    // 3 s of the client's clock at full pitch (3 m/s after its ramp; the paced simulation
+    // runs faster than the client's clock, as the machine allows).
+    assert!(moved > 3.0, "{m}");
+    let held = m["held_moved_m"].as_f64().unwrap_or(f64::NAN);
+    assert!(held < 0.5, "hold ignores the sticks: {m}");
+    let modes = report_modes(r);
+    assert_eq!(
+        modes[..5],
+        ["disarmed", "armed", "takeoff", "position", "hold"],
+        "{r}"
+    );
+    let mode_log = std::fs::read_to_string(flown.run.join("mode.log")).unwrap();
+    assert!(lines_with(&mode_log, " sticks ") > 10, "{mode_log}");
+    assert_replays_same(&flown.run, &["mode.log", "w.log"]);
+}
+
 /// A motor test of each motor from a ground station, as QGroundControl sends it: on the
 /// simulated ESC bus each motor in turn is driven alone (its start-up ramp, then its test
 /// throttle for its time); out of bounds or armed, it is refused with the reason; a throttle

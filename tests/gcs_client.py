@@ -518,7 +518,7 @@ def ftp(s):
 def mode_requests(s):
     """In the air, in hold: hold asked for as each common client asks (QGroundControl's
     SET_MODE with the packed custom mode; MAVSDK's DO_SET_MODE, base 1|128, main, sub; a
-    COMMAND_INT), a mode uquad lacks (PX4's position mode) refused with its name, the
+    COMMAND_INT), a mode uquad lacks (PX4's acro mode) refused with its name, the
     standard modes listed; the mode names pymavlink shows so far."""
     names = [mavutil.mode_string_v10(s.last["HEARTBEAT"])]
     s.conn.mav.set_mode_send(1, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, HOLD)
@@ -540,19 +540,20 @@ def mode_requests(s):
     if ack.result != mav.MAV_RESULT_ACCEPTED:
         fail(f"DO_SET_MODE hold by COMMAND_INT: result {ack.result}; texts: {s.texts}")
     s.wait_text("mode hold: command hold")
-    s.command(mav.MAV_CMD_DO_SET_MODE, [1, 3, 0, 0, 0, 0, 0], mav.MAV_RESULT_DENIED)
-    s.wait_text("uquad has no position")
+    s.command(mav.MAV_CMD_DO_SET_MODE, [1, 5, 0, 0, 0, 0, 0], mav.MAV_RESULT_DENIED)
+    s.wait_text("uquad has no acro")
     s.conn.mav.command_long_send(1, 1, mav.MAV_CMD_REQUEST_MESSAGE, 0, 435, 0, 0, 0, 0, 0, 0)
     listed = {}
     end = time.time() + LONG
-    while len(listed) < 6 and time.time() < end:
+    while len(listed) < 8 and time.time() < end:
         m = s.pump()
         if m is not None and m.get_type() == "AVAILABLE_MODES":
             listed[m.mode_index] = (m.mode_name, m.properties, m.number_modes)
     selectable = sorted(
         n for n, p, _ in listed.values() if not p & mav.MAV_MODE_PROPERTY_NOT_USER_SELECTABLE
     )
-    if selectable != ["Hold", "Land", "Mission", "Return", "Takeoff"] or len(listed) != 6:
+    wanted = ["Altitude", "Hold", "Land", "Mission", "Position", "Return", "Takeoff"]
+    if selectable != wanted or len(listed) != 8:
         fail(f"AVAILABLE_MODES: {listed}")
     current = s.wait("CURRENT_MODE", lambda m: m.get_type() == "CURRENT_MODE")
     if current.custom_mode != HOLD:
@@ -958,6 +959,57 @@ def until_taken(s, cmd, p, waiting):
     fail(f"command {cmd} never taken")
 
 
+POSCTL = px4_mode(3, 0)
+
+
+def joystick_for(s, x, z, seconds, until=None):
+    """MANUAL_CONTROL at 10 Hz as QGroundControl's virtual joystick sends it (x the pitch
+    stick, z the throttle, 500 its centre) for `seconds`, or until a message passes `until`;
+    the newest LOCAL_POSITION_NED at the end."""
+    end, last_sent = time.time() + seconds, 0.0
+    while time.time() < end:
+        now = time.time()
+        if now - last_sent >= 0.1:
+            last_sent = now
+            s.conn.mav.manual_control_send(1, x, 0, z, 0, 0)
+        m = s.pump(0.05)
+        if until is not None and m is not None and until(m):
+            return s.last.get("LOCAL_POSITION_NED")
+    if until is not None:
+        fail(f"the joystick's wait ended: {s.texts}")
+    return s.last.get("LOCAL_POSITION_NED")
+
+
+def joystick(s):
+    """A ground station's joystick: Position chosen on the ground (QGroundControl's SET_MODE
+    POSCTL), armed, the throttle raised takes off into Position; the pitch stick forward for
+    3 s flies forward, then centred holds; in Hold the same stick moves nothing; land."""
+    s.wait("a heartbeat", lambda m: m.get_type() == "HEARTBEAT", 5.0)
+    s.wait("ATTITUDE", lambda m: m.get_type() == "ATTITUDE")
+    s.conn.mav.set_mode_send(1, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, POSCTL)
+    ack = s.wait(
+        "COMMAND_ACK of SET_MODE",
+        lambda m: m.get_type() == "COMMAND_ACK" and m.command == mav.MAV_CMD_DO_SET_MODE,
+    )
+    if ack.result != mav.MAV_RESULT_ACCEPTED:
+        fail(f"SET_MODE position on the ground: result {ack.result}; texts: {s.texts}")
+    arm(s)
+    in_position = lambda m: m.get_type() == "HEARTBEAT" and m.custom_mode == POSCTL
+    joystick_for(s, 0, 1000, LONG, in_position)
+    start = joystick_for(s, 0, 500, 2.0)
+    joystick_for(s, 1000, 500, 3.0)
+    flown = joystick_for(s, 0, 500, 4.0)
+    moved = math.hypot(flown.x - start.x, flown.y - start.y)
+    s.conn.mav.set_mode_send(1, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, HOLD)
+    s.wait_text("mode hold: command hold")
+    # Settled in its hold (the stop from the stick's speed over) before the stick moves.
+    before = joystick_for(s, 0, 500, 4.0)
+    after = joystick_for(s, 1000, 500, 3.0)
+    held = math.hypot(after.x - before.x, after.y - before.y)
+    land(s)
+    return {"moved_m": round(moved, 2), "held_moved_m": round(held, 2)}
+
+
 def motor_test(s):
     """MAV_CMD_DO_MOTOR_TEST of each motor in turn as QGroundControl sends it (10 % for 1 s),
     once the estimate runs, each after the last one ended; one out of bounds; a long one
@@ -1015,6 +1067,8 @@ def main():
         out = guided(s)
     elif sys.argv[1] == "land-param":
         out = land_param(s)
+    elif sys.argv[1] == "joystick":
+        out = joystick(s)
     elif sys.argv[1] == "motor-test":
         out = motor_test(s)
     elif sys.argv[1] == "flights":

@@ -144,3 +144,140 @@ fn an_arm_by_switch_needs_the_throttle_low_and_a_radios_moves_need_a_radio() {
     assert_eq!(o.status.code(), Some(2), "{err}");
     assert!(err.contains("add --rc sbus or --rc crsf"), "{err}");
 }
+
+/// The pilot's box: armed by the switch, a takeoff by the throttle into `position`, four
+/// 10 m sides flown by the pitch and roll sticks at half travel (1.5 m/s) with a stop at each
+/// corner, then `hold` and `land` by the mode switch.
+const BOX: &str = "switch arm on@8,sticks 0 0 0 0.7@12,sticks 0 0 0 0@15,\
+                   sticks 0 0.5 0 0@20,sticks 0 0 0 0@26.6667,\
+                   sticks 0.5 0 0 0@30,sticks 0 0 0 0@36.6667,\
+                   sticks 0 -0.5 0 0@40,sticks 0 0 0 0@46.6667,\
+                   sticks -0.5 0 0 0@50,sticks 0 0 0 0@56.6667,\
+                   switch mode hold@60,switch mode land@64";
+
+/// The set point's horizontal position at `t_s` (setpoint.log: time, then x, y, z).
+fn set_point_at(run: &std::path::Path, t_s: f64) -> [f64; 2] {
+    let text = std::fs::read_to_string(run.join("setpoint.log")).expect("setpoint.log");
+    let row = text
+        .lines()
+        .filter_map(|l| {
+            let v: Vec<f64> = l
+                .split_whitespace()
+                .filter_map(|w| w.parse().ok())
+                .collect();
+            (v.len() >= 3).then(|| [v[0], v[1], v[2]])
+        })
+        .min_by(|a, b| (a[0] - t_s).abs().total_cmp(&(b[0] - t_s).abs()))
+        .expect("a set point");
+    [row[1], row[2]]
+}
+
+#[test]
+fn the_sticks_fly_a_ten_metre_box_in_position_then_the_switch_holds_and_lands() {
+    for protocol in ["sbus", "crsf"] {
+        let (ok, r, run, _logs) = fast(&["--rc", protocol, "--script", BOX, "--duration", "75"]);
+        assert!(ok, "{protocol}: {r}");
+        assert_eq!(
+            report_modes(&r),
+            [
+                "disarmed", "armed", "takeoff", "position", "hold", "land", "disarmed"
+            ],
+            "{protocol}: {r}"
+        );
+        // The corners where the sticks rest: each side 10 m (1.5 m/s for 6.67 s, its ramps
+        // at both ends), at right angles, and the box closed.
+        let corners: Vec<[f64; 2]> = [19.9, 29.9, 39.9, 49.9, 59.9]
+            .iter()
+            .map(|&t| set_point_at(&run, t))
+            .collect();
+        for (i, w) in corners.windows(2).enumerate() {
+            let side_m = (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]);
+            assert!(
+                (side_m - 10.0).abs() < 0.1,
+                "{protocol}: side {i} is {side_m} m: {corners:?}"
+            );
+        }
+        let (a, b) = (corners[0], corners[4]);
+        assert!((a[0] - b[0]).hypot(a[1] - b[1]) < 0.1, "{corners:?}");
+        let d = |i: usize| {
+            [
+                corners[i + 1][0] - corners[i][0],
+                corners[i + 1][1] - corners[i][1],
+            ]
+        };
+        let dot = d(0)[0] * d(1)[0] + d(0)[1] * d(1)[1];
+        assert!(
+            dot.abs() < 1.0,
+            "{protocol}: the first corner is square: {corners:?}"
+        );
+        let est = &r["est_error"];
+        let v = r["touchdown"]["v_m_s"].as_f64().unwrap_or(f64::NAN);
+        assert!(v <= 0.5, "{protocol}: touchdown at {v} m/s ({est})");
+        assert_replays_same(&run, &["mode.log", "w.log", "x_hat.log"]);
+    }
+}
+
+#[test]
+fn a_radio_lost_in_position_returns_and_lands_and_without_gps_altitude_lands() {
+    // In position, mid-box with a fix: return, then land.
+    let (ok, r, run, _logs) = fast(&[
+        "--rc",
+        "sbus",
+        "--script",
+        BOX,
+        "--inject",
+        "rc-loss@33",
+        "--duration",
+        "90",
+    ]);
+    assert!(ok, "{r}");
+    let f = failsafes(&r);
+    assert_eq!(f.len(), 1, "{r}");
+    assert_eq!(
+        (f[0].0.as_str(), f[0].1.as_str()),
+        ("rc-loss", "return"),
+        "{r}"
+    );
+    assert!((0.0..0.02).contains(&(f[0].2 - 33.0)), "{f:?}");
+    assert_eq!(
+        report_modes(&r)[3..],
+        ["position", "return", "land", "disarmed"],
+        "{r}"
+    );
+    let v = r["touchdown"]["v_m_s"].as_f64().unwrap_or(f64::NAN);
+    assert!(v <= 0.5, "touchdown at {v} m/s");
+    let home_m = r["touchdown"]["from_takeoff_m"]
+        .as_f64()
+        .unwrap_or(f64::NAN);
+    assert!(home_m < 5.0, "the return came home: {home_m} m");
+    assert_replays_same(&run, &["mode.log", "w.log", "x_hat.log"]);
+
+    // The fixes lost in position: `altitude` at once, its sticks flying on past the gps-loss
+    // landing's grace (a pilot is on them); then the radio lost: a landing (no position to
+    // return to).
+    let script = "switch arm on@8,sticks 0 0 0 0.7@12,sticks 0 0 0 0@15";
+    let (ok, r, run, _logs) = fast(&[
+        "--rc",
+        "sbus",
+        "--script",
+        script,
+        "--inject",
+        "gps-loss@25",
+        "--inject",
+        "rc-loss@45",
+        "--duration",
+        "60",
+    ]);
+    assert!(ok, "{r}");
+    assert_eq!(
+        report_modes(&r)[3..],
+        ["position", "altitude", "land", "disarmed"],
+        "{r}"
+    );
+    let modes = r["modes"].as_array().expect("modes");
+    let t = |i: usize| modes[i]["t_s"].as_f64().unwrap_or(f64::NAN);
+    assert!(t(5) - 45.0 < 0.02, "landed by the radio's loss: {r}");
+    let v = r["touchdown"]["v_m_s"].as_f64().unwrap_or(f64::NAN);
+    assert!(v <= 0.5, "touchdown at {v} m/s");
+    assert_replays_same(&run, &["mode.log", "w.log", "x_hat.log"]);
+}

@@ -158,6 +158,12 @@ impl super::Config {
             z_min_m: self.control.manual.z_min_m,
             z_max_m: self.control.manual.z_max_m,
             mission: self.mission.limits(),
+            sticks: crate::core::commander::StickLimits {
+                max_speed_m_s: self.rc.max_speed_m_s,
+                max_climb_m_s: self.rc.max_climb_m_s,
+                max_yaw_rate_rad_s: self.rc.max_yaw_rate_rad_s,
+                max_tilt_rad: self.control.manual.max_tilt_rad,
+            },
             rc: (self.rc.protocol != super::RcProtocol::None).then_some(
                 crate::core::commander::RcLossParams {
                     timeout_s: f.rc_timeout_s,

@@ -16,9 +16,10 @@ pub struct RcConfig {
     pub protocol: RcProtocol,
     /// The UART the receiver is wired to (SBUS needs an inverter, or a UART that inverts).
     pub device: PathBuf,
-    /// The stick modes' limits (not read yet: `position` and `altitude` are not flown yet):
-    /// in `position` the horizontal speed of a stick at its end, m/s; the climb rate of the
-    /// throttle stick at its end (both modes), m/s; the yaw rate of the yaw stick, rad/s.
+    /// The stick modes' limits (a ground station's joystick too): in `position` the
+    /// horizontal speed of a stick at its end, m/s; the climb rate of the throttle stick at
+    /// its end (both modes; its centre holds the height), m/s; the yaw rate of the yaw
+    /// stick, rad/s.
     pub max_speed_m_s: f64,
     pub max_climb_m_s: f64,
     pub max_yaw_rate_rad_s: f64,

@@ -309,6 +309,7 @@ fn set_mode(base: f32, custom: f32, sub: f32) -> Result<Request, Refusal> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::core::commander::StickMode;
 
     /// The reference's list is `map`'s: every command of the dialect that `map` does not
     /// answer UNSUPPORTED is listed, and nothing else.
@@ -405,9 +406,13 @@ mod tests {
             MavResult::MAV_RESULT_DENIED
         );
         // Modes uquad does not have, and requests it cannot read: refused, never guessed.
-        let (result, why) = set([1.0, 3.0, 0.0]).unwrap_err();
+        assert_eq!(
+            set([1.0, 3.0, 0.0]),
+            Ok(Request::Commander(Command::Sticks(StickMode::Position)))
+        );
+        let (result, why) = set([1.0, 6.0, 0.0]).unwrap_err();
         assert_eq!(result, MavResult::MAV_RESULT_DENIED);
-        assert!(why.contains("no position"), "{why}");
+        assert!(why.contains("no offboard"), "{why}");
         assert!(set([0.0, 4.0, 3.0]).is_err(), "no custom-mode flag");
         assert!(set([1.0, 4.5, 3.0]).is_err());
         assert!(set([1.5, 4.0, 3.0]).is_err());
@@ -420,7 +425,11 @@ mod tests {
             )
         };
         assert_eq!(standard(5.0), Ok(Request::Commander(Command::Return)));
-        assert_eq!(standard(1.0).unwrap_err().0, MavResult::MAV_RESULT_DENIED);
+        assert_eq!(
+            standard(4.0),
+            Ok(Request::Commander(Command::Sticks(StickMode::Altitude)))
+        );
+        assert_eq!(standard(3.0).unwrap_err().0, MavResult::MAV_RESULT_DENIED);
     }
 
     /// DO_MOTOR_TEST as QGroundControl (percent) and Mission Planner (PWM) send it; several

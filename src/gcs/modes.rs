@@ -14,14 +14,15 @@
 //! | land | AUTO, LAND | LAND |
 //! | mission | AUTO, MISSION | MISSION |
 //! | return | AUTO, RTL | SAFE_RECOVERY |
+//! | position (the sticks) | POSCTL | POSITION_HOLD |
+//! | altitude (the sticks) | ALTCTL | ALTITUDE_HOLD |
 //! | kill | MANUAL, none, with MAV_STATE_FLIGHT_TERMINATION (as PX4 tells a termination) | none |
 //!
 //! The ground's modes are told apart from hold by the armed flag and EXTENDED_SYS_STATE's
 //! landed state. A request to enter a mode maps onto the commander's command of the same
-//! meaning; a mode uquad does not have (manual, altitude, position, offboard...) is refused
-//! with its name.
+//! meaning; a mode uquad does not have (manual, acro, offboard...) is refused with its name.
 
-use crate::core::commander::{Command, Mode};
+use crate::core::commander::{Command, Mode, StickMode};
 use mavlink::dialects::common::{MavModeProperty, MavStandardMode};
 
 /// PX4's main modes and its AUTO sub modes (`px4_custom_mode.h`).
@@ -58,6 +59,8 @@ pub fn custom_mode(mode: Mode) -> u32 {
         Mode::Mission => pack(MAIN_AUTO, SUB_MISSION),
         Mode::Return => pack(MAIN_AUTO, SUB_RTL),
         Mode::Kill => pack(MAIN_MANUAL, 0),
+        Mode::Position => pack(MAIN_POSCTL, 0),
+        Mode::Altitude => pack(MAIN_ALTCTL, 0),
     }
 }
 
@@ -69,6 +72,8 @@ pub fn standard_mode(mode: Mode) -> MavStandardMode {
         Mode::Land => MAV_STANDARD_MODE_LAND,
         Mode::Mission => MAV_STANDARD_MODE_MISSION,
         Mode::Return => MAV_STANDARD_MODE_SAFE_RECOVERY,
+        Mode::Position => MAV_STANDARD_MODE_POSITION_HOLD,
+        Mode::Altitude => MAV_STANDARD_MODE_ALTITUDE_HOLD,
         _ => MAV_STANDARD_MODE_NON_STANDARD,
     }
 }
@@ -85,7 +90,7 @@ pub struct Selectable {
 
 /// The modes AVAILABLE_MODES lists, in its order (1-based there): those a ground station may
 /// ask for, and the kill's, which CURRENT_MODE may name but no request enters.
-pub const SELECTABLE: [Selectable; 6] = [
+pub const SELECTABLE: [Selectable; 8] = [
     Selectable {
         name: "Hold",
         custom_mode: pack(MAIN_AUTO, SUB_LOITER),
@@ -122,6 +127,20 @@ pub const SELECTABLE: [Selectable; 6] = [
         properties: MavModeProperty::MAV_MODE_PROPERTY_AUTO_MODE,
     },
     Selectable {
+        name: "Position",
+        custom_mode: pack(MAIN_POSCTL, 0),
+        standard: MavStandardMode::MAV_STANDARD_MODE_POSITION_HOLD,
+        command: Some(Command::Sticks(StickMode::Position)),
+        properties: MavModeProperty::empty(),
+    },
+    Selectable {
+        name: "Altitude",
+        custom_mode: pack(MAIN_ALTCTL, 0),
+        standard: MavStandardMode::MAV_STANDARD_MODE_ALTITUDE_HOLD,
+        command: Some(Command::Sticks(StickMode::Altitude)),
+        properties: MavModeProperty::empty(),
+    },
+    Selectable {
         name: "Terminated",
         custom_mode: pack(MAIN_MANUAL, 0),
         standard: MavStandardMode::MAV_STANDARD_MODE_NON_STANDARD,
@@ -144,8 +163,8 @@ pub fn command_of(main: u8, sub: u8) -> Result<Command, String> {
         (MAIN_AUTO, SUB_READY) => "ready (entered by arming, or by landing)",
         (MAIN_AUTO, _) => "this auto sub mode",
         (MAIN_MANUAL, _) => "manual",
-        (MAIN_ALTCTL, _) => "altitude",
-        (MAIN_POSCTL, _) => "position",
+        (MAIN_ALTCTL, _) => "altitude with this sub mode",
+        (MAIN_POSCTL, _) => "position with this sub mode",
         (MAIN_ACRO, _) => "acro",
         (MAIN_OFFBOARD, _) => "offboard",
         (MAIN_STABILIZED, _) => "stabilized",
@@ -153,7 +172,7 @@ pub fn command_of(main: u8, sub: u8) -> Result<Command, String> {
     };
     Err(format!(
         "main mode {main}, sub mode {sub}: uquad has no {name}; it takes Hold, Takeoff, Land, \
-         Mission and Return"
+         Mission, Return, Position and Altitude"
     ))
 }
 
@@ -165,8 +184,8 @@ pub fn command_of_standard(mode: u32) -> Result<Command, String> {
         .and_then(|s| s.command)
         .ok_or_else(|| {
             format!(
-                "standard mode {mode}: uquad takes takeoff (8), land (7), mission (6) and safe \
-                 recovery (5)"
+                "standard mode {mode}: uquad takes position hold (1), altitude hold (4), \
+                 takeoff (8), land (7), mission (6) and safe recovery (5)"
             )
         })
 }
@@ -192,13 +211,19 @@ mod tests {
         assert_eq!(command_of(4, 5), Ok(Command::Return));
         assert_eq!(command_of(4, 6), Ok(Command::Land));
         assert_eq!(command_of(4, 2), Ok(Command::Takeoff(None)));
-        let why = command_of(3, 0).unwrap_err();
-        assert!(why.contains("no position"), "{why}");
+        assert_eq!(command_of(3, 0), Ok(Command::Sticks(StickMode::Position)));
+        assert_eq!(command_of(2, 0), Ok(Command::Sticks(StickMode::Altitude)));
+        let why = command_of(5, 0).unwrap_err();
+        assert!(why.contains("no acro"), "{why}");
+        assert_eq!(
+            command_of_standard(1),
+            Ok(Command::Sticks(StickMode::Position))
+        );
         assert!(command_of(4, 1).is_err());
         assert!(command_of(1, 0).is_err(), "a kill is never a mode request");
         assert_eq!(command_of_standard(5), Ok(Command::Return));
         assert_eq!(command_of_standard(7), Ok(Command::Land));
         assert!(command_of_standard(0).is_err());
-        assert!(command_of_standard(1).is_err());
+        assert!(command_of_standard(3).is_err(), "cruise is not uquad's");
     }
 }

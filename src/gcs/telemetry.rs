@@ -334,7 +334,9 @@ pub fn landed_state(mode: Mode) -> MavLandedState {
     match mode {
         Mode::Disarmed | Mode::Armed => MavLandedState::MAV_LANDED_STATE_ON_GROUND,
         Mode::Takeoff => MavLandedState::MAV_LANDED_STATE_TAKEOFF,
-        Mode::Hold | Mode::Mission | Mode::Return => MavLandedState::MAV_LANDED_STATE_IN_AIR,
+        Mode::Hold | Mode::Mission | Mode::Return | Mode::Position | Mode::Altitude => {
+            MavLandedState::MAV_LANDED_STATE_IN_AIR
+        }
         Mode::Land => MavLandedState::MAV_LANDED_STATE_LANDING,
         // The motors were cut: where the vehicle is now is not known.
         Mode::Kill => MavLandedState::MAV_LANDED_STATE_UNDEFINED,

@@ -106,10 +106,17 @@ pub fn write_input(
         OperatorInput::Rc(r) => {
             let [roll, pitch, yaw, throttle] = r.sticks;
             let kill = if r.kill { "on" } else { "off" };
-            writeln!(
+            let _ = write!(
                 out,
                 "{t_us} rc kill {kill} sticks {roll} {pitch} {yaw} {throttle}"
-            )
+            );
+            match r.stick_mode {
+                Some(m) => writeln!(out, " mode {}", m.name()),
+                None => writeln!(out),
+            }
+        }
+        OperatorInput::Sticks([roll, pitch, yaw, throttle]) => {
+            writeln!(out, "{t_us} sticks {roll} {pitch} {yaw} {throttle}")
         }
         OperatorInput::Key(k) => writeln!(out, "{t_us} key {}", k.key()),
         OperatorInput::Mission(plan) => writeln!(
@@ -228,6 +235,10 @@ fn parse_input(
         "escs" if rest == "running" => OperatorInput::EscsRunning,
         "param" => parse_param(rest)?,
         "rc" => OperatorInput::Rc(parse_rc(rest)?),
+        "sticks" => OperatorInput::Sticks(
+            parse_sticks(&rest.split(' ').collect::<Vec<_>>())
+                .ok_or_else(|| format!("sticks: {} is not `R P Y T`, each -1 to 1", quote(rest)))?,
+        ),
         "key" => {
             let k = rest.parse::<u8>().ok().and_then(ManualCommand::from_key);
             OperatorInput::Key(k.ok_or_else(|| format!("unknown key {}", quote(rest)))?)
@@ -257,12 +268,22 @@ fn parse_param(rest: &str) -> Result<OperatorInput, String> {
     Ok(OperatorInput::Param { key, value })
 }
 
-/// `lost`, or `kill on|off sticks ROLL PITCH YAW THROTTLE` (each a number from -1 to 1): the
-/// pilot's radio.
+/// Four stick positions, each a number from -1 to 1.
+fn parse_sticks(words: &[&str]) -> Option<[f64; 4]> {
+    let [r, p, y, t] = words else { return None };
+    let mut v = [0.0; 4];
+    for (x, w) in v.iter_mut().zip([r, p, y, t]) {
+        *x = w.parse::<f64>().ok().filter(|x| (-1.0..=1.0).contains(x))?;
+    }
+    Some(v)
+}
+
+/// `lost`, or `kill on|off sticks ROLL PITCH YAW THROTTLE [mode position|altitude]` (each
+/// stick a number from -1 to 1): the pilot's radio.
 fn parse_rc(rest: &str) -> Result<crate::core::commander::RcReport, String> {
     let bad = || {
         format!(
-            "rc: {} is not `lost` nor `kill on|off sticks R P Y T`",
+            "rc: {} is not `lost` nor `kill on|off sticks R P Y T [mode position|altitude]`",
             quote(rest)
         )
     };
@@ -271,11 +292,17 @@ fn parse_rc(rest: &str) -> Result<crate::core::commander::RcReport, String> {
             lost: true,
             kill: false,
             sticks: [0.0, 0.0, 0.0, -1.0],
+            stick_mode: None,
         });
     }
     let words: Vec<&str> = rest.split(' ').collect();
-    let (kill, sticks) = match words.as_slice() {
-        ["kill", k, "sticks", s @ ..] if s.len() == 4 => (*k, s),
+    let (kill, sticks, stick_mode) = match words.as_slice() {
+        ["kill", k, "sticks", r, p, y, t] => (*k, [*r, *p, *y, *t], None),
+        ["kill", k, "sticks", r, p, y, t, "mode", m] => (
+            *k,
+            [*r, *p, *y, *t],
+            Some(crate::core::commander::StickMode::from_name(m).ok_or_else(bad)?),
+        ),
         _ => return Err(bad()),
     };
     let kill = match kill {
@@ -283,18 +310,11 @@ fn parse_rc(rest: &str) -> Result<crate::core::commander::RcReport, String> {
         "off" => false,
         _ => return Err(bad()),
     };
-    let mut v = [0.0; 4];
-    for (x, w) in v.iter_mut().zip(sticks) {
-        *x = w
-            .parse::<f64>()
-            .ok()
-            .filter(|x| (-1.0..=1.0).contains(x))
-            .ok_or_else(bad)?;
-    }
     Ok(crate::core::commander::RcReport {
         lost: false,
         kill,
-        sticks: v,
+        sticks: parse_sticks(&sticks).ok_or_else(bad)?,
+        stick_mode,
     })
 }
 

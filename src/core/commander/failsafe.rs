@@ -175,6 +175,10 @@ impl Commander {
         let p = self.p;
         let (_, gps_stale) = self.timed_conditions(t_us);
         self.hold_xy = !gps_stale;
+        // The sticks fly on without a position: what `altitude` is for.
+        if gps_stale && self.mode == Mode::Position {
+            self.enter_sticks(super::StickMode::Altitude, t_us, "gps lost", out);
+        }
         // Lost since the moment the last fix went stale: the same whichever frame notices it.
         self.gps_lost_us = gps_stale.then(|| self.gps_stale_since(t_us));
         let gps_due = self
@@ -356,9 +360,13 @@ impl Commander {
         out: &mut Vec<Event>,
     ) -> Option<EscRequest> {
         let why = format!("failsafe {}", kind.name());
+        // A pilot flying `altitude` needs no position: the sticks are the answer to its loss.
+        if kind == Failsafe::GpsLoss && self.mode == Mode::Altitude && self.pilot_on_sticks(t_us) {
+            return None;
+        }
         match action {
             Action::Kill => return Some(EscRequest::Kill),
-            Action::Return if self.hold_xy => self.begin_return(est, t_us, &why, out),
+            Action::Return if self.position_known() => self.begin_return(est, t_us, &why, out),
             Action::Land | Action::Return => self.begin_land(est, t_us, &why, out),
             // A landing goes on: a hold would leave a vehicle that was coming down (a pilot's
             // or another failsafe's landing) hovering on.

@@ -91,7 +91,10 @@ impl Commander {
     /// it came down; it lands, and the touchdown disarms.
     pub(super) fn grounded_in_flight(&mut self, o: &Observation, out: &mut Vec<Event>) {
         let ground_m = self.home_m.map_or(0.0, |h| h[2]);
-        let low = matches!(self.mode, Mode::Hold | Mode::Mission | Mode::Return)
+        let low = matches!(
+            self.mode,
+            Mode::Hold | Mode::Mission | Mode::Return | Mode::Position | Mode::Altitude
+        )
             && self.p.start != super::Start::Flying
             && o.pos_m[2] - ground_m < 0.5 * self.p.z_min_m;
         if !low {

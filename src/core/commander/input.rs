@@ -1,5 +1,6 @@
 //! The operator's words: the commander's commands (`arm`, `takeoff [ALT_M]`, `hold [X Y Z]`,
-//! `land`, `disarm`, `kill`, and for missions `start`, `pause`, `resume`, `return`), where an
+//! `land`, `disarm`, `kill`, the stick modes `position` and `altitude`, and for missions
+//! `start`, `pause`, `resume`, `return`), where an
 //! input came from (the link sources the `link-loss` failsafe counts), a typed line as
 //! inputs, a ground station's uploaded mission, and what became of a manual key (spec 5.2).
 
@@ -27,6 +28,9 @@ pub enum Command {
     Resume,
     /// Fly back above the takeoff point, then land.
     Return,
+    /// The sticks fly (`position`, `altitude`): in the air at once; on the ground the mode
+    /// a raised throttle takes off into.
+    Sticks(super::StickMode),
     /// In `hold`, move the hold point to (x, y) from the takeoff point and z above it, m
     /// (refused in any other mode): a companion computer's position target.
     Move([f64; 3]),
@@ -45,7 +49,8 @@ pub enum Command {
 
 impl Command {
     /// Parses `arm`, `takeoff [ALT_M]`, `hold [X Y Z]`, `land`, `disarm`, `kill`, `start`,
-    /// `pause`, `resume`, `return`, `calibrate`, `move X Y Z`, `motor M PCT S`.
+    /// `pause`, `resume`, `return`, `position`, `altitude`, `calibrate`, `move X Y Z`,
+    /// `motor M PCT S`.
     pub fn parse(line: &str) -> Result<Command, String> {
         let mut words = line.split_whitespace();
         let verb = words.next().unwrap_or("");
@@ -70,6 +75,8 @@ impl Command {
             ("pause", []) => Ok(Command::Pause),
             ("resume", []) => Ok(Command::Resume),
             ("return", []) => Ok(Command::Return),
+            ("position", []) => Ok(Command::Sticks(super::StickMode::Position)),
+            ("altitude", []) => Ok(Command::Sticks(super::StickMode::Altitude)),
             ("calibrate", []) => Ok(Command::Calibrate),
             ("move", [x, y, z]) => Ok(Command::Move([*x, *y, *z])),
             ("move", _) => Err("move takes X Y Z in metres".into()),
@@ -83,12 +90,13 @@ impl Command {
             ("motor", _) => Err("motor takes MOTOR (1-4) THROTTLE_PCT SECONDS".into()),
             (
                 "arm" | "land" | "disarm" | "kill" | "start" | "pause" | "resume" | "return"
-                | "calibrate",
+                | "calibrate" | "position" | "altitude",
                 _,
             ) => Err(format!("{verb} takes no arguments")),
             _ => Err(format!(
                 "unknown command {verb:?}: arm, takeoff [ALT_M], hold [X Y Z], land, disarm, \
-                 kill, start, pause, resume, return, calibrate, move X Y Z, motor M PCT S"
+                 kill, start, pause, resume, return, position, altitude, calibrate, move X Y Z, \
+                 motor M PCT S"
             )),
         }
     }
@@ -107,6 +115,8 @@ impl Command {
             "pause",
             "resume",
             "return",
+            "position",
+            "altitude",
             "calibrate",
             "move",
             "motor",
@@ -126,6 +136,7 @@ impl Command {
             Command::Pause => "pause",
             Command::Resume => "resume",
             Command::Return => "return",
+            Command::Sticks(m) => m.name(),
             Command::Calibrate => "calibrate",
             Command::Move(_) => "move",
             Command::MotorTest { .. } => "motor",
@@ -216,6 +227,9 @@ pub enum OperatorInput {
     /// The pilot's radio (`core::rc::link`): its kill switch and sticks, or its receiver's
     /// failsafe; each report says the receiver is heard.
     Rc(super::RcReport),
+    /// A ground station's joystick (MANUAL_CONTROL): roll, pitch, yaw, throttle, each −1…1
+    /// (throttle −1 low); the sticks while no radio is heard.
+    Sticks([f64; 4]),
     /// A ground station's change of a parameter that takes effect in flight
     /// ([`super::IN_FLIGHT`]), checked and kept by the link: applied between two steps.
     Param {
@@ -261,6 +275,7 @@ impl OperatorInput {
             OperatorInput::EscsRunning => "escs running".into(),
             OperatorInput::Param { key, .. } => format!("param {key}"),
             OperatorInput::Rc(_) => "rc".into(),
+            OperatorInput::Sticks(_) => "sticks".into(),
             OperatorInput::Expired { input, .. } => input.what(),
         }
     }

@@ -74,7 +74,7 @@ impl Commander {
 
     /// A path needs the horizontal position observed: a fix fused lately.
     fn position_held(&self) -> Result<(), Refusal> {
-        if self.hold_xy {
+        if self.position_known() {
             Ok(())
         } else {
             Err(Refusal::NoRecentFix)
@@ -161,7 +161,9 @@ impl Commander {
     ) {
         // Without a takeoff point or a fresh fix there is nowhere to fly back to (the path
         // would be flown blind); a landing under way goes on.
-        let (Some(home), true, false) = (self.home_m, self.hold_xy, self.mode == Mode::Land) else {
+        let (Some(home), true, false) =
+            (self.home_m, self.position_known(), self.mode == Mode::Land)
+        else {
             return self.begin_land(est, t_us, why, out);
         };
         if self.mode == Mode::Return {

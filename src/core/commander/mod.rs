@@ -26,6 +26,7 @@ mod input;
 mod mission_mode;
 mod profile;
 mod refusal;
+mod sticks;
 
 use blind::Blind;
 pub use checks::{ArmFacts, EstimatorHealth, calibration_problem, estimator_problem};
@@ -36,6 +37,7 @@ pub use input::{Command, KeyOutcome, LinkSource, OperatorInput};
 pub use mission_mode::MissionFigures;
 use profile::{BRAKE_SHARE, Profile};
 pub use refusal::Refusal;
+pub use sticks::{StickLimits, StickMode};
 
 use crate::core::control::{Dir, ManualCommand};
 use crate::core::ekf::TestRatios;
@@ -58,12 +60,16 @@ pub enum Mode {
     Mission,
     /// Flying back above the takeoff point, then landing (`return`, a failsafe's action).
     Return,
+    /// The sticks fly a velocity, a climb rate and a yaw rate over a held position.
+    Position,
+    /// The sticks fly a tilt, a climb rate and a yaw rate: no position needed.
+    Altitude,
 }
 
 impl Mode {
     /// Every mode, in a fixed order: a mode's index in it is how a mode crosses a thread in
     /// an atomic, and the ULog export's `custom_mode` (a mode added goes at the end).
-    pub const ALL: [Mode; 8] = [
+    pub const ALL: [Mode; 10] = [
         Mode::Disarmed,
         Mode::Armed,
         Mode::Takeoff,
@@ -72,6 +78,8 @@ impl Mode {
         Mode::Kill,
         Mode::Mission,
         Mode::Return,
+        Mode::Position,
+        Mode::Altitude,
     ];
 
     pub fn name(self) -> &'static str {
@@ -84,6 +92,8 @@ impl Mode {
             Mode::Kill => "kill",
             Mode::Mission => "mission",
             Mode::Return => "return",
+            Mode::Position => "position",
+            Mode::Altitude => "altitude",
         }
     }
 
@@ -91,7 +101,13 @@ impl Mode {
     pub fn airborne(self) -> bool {
         matches!(
             self,
-            Mode::Takeoff | Mode::Hold | Mode::Land | Mode::Mission | Mode::Return
+            Mode::Takeoff
+                | Mode::Hold
+                | Mode::Land
+                | Mode::Mission
+                | Mode::Return
+                | Mode::Position
+                | Mode::Altitude
         )
     }
 }
@@ -166,6 +182,8 @@ pub struct Params {
     pub mission: crate::core::mission::Limits,
     /// With an RC receiver: its loss's timeout and action (`failsafe.rc_*`).
     pub rc: Option<RcLossParams>,
+    /// How far the sticks move the vehicle (the radio's and a ground station's joystick).
+    pub sticks: StickLimits,
 }
 
 /// The `rc-loss` failsafe's parameters.
@@ -185,6 +203,8 @@ pub struct RcReport {
     pub lost: bool,
     pub kill: bool,
     pub sticks: [f64; 4],
+    /// The mode switch selects a stick mode (none: an automatic mode, or no switch read yet).
+    pub stick_mode: Option<StickMode>,
 }
 
 /// The throttle stick is low (an arm needs it): in the lowest 5 % of its travel.
@@ -315,6 +335,9 @@ pub struct Guidance {
     /// vertical: a landing whose estimate has no vertical reference left, once that
     /// estimate is down to the ground (see [`Blind`]).
     pub blind_thrust: Option<f64>,
+    /// The `altitude` mode's sticks: the roll and pitch set points (ψ, φ), rad; the
+    /// horizontal position and velocity are then not held.
+    pub tilt_rad: Option<[f64; 2]>,
 }
 
 impl Guidance {
@@ -331,6 +354,7 @@ impl Guidance {
         yaw_rad: None,
         mission_item: None,
         blind_thrust: None,
+        tilt_rad: None,
     };
 }
 
@@ -474,6 +498,16 @@ pub struct Commander {
     /// The heading a mission left (unwrapped), and the calibration's.
     yaw_rad: Option<f64>,
     yaw_cal_rad: f64,
+    /// A stick mode's set point, and its tilt in `altitude`.
+    stick: PathPoint,
+    tilt_rad: Option<[f64; 2]>,
+    /// A ground station's joystick, and when it last sent.
+    gcs_sticks: Option<([f64; 4], i64)>,
+    /// The stick mode a ground station chose on the ground (no radio configured): a throttle
+    /// raised takes off into it.
+    stick_choice: Option<StickMode>,
+    /// A takeoff by throttle: the stick mode that follows it.
+    sticks_after_takeoff: Option<StickMode>,
 }
 
 impl Commander {
@@ -521,6 +555,7 @@ impl Commander {
                 lost: false,
                 kill: false,
                 sticks: [0.0, 0.0, 0.0, -1.0],
+                stick_mode: None,
             },
             past_flights: Vec::new(),
             flights: 0,
@@ -540,6 +575,11 @@ impl Commander {
             path: None,
             yaw_rad: None,
             yaw_cal_rad: 0.0,
+            stick: PathPoint::default(),
+            tilt_rad: None,
+            gcs_sticks: None,
+            stick_choice: None,
+            sticks_after_takeoff: None,
         }
     }
 
@@ -588,6 +628,12 @@ impl Commander {
         self.flights > 0
     }
 
+    /// The horizontal position is observed: fixes come (none late), and one was fused (with
+    /// no receiver, or fake fixes not yet begun, nothing says where the vehicle is).
+    pub(super) fn position_known(&self) -> bool {
+        self.hold_xy && (self.p.gps_live || self.last_fix_us.is_some())
+    }
+
     /// An arming: a flight begins. The run's earlier flight keeps its figures; what it
     /// measured or decided (its takeoff and landing, its failsafes recorded and acted on,
     /// the touchdown watch, a mission's run) does not carry into this one. The first flight
@@ -607,6 +653,7 @@ impl Commander {
             self.lifted = false;
             self.takeoff_steps = 0;
             self.mission_after_takeoff = false;
+            self.sticks_after_takeoff = None;
             self.items_done = 0;
             self.landing_item = None;
             self.yaw_rad = None;
@@ -632,9 +679,12 @@ impl Commander {
     }
 
     fn set_mode(&mut self, mode: Mode, t_us: i64, why: &str, out: &mut Vec<Event>) {
-        // A path's set point is only the mission's and the return's; a run is kept only by a
-        // pause.
-        if !matches!(mode, Mode::Mission | Mode::Return) {
+        // A path's set point is only the mission's, the return's and the sticks' in
+        // `position`; a tilt only `altitude`'s; a run is kept only by a pause.
+        if mode != Mode::Altitude {
+            self.tilt_rad = None;
+        }
+        if !matches!(mode, Mode::Mission | Mode::Return | Mode::Position) {
             self.path = None;
             if !(mode == Mode::Hold && self.paused) {
                 self.run = None;
@@ -747,9 +797,9 @@ impl Commander {
         self.rc.kill.then(|| "rc: kill switch on".to_string())
     }
 
-    /// The sticks of the radio's newest report (roll, pitch, yaw, throttle).
-    pub fn rc_sticks(&self) -> [f64; 4] {
-        self.rc.sticks
+    /// The radio's newest report that was not a loss.
+    pub fn rc_last(&self) -> RcReport {
+        self.rc
     }
 
     /// The radio is lost at `t_us`: configured, and its receiver in failsafe or silent for
@@ -873,7 +923,7 @@ impl Commander {
             Command::Disarm if m.airborne() => Err(InTheAir(m)),
             Command::Disarm if m == Mode::Disarmed => Err(Already(m)),
             Command::Disarm => Ok(()),
-            Command::Hold(_) | Command::Start | Command::Resume
+            Command::Hold(_) | Command::Start | Command::Resume | Command::Sticks(_)
                 if m.airborne() && self.acting_failsafe().is_some() =>
             {
                 Err(FailsafeActing(self.acting_failsafe()))
@@ -902,6 +952,14 @@ impl Commander {
             Command::Hold(_) | Command::Land | Command::Return if !m.airborne() => {
                 Err(NotInTheAir(m))
             }
+            Command::Sticks(s) if m == s.mode() => Err(Already(m)),
+            // On the ground it is the mode a raised throttle takes off into.
+            Command::Sticks(_) if !m.airborne() => Ok(()),
+            Command::Sticks(_) if self.below_hold(est) => Err(HoldOnGround {
+                mode: m,
+                z_min_m: self.p.z_min_m,
+            }),
+            Command::Sticks(_) => Ok(()),
             Command::Hold(_) | Command::Land | Command::Return | Command::Pause => Ok(()),
         }
     }
@@ -1062,6 +1120,14 @@ impl Commander {
             }
             Command::Return => {
                 self.begin_return(est, t_us, &why, out);
+                None
+            }
+            Command::Sticks(m) if self.mode.airborne() => {
+                self.enter_sticks(m, t_us, &why, out);
+                None
+            }
+            Command::Sticks(m) => {
+                self.stick_choice = Some(m);
                 None
             }
             // The flight sequence takes the IMU's calibration again (the commander only
@@ -1249,13 +1315,15 @@ impl Commander {
             fly: self.mode.airborne(),
             pos_m: [self.target_m[0], self.target_m[1], p.z_m],
             vz_m_s: p.vz_m_s,
-            hold_xy: self.hold_xy,
+            // `altitude` holds no position, whatever the fixes.
+            hold_xy: self.hold_xy && self.mode != Mode::Altitude,
             height_m: self.target_m[2] - self.home_m.map_or(0.0, |h| h[2]),
             home_m: self.home_m,
             path: self.path,
             yaw_rad: self.yaw_rad,
             mission_item: self.mission_item(),
             blind_thrust: self.blind_thrust(),
+            tilt_rad: self.tilt_rad,
         }
     }
 
@@ -1286,9 +1354,19 @@ impl Commander {
                         name: "takeoff",
                     });
                     self.enter_mission(1, o.t_us, "takeoff height reached", out);
+                } else if reached && let Some(m) = self.sticks_after_takeoff.take() {
+                    self.enter_sticks(m, o.t_us, "takeoff height reached", out);
                 } else if reached {
                     self.set_mode(Mode::Hold, o.t_us, "takeoff height reached", out);
                 }
+                None
+            }
+            Mode::Position | Mode::Altitude => {
+                self.fly_sticks(o, dt_s);
+                None
+            }
+            Mode::Armed => {
+                self.takeoff_by_throttle(o, out);
                 None
             }
             Mode::Mission | Mode::Return => {

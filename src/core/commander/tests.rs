@@ -44,6 +44,12 @@ pub(super) fn params() -> Params {
             return_m_s: 1.0,
         },
         rc: None,
+        sticks: StickLimits {
+            max_speed_m_s: 3.0,
+            max_climb_m_s: 1.0,
+            max_yaw_rate_rad_s: 1.0,
+            max_tilt_rad: 0.27,
+        },
     }
 }
 
@@ -1500,6 +1506,7 @@ fn rc(kill: bool, throttle: f64) -> RcReport {
         lost: false,
         kill,
         sticks: [0.0, 0.0, 0.0, throttle],
+        stick_mode: None,
     }
 }
 

@@ -543,6 +543,13 @@ impl ControllerCore {
             planner.sp.x[3..].fill(0.0);
             planner.sp.x[crate::core::ekf::idx::THETA] = g.yaw_rad.unwrap_or(est.theta_cal_rad);
         }
+        // The `altitude` mode's sticks: the tilt and the heading they fly (the set point goes
+        // back to rest when they are left, as off a path).
+        if let Some([roll_rad, pitch_rad]) = g.tilt_rad {
+            (planner.sp.x[3], planner.sp.x[4]) = (roll_rad, pitch_rad);
+            planner.sp.x[crate::core::ekf::idx::THETA] = g.yaw_rad.unwrap_or(est.theta_cal_rad);
+            self.following = true;
+        }
         planner.sp.x[0] = g.pos_m[0];
         planner.sp.x[1] = g.pos_m[1];
         planner.sp.x[2] = g.pos_m[2];
@@ -571,6 +578,10 @@ impl ControllerCore {
         let fixes = self
             .last_gps_us
             .is_some_and(|t| est.t_us - t <= self.gps_hold_timeout_us);
+        // The `altitude` mode's tilt is the pilot's: no position or velocity is held against it.
+        if est.guidance.tilt_rad.is_some() {
+            return Horizontal::Attitude;
+        }
         match (est.guidance.hold_xy && fixes, est.velocity_observed) {
             (true, _) => Horizontal::Position,
             (false, true) => Horizontal::Velocity,

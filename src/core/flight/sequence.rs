@@ -538,6 +538,10 @@ impl EstimatorSide {
                 None
             }
             OperatorInput::Rc(report) => self.commander.rc_report(report, t_us, &mut self.events),
+            OperatorInput::Sticks(sticks) => {
+                self.commander.gcs_sticks(sticks, t_us);
+                None
+            }
             OperatorInput::Param { key, value } => {
                 let note = if self.commander.set_param(key, value) {
                     format!("parameter {key} = {value}: in effect from this step")
@@ -1035,9 +1039,8 @@ impl EstimatorSide {
             return;
         }
         let report = commander::RcReport {
-            lost: false,
             kill: true,
-            sticks: self.commander.rc_sticks(),
+            ..self.commander.rc_last()
         };
         let recorded = ArmCheck::Recorded(&Ok(()));
         // The ESCs are stopped already: what the input asks of them is done.

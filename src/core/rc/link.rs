@@ -9,7 +9,7 @@
 
 use super::RcFrame;
 use super::sticks::{RcInput, RcMap};
-use crate::core::commander::{Command, LinkSource, OperatorInput, RcReport};
+use crate::core::commander::{Command, LinkSource, OperatorInput, RcReport, StickMode};
 
 /// The receiver is reported heard at least this many times within `failsafe.rc_timeout_s`:
 /// a frame or two lost in between is not a loss.
@@ -28,9 +28,9 @@ pub const MODE_FRAMES: u32 = 3;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum RcMode {
-    /// Sticks → horizontal velocity, climb rate and yaw rate (not flown yet).
+    /// Sticks → horizontal velocity, climb rate and yaw rate.
     Position,
-    /// Sticks → tilt and yaw rate, throttle → climb rate (not flown yet).
+    /// Sticks → tilt and yaw rate, throttle → climb rate.
     Altitude,
     Hold,
     Mission,
@@ -50,14 +50,23 @@ impl RcMode {
         }
     }
 
-    /// The commander's command for this mode, where it has one.
-    pub fn command(self) -> Option<Command> {
+    /// The commander's command for this mode.
+    pub fn command(self) -> Command {
         match self {
-            RcMode::Hold => Some(Command::Hold(None)),
-            RcMode::Mission => Some(Command::Start),
-            RcMode::Return => Some(Command::Return),
-            RcMode::Land => Some(Command::Land),
-            RcMode::Position | RcMode::Altitude => None,
+            RcMode::Hold => Command::Hold(None),
+            RcMode::Mission => Command::Start,
+            RcMode::Return => Command::Return,
+            RcMode::Land => Command::Land,
+            RcMode::Position => Command::Sticks(StickMode::Position),
+            RcMode::Altitude => Command::Sticks(StickMode::Altitude),
+        }
+    }
+
+    /// The stick mode this is, if it is one.
+    pub fn stick_mode(self) -> Option<StickMode> {
+        match self.command() {
+            Command::Sticks(m) => Some(m),
+            _ => None,
         }
     }
 }
@@ -124,6 +133,7 @@ impl RcLink {
             lost: true,
             kill: false,
             sticks: [0.0, 0.0, 0.0, -1.0],
+            stick_mode: None,
         }));
     }
 
@@ -141,12 +151,17 @@ impl RcLink {
         }
         self.lost = false;
         let input = self.map.read(f);
+        let moved_to = self.mode_switch(input.mode);
         let q = |x: f64| (x / STICK_STEP).round() * STICK_STEP;
         let s = input.sticks;
         let report = RcReport {
             lost: false,
             kill: input.kill,
             sticks: [q(s.roll), q(s.pitch), q(s.yaw), q(s.throttle)],
+            stick_mode: self
+                .mode
+                .and_then(|i| self.modes.get(i))
+                .and_then(|m| m.stick_mode()),
         };
         let due = self
             .reported
@@ -165,15 +180,17 @@ impl RcLink {
             };
             out.push(OperatorInput::Command(arm, LinkSource::Rc));
         }
-        self.mode_switch(input.mode, out);
+        if let Some(c) = moved_to {
+            out.push(OperatorInput::Command(c, LinkSource::Rc));
+        }
         self.last = Some(input);
         input.kill
     }
 
     /// The mode switch read at `position`: a position held for [`MODE_FRAMES`] frames, not
     /// the one acted on, is its mode's command (the first one read, or after a loss, is where
-    /// the switch is: not a move).
-    fn mode_switch(&mut self, position: usize, out: &mut Vec<OperatorInput>) {
+    /// the switch is: not a move, though a stick mode's is reported).
+    fn mode_switch(&mut self, position: usize) -> Option<Command> {
         let (seen, n) = self.mode_seen;
         self.mode_seen = if seen == position {
             (seen, n.saturating_add(1))
@@ -181,16 +198,14 @@ impl RcLink {
             (position, 1)
         };
         if self.mode_seen.1 < MODE_FRAMES || self.mode == Some(position) {
-            return;
+            return None;
         }
         let first = self.mode.is_none();
         self.mode = Some(position);
         if first {
-            return;
+            return None;
         }
-        if let Some(c) = self.modes.get(position).and_then(|m| m.command()) {
-            out.push(OperatorInput::Command(c, LinkSource::Rc));
-        }
+        self.modes.get(position).map(|m| m.command())
     }
 }
 

@@ -20,6 +20,7 @@
 mod commands;
 mod ftp;
 mod guided;
+mod joystick;
 mod logs;
 mod mission;
 mod params;
@@ -129,6 +130,8 @@ pub struct Counts {
     /// no position, a frame not taken).
     pub targets_taken: u64,
     pub targets_ignored: u64,
+    /// A joystick's sticks (MANUAL_CONTROL) passed on to the flight.
+    pub sticks_taken: u64,
 }
 
 /// Every message the protocol reads, with what it does (the book's reference lists these;
@@ -184,6 +187,13 @@ pub const RECEIVED: &[(&str, &str)] = &[
     (
         "MISSION_CLEAR_ALL",
         "fence and rally: accepted (none kept); the mission: refused (upload another)",
+    ),
+    (
+        "MANUAL_CONTROL",
+        "a joystick: x pitch, y roll, r yaw (each -1000..1000), z throttle (0..1000, 500 its \
+         centre) flown as the radio's sticks in `position` and `altitude` while no radio is \
+         heard (`hold` ignores them); passed on when they move and every 0.2 s; a joystick \
+         silent for 0.5 s reads centred (the vehicle holds)",
     ),
     (
         "SET_POSITION_TARGET_LOCAL_NED",
@@ -297,6 +307,7 @@ pub struct Connection {
     counts: Counts,
     downloads: logs::Downloads,
     guided: guided::Guided,
+    joystick: joystick::Joystick,
     /// The systems that announced themselves as ground stations and may command, with when
     /// each was last heard (at most [`GCS_SENDERS_MAX`]: a new one takes the place of the
     /// longest silent, so fake heartbeats cannot fill the list against the real one).
@@ -341,6 +352,7 @@ impl Connection {
             counts: Counts::default(),
             downloads: logs::Downloads::default(),
             guided: guided::Guided::default(),
+            joystick: joystick::Joystick::default(),
             gcs_senders: Vec::with_capacity(GCS_SENDERS_MAX),
             s,
         }
@@ -699,6 +711,9 @@ impl Connection {
             {
                 self.on_global_target(now, t)
             }
+            MavMessage::MANUAL_CONTROL(m) if self.for_us(m.target, 0) => {
+                self.on_manual_control(now, &m)
+            }
             MavMessage::LOG_REQUEST_LIST(l) if self.for_us(l.target_system, l.target_component) => {
                 self.on_log_list(l.start, l.end)
             }
@@ -811,6 +826,7 @@ fn write_target(m: &MavMessage) -> Option<(u8, u8)> {
             Some((c.target_system, c.target_component))
         }
         MavMessage::SET_MODE(c) => Some((c.target_system, 0)),
+        MavMessage::MANUAL_CONTROL(m) => Some((m.target, 0)),
         MavMessage::PARAM_SET(p) => Some((p.target_system, p.target_component)),
         MavMessage::SET_POSITION_TARGET_LOCAL_NED(t) => Some((t.target_system, t.target_component)),
         MavMessage::SET_POSITION_TARGET_GLOBAL_INT(t) => {
