@@ -648,6 +648,27 @@ fn a_preflight_calibration_calibrates_again_on_the_ground_and_is_denied_in_the_a
     assert_replays_same(run, &["mode.log", "w.log", "x_hat.log"]);
 }
 
+/// RC_CHANNELS tells the pilot's radio as its receiver decodes it (a simulated SBUS
+/// transmitter: sticks centred, throttle low, switches off), five times a second.
+#[test]
+fn a_ground_station_sees_the_radios_channels() {
+    let flown = fly_paced(&["rc-channels"], &["--rc", "sbus", "--duration", "30"]);
+    let m = &flown.measured;
+    assert_eq!(m["chancount"], 16, "{m}");
+    let chans: Vec<u64> = m["chans"]
+        .as_array()
+        .expect("chans")
+        .iter()
+        .map(u)
+        .collect();
+    // AETR: roll, pitch centred; throttle low; yaw centred; arm, kill off; the mode switch
+    // in the middle of its first of three bands; 17 and 18 unused.
+    assert_eq!(chans[..7], [1500, 1500, 988, 1500, 988, 988, 1158], "{m}");
+    assert_eq!(chans[16..], [65535, 65535], "{m}");
+    assert_eq!(m["rssi"], 255, "SBUS measures no link quality: {m}");
+    assert!(u(&m["per_2s"]) >= 5, "{m}");
+}
+
 /// A joystick on the ground station (MANUAL_CONTROL) flies the radio's stick path: Position
 /// chosen on the ground, the throttle raised takes off into it, the pitch stick flies
 /// forward and centred holds; Hold ignores the sticks; the run replays exactly.

@@ -962,6 +962,20 @@ def until_taken(s, cmd, p, waiting):
 POSCTL = px4_mode(3, 0)
 
 
+def rc_channels(s):
+    """RC_CHANNELS from a simulated SBUS transmitter whose sticks are centred, its throttle
+    low and its switches off: the channels as pulse widths, five of them each second."""
+    s.wait("a heartbeat", lambda m: m.get_type() == "HEARTBEAT", 5.0)
+    first = s.wait("RC_CHANNELS", lambda m: m.get_type() == "RC_CHANNELS")
+    t0, n = time.time(), 0
+    while time.time() - t0 < 2.0:
+        m = s.pump()
+        if m is not None and m.get_type() == "RC_CHANNELS":
+            n += 1
+    chans = [getattr(first, f"chan{i}_raw") for i in range(1, 19)]
+    return {"chancount": first.chancount, "chans": chans, "rssi": first.rssi, "per_2s": n}
+
+
 def joystick_for(s, x, z, seconds, until=None):
     """MANUAL_CONTROL at 10 Hz as QGroundControl's virtual joystick sends it (x the pitch
     stick, z the throttle, 500 its centre) for `seconds`, or until a message passes `until`;
@@ -1067,6 +1081,8 @@ def main():
         out = guided(s)
     elif sys.argv[1] == "land-param":
         out = land_param(s)
+    elif sys.argv[1] == "rc-channels":
+        out = rc_channels(s)
     elif sys.argv[1] == "joystick":
         out = joystick(s)
     elif sys.argv[1] == "motor-test":

@@ -515,6 +515,7 @@ impl<'a> FastSim<'a> {
             log_problem: self.prearm.1.borrow().clone(),
             control_cpu_ns: None,
             prearm_ok,
+            rc: self.transmitter.as_ref().and_then(|t| t.status()),
         }
     }
 

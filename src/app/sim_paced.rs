@@ -323,6 +323,9 @@ fn stats_line(s: &VehicleStatus) -> String {
             l.step, l.x[2], l.setpoint_m[2], l.x[3], l.x[4], l.x[5]
         );
     }
+    if let Some(rc) = s.rc {
+        line += &rc.words();
+    }
     line
 }
 

@@ -36,6 +36,8 @@ pub struct Snapshot {
     pub load_permille: u16,
     /// Where the loaded mission is, if one is loaded.
     pub mission: Option<MissionStatus>,
+    /// The pilot's radio (none: no receiver, or no frame yet).
+    pub rc: Option<crate::core::status::RcStatus>,
 }
 
 /// Where a mission is, in the ground station's numbering of its items.
@@ -101,6 +103,43 @@ pub fn heartbeat(s: &Snapshot) -> MavMessage {
         system_status,
         mavlink_version: 3,
     })
+}
+
+/// RC_CHANNELS: the radio's 16 channels as pulse widths, µs; its RSSI field the receiver's
+/// link quality scaled to 0–254 (CRSF's; as PX4 fills it), 0 once the receiver is in
+/// failsafe, 255 (unknown) from an SBUS receiver, which measures none.
+pub fn rc_channels(s: &Snapshot) -> Option<MavMessage> {
+    let rc = s.rc?;
+    let c = rc.channels_us;
+    let rssi = match (rc.lost, rc.link_quality_pct) {
+        (true, _) => 0,
+        (false, Some(lq)) => (u16::from(lq.min(100)) * 254 / 100) as u8,
+        (false, None) => u8::MAX,
+    };
+    Some(MavMessage::RC_CHANNELS(RC_CHANNELS_DATA {
+        time_boot_ms: s.t_boot_ms,
+        chancount: c.len() as u8,
+        chan1_raw: c[0],
+        chan2_raw: c[1],
+        chan3_raw: c[2],
+        chan4_raw: c[3],
+        chan5_raw: c[4],
+        chan6_raw: c[5],
+        chan7_raw: c[6],
+        chan8_raw: c[7],
+        chan9_raw: c[8],
+        chan10_raw: c[9],
+        chan11_raw: c[10],
+        chan12_raw: c[11],
+        chan13_raw: c[12],
+        chan14_raw: c[13],
+        chan15_raw: c[14],
+        chan16_raw: c[15],
+        // Unused, as the message says them.
+        chan17_raw: u16::MAX,
+        chan18_raw: u16::MAX,
+        rssi,
+    }))
 }
 
 /// CURRENT_MODE: the mode as the standard modes and PX4's custom mode say it.
@@ -444,6 +483,7 @@ mod tests {
             health: Health::default(),
             load_permille: 0,
             mission: None,
+            rc: None,
         }
     }
 

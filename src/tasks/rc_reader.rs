@@ -30,9 +30,26 @@ pub struct RcStats {
     /// Inputs the flight's queue had no room for: reports dropped (they are sent again), and
     /// commands beyond the few kept for the next read.
     pub dropped_inputs: AtomicU64,
+    /// The radio as a watcher sees it. The reader only tries the lock (a watcher holding it
+    /// delays nothing: the next frame publishes); a watcher waits at most for a copy.
+    status: std::sync::Mutex<Option<crate::core::status::RcStatus>>,
 }
 
 impl RcStats {
+    /// The radio as the reader last published it.
+    pub fn status(&self) -> Option<crate::core::status::RcStatus> {
+        match self.status.lock() {
+            Ok(s) => *s,
+            Err(poisoned) => *poisoned.into_inner(),
+        }
+    }
+
+    fn publish(&self, status: Option<crate::core::status::RcStatus>) {
+        if let Ok(mut s) = self.status.try_lock() {
+            *s = status;
+        }
+    }
+
     /// The counts, for the run's summary.
     pub fn counts(&self) -> RcCounts {
         let load = |a: &AtomicU64| a.load(Ordering::Relaxed);
@@ -139,6 +156,7 @@ impl RcReader {
                 RcEvent::Link(s) => self.link.link(s, inputs),
             }
         }
+        self.stats.publish(self.link.status());
         let d = self.decoder.stats();
         self.stats.frames.store(d.frames, Ordering::Relaxed);
         self.stats

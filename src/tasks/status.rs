@@ -31,6 +31,8 @@ pub struct StatusSources {
     pub control_cpu: Option<libc::clockid_t>,
     /// The pre-arm checks' verdict as the estimator task last checked it.
     pub prearm: Arc<crate::tasks::prearm::PrearmVerdict>,
+    /// The RC receiver's reader (none: no receiver configured).
+    pub rc: Option<Arc<crate::tasks::rc_reader::RcStats>>,
 }
 
 impl StatusSources {
@@ -47,6 +49,7 @@ impl StatusSources {
             log_problem: self.log_problem.borrow().clone(),
             control_cpu_ns: self.control_cpu.map(crate::hw::cpu_clock::clock_ns),
             prearm_ok: self.prearm.get(),
+            rc: self.rc.as_ref().and_then(|r| r.status()),
         }
     }
 }

@@ -189,6 +189,10 @@ pub async fn run(
         &opts,
         &h,
     )?;
+    let rc = edges
+        .rc
+        .take()
+        .map(|port| (rc_reader(profile, &h, &operator_tx), port));
     // The vehicle's status as every watcher reads it: the console and the link alike.
     let status = crate::tasks::status::StatusSources {
         mode: h.notices.mode(),
@@ -201,6 +205,7 @@ pub async fn run(
         esc_addresses: profile.motor_map().addresses,
         control_cpu: crate::hw::cpu_clock::thread_clock(&control),
         prearm: h.prearm_verdict.clone(),
+        rc: rc.as_ref().map(|(reader, _)| reader.stats.clone()),
     };
     serve_operator(profile, &opts, &h, &operator_tx, &status);
     let gcs = notices_rx.map(|notices| {
@@ -218,8 +223,7 @@ pub async fn run(
             h.cancel.clone(),
         ));
     }
-    let rc_stats = edges.rc.take().map(|port| {
-        let reader = rc_reader(profile, &h, &operator_tx);
+    let rc_stats = rc.map(|(reader, port)| {
         let stats = reader.stats.clone();
         tokio::spawn(reader.run(port, h.cancel.clone()));
         stats

@@ -59,6 +59,9 @@ pub(super) fn console_stats(h: &RunHandles, status: &VehicleStatus) -> String {
     if let Some(reason) = status.halt {
         let _ = std::fmt::Write::write_fmt(&mut s, format_args!(" HALT={}", reason.name()));
     }
+    if let Some(rc) = status.rc {
+        s += &rc.words();
+    }
     s
 }
 

@@ -94,8 +94,7 @@ impl Commander {
         let low = matches!(
             self.mode,
             Mode::Hold | Mode::Mission | Mode::Return | Mode::Position | Mode::Altitude
-        )
-            && self.p.start != super::Start::Flying
+        ) && self.p.start != super::Start::Flying
             && o.pos_m[2] - ground_m < 0.5 * self.p.z_min_m;
         if !low {
             self.low_since_us = None;

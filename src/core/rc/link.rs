@@ -10,6 +10,7 @@
 use super::RcFrame;
 use super::sticks::{RcInput, RcMap};
 use crate::core::commander::{Command, LinkSource, OperatorInput, RcReport, StickMode};
+use crate::core::status::RcStatus;
 
 /// The receiver is reported heard at least this many times within `failsafe.rc_timeout_s`:
 /// a frame or two lost in between is not a loss.
@@ -89,6 +90,8 @@ pub struct RcLink {
     mode_seen: (usize, u32),
     /// An unchanged report is sent again this often, µs.
     report_period_us: i64,
+    /// What a watcher sees of the radio: the newest frame, the link statistics.
+    status: Option<RcStatus>,
 }
 
 impl RcLink {
@@ -105,7 +108,13 @@ impl RcLink {
             mode: None,
             mode_seen: (0, 0),
             report_period_us: (timeout_s / REPORTS_PER_TIMEOUT * 1e6).max(10_000.0) as i64,
+            status: None,
         }
+    }
+
+    /// The radio as a watcher sees it (none before its first frame).
+    pub fn status(&self) -> Option<RcStatus> {
+        self.status
     }
 
     pub fn map(&self) -> &RcMap {
@@ -116,12 +125,19 @@ impl RcLink {
     /// hold or preset its channels keeps sending them).
     pub fn link(&mut self, stats: &crate::core::rc::LinkStats, out: &mut Vec<OperatorInput>) {
         self.link_down = stats.link_quality_pct == 0;
+        if let Some(st) = &mut self.status {
+            st.link_quality_pct = Some(stats.link_quality_pct);
+            st.rssi_dbm = Some(stats.rssi_dbm);
+        }
         if self.link_down {
             self.lose(out);
         }
     }
 
     fn lose(&mut self, out: &mut Vec<OperatorInput>) {
+        if let Some(st) = &mut self.status {
+            st.lost = true;
+        }
         if self.lost {
             return;
         }
@@ -152,6 +168,7 @@ impl RcLink {
         self.lost = false;
         let input = self.map.read(f);
         let moved_to = self.mode_switch(input.mode);
+        self.watched(f, &input);
         let q = |x: f64| (x / STICK_STEP).round() * STICK_STEP;
         let s = input.sticks;
         let report = RcReport {
@@ -185,6 +202,22 @@ impl RcLink {
         }
         self.last = Some(input);
         input.kill
+    }
+
+    /// The status a watcher reads, from a frame of the pilot's read as `input`.
+    fn watched(&mut self, f: &RcFrame, input: &RcInput) {
+        let old = self.status;
+        let s = input.sticks;
+        self.status = Some(RcStatus {
+            channels_us: f.channels.map(crate::core::rc::ticks_to_us),
+            sticks: [s.roll, s.pitch, s.yaw, s.throttle],
+            arm: input.arm,
+            kill: input.kill,
+            mode: self.mode.and_then(|i| self.modes.get(i)).copied(),
+            link_quality_pct: old.and_then(|o| o.link_quality_pct),
+            rssi_dbm: old.and_then(|o| o.rssi_dbm),
+            lost: false,
+        });
     }
 
     /// The mode switch read at `position`: a position held for [`MODE_FRAMES`] frames, not

@@ -29,6 +29,13 @@ pub const TICKS_MAX: u16 = 0x7ff;
 /// The centre of a stick's travel, ticks (1500 µs).
 pub const TICKS_MID: u16 = 992;
 
+/// A channel's ticks as the pulse width a PWM receiver would give, µs (172 → 988, 992 → 1500,
+/// 1811 → 2012: 5/8 µs a tick, as the protocols define it).
+pub fn ticks_to_us(ticks: u16) -> u16 {
+    let us = 1500.0 + (f64::from(ticks) - f64::from(TICKS_MID)) * 0.625;
+    us.round().clamp(0.0, f64::from(u16::MAX)) as u16
+}
+
 /// One frame of channels, as the receiver sent it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct RcFrame {
@@ -147,6 +154,14 @@ impl Decoder {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn ticks_read_as_the_protocols_pulse_widths() {
+        assert_eq!(
+            [172, 992, 1811, 0, TICKS_MAX].map(ticks_to_us),
+            [988, 1500, 2012, 880, 2159]
+        );
+    }
 
     #[test]
     fn channels_pack_and_unpack_as_eleven_bit_fields() {

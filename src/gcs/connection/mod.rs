@@ -797,6 +797,7 @@ impl Connection {
                 let flying = matches!(l.mode, Mode::Mission | Mode::Land);
                 self.mission_status(l.mission_item, flying)
             }),
+            rc: st.rc,
         }
     }
 }

@@ -10,7 +10,7 @@ use mavlink::dialects::common::*;
 use std::time::{Duration, Instant};
 
 /// The messages the link can send on request (REQUEST_MESSAGE), by id.
-pub const REQUESTABLE: [u32; 13] = [
+pub const REQUESTABLE: [u32; 14] = [
     CURRENT_MODE_DATA::ID,
     AVAILABLE_MODES_DATA::ID,
     HEARTBEAT_DATA::ID,
@@ -24,6 +24,7 @@ pub const REQUESTABLE: [u32; 13] = [
     ESTIMATOR_STATUS_DATA::ID,
     AUTOPILOT_VERSION_DATA::ID,
     MISSION_CURRENT_DATA::ID,
+    RC_CHANNELS_DATA::ID,
 ];
 
 /// The health is checked this often.
@@ -66,13 +67,14 @@ fn build(id: u32, s: &Snapshot, system_id: u8) -> Option<MavMessage> {
         AUTOPILOT_VERSION_DATA::ID => Some(tm::autopilot_version(system_id)),
         MISSION_CURRENT_DATA::ID => s.mission.as_ref().map(tm::mission_current),
         CURRENT_MODE_DATA::ID => Some(tm::current_mode(s)),
+        RC_CHANNELS_DATA::ID => tm::rc_channels(s),
         _ => None,
     }
 }
 
 /// The periodic messages by id, with their default interval in seconds (0: every
 /// 1/`gcs.telemetry_hz` s).
-pub const PERIODIC_SENT: [(u32, f64); 11] = [
+pub const PERIODIC_SENT: [(u32, f64); 12] = [
     (HEARTBEAT_DATA::ID, 1.0),
     (CURRENT_MODE_DATA::ID, 1.0),
     (SYS_STATUS_DATA::ID, 1.0),
@@ -81,6 +83,7 @@ pub const PERIODIC_SENT: [(u32, f64); 11] = [
     (GPS_RAW_INT_DATA::ID, 1.0),
     (HOME_POSITION_DATA::ID, 5.0),
     (MISSION_CURRENT_DATA::ID, 1.0),
+    (RC_CHANNELS_DATA::ID, 0.2),
     (ATTITUDE_DATA::ID, 0.0),
     (LOCAL_POSITION_NED_DATA::ID, 0.0),
     (GLOBAL_POSITION_INT_DATA::ID, 0.0),
