@@ -211,3 +211,114 @@ async fn a_stalled_logger_loses_no_control_step() {
     assert_eq!(summary.deadline_misses, 0);
     assert!(summary.halt.is_none(), "{:?}", summary.halt);
 }
+
+/// `fly` with the pilot's radio on a pty as `rc.device`, opened as the board's UART is: SBUS
+/// frames from a transmitter whose arm switch goes on once the pre-arm checks can pass (the
+/// vehicle arms: the ESCs' start-up ramp on the mock bus) and whose kill switch then goes on
+/// (every ESC zeroed and disabled, the stop named `kill`, the vehicle disarmed, the run going
+/// on).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn fly_arms_by_the_radios_switch_and_its_kill_switch_stops_the_escs() {
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
+    use uquad::core::rc::sticks::{RcInput, Sticks};
+    use uquad::core::rc::{RcFrame, RcProtocol, sbus};
+    let _one = ONE_AT_A_TIME.lock().await;
+    let (mut master, slave) = serialport::TTYPort::pair().expect("a pty pair");
+    let path = serialport::SerialPort::name(&slave).expect("the pty's name");
+    let port = uquad::hw::serial::open_rc(std::path::Path::new(&path), RcProtocol::Sbus)
+        .expect("the pty opens as a receiver's UART");
+    // The 2012 profile, waiting for `arm`: it calibrates with the motors idling, after it.
+    let sets = ["commander.start=\"disarmed\"", "rc.protocol=\"sbus\""];
+    let sets: Vec<&str> = FLY_TOLERANT.iter().chain(&sets).copied().collect();
+    let cfg = uquad::config::load(&profile_2012(), &common::sets(&sets))
+        .expect("the profile")
+        .config;
+    // 0: switches off; 1: the arm switch on; 2: the kill switch on too.
+    let state = Arc::new(AtomicU8::new(0));
+    let stop = Arc::new(AtomicBool::new(false));
+    let writer = std::thread::spawn({
+        let (state, stop, map) = (state.clone(), stop.clone(), cfg.rc.map());
+        move || {
+            use std::io::Write;
+            while !stop.load(Ordering::Relaxed) {
+                let s = state.load(Ordering::Relaxed);
+                let input = RcInput {
+                    sticks: Sticks {
+                        throttle: -1.0,
+                        ..Sticks::default()
+                    },
+                    arm: s >= 1,
+                    kill: s >= 2,
+                    mode: 0,
+                };
+                let frame = sbus::encode(&RcFrame {
+                    channels: map.frame_for(&input),
+                    frame_lost: false,
+                    failsafe: false,
+                });
+                if master.write_all(&frame).is_err() {
+                    return;
+                }
+                std::thread::sleep(Duration::from_millis(7));
+            }
+        }
+    });
+    let switches = state.clone();
+    let (summary, _sent, bus, _logs) = fly_with_rc(
+        &sets,
+        uquad::app::fly::FlyOptions::default(),
+        Link::Pty,
+        Box::new(|_, f| Some(f)),
+        Some(Box::new(port)),
+        |bus: uquad::hw::esc_bus::MockBus| async move {
+            // A second of steady frames, then the arm switch; the ESCs' ramp, then the kill
+            // switch.
+            tokio::time::sleep(Duration::from_millis(3_000)).await;
+            switches.store(1, Ordering::Relaxed);
+            let t0 = std::time::Instant::now();
+            while !bus.transactions().iter().any(|t| t.reg == REG_ENABLE)
+                && t0.elapsed() < Duration::from_secs(10)
+            {
+                tokio::time::sleep(Duration::from_millis(50)).await;
+            }
+            tokio::time::sleep(Duration::from_millis(3_000)).await;
+            switches.store(2, Ordering::Relaxed);
+            tokio::time::sleep(Duration::from_millis(1_000)).await;
+        },
+    )
+    .await;
+    stop.store(true, Ordering::Relaxed);
+    let _ = writer.join();
+    let text = summary.text();
+    assert!(summary.error.is_none(), "{:?}: {text}", summary.error);
+    assert!(
+        summary.halt.is_none(),
+        "the kill switch is not a halt: {text}"
+    );
+    let mode_log = std::fs::read_to_string(summary.run_dir.join("mode.log")).unwrap();
+    assert!(mode_log.contains(" in rc arm | ok"), "{mode_log}");
+    assert!(
+        mode_log.contains(" mode disarmed kill switch"),
+        "{mode_log}"
+    );
+    let rc = summary.rc.expect("the receiver's counts");
+    assert!(rc.frames > 500 && rc.rejected_frames == 0, "{rc:?}");
+    // Armed: the ESCs enabled and ramped; killed: zeroed and disabled, the stop confirmed
+    // and named, and nothing written after it.
+    let tx = bus.transactions();
+    assert!(
+        tx.iter().any(|t| t.reg == REG_ENABLE),
+        "never armed: {text}"
+    );
+    assert!(tx.iter().any(|t| t.reg == REG_SPEED && t.value > 0));
+    // After the last speed: zero to every ESC, then disable; from then on only the
+    // disarmed vehicle's probes (disables), never an enable or a speed.
+    let last = tx
+        .iter()
+        .rposition(|t| t.reg == REG_SPEED && t.value > 0)
+        .expect("speeds written");
+    assert_ends_zero_then_disable(&tx[..last + 9]);
+    assert!(tx[last + 9..].iter().all(|t| t.reg == REG_DISABLE));
+    assert_eq!(summary.esc_stop_reason.as_deref(), Some("kill"), "{text}");
+}

@@ -544,6 +544,26 @@ pub async fn fly_with<F: std::future::Future<Output = ()>>(
     MockBus,
     tempfile::TempDir,
 ) {
+    fly_with_rc(extra, opts, link, plan, None, during).await
+}
+
+/// The RC receiver's port (`rc.device` opened), as `fly` takes it.
+pub type RcPort = Box<dyn tokio::io::AsyncRead + Send + Unpin>;
+
+/// [`fly_with`], with an RC receiver's port.
+pub async fn fly_with_rc<F: std::future::Future<Output = ()>>(
+    extra: &[&str],
+    opts: uquad::app::fly::FlyOptions,
+    link: Link,
+    plan: FramePlan,
+    rc: Option<RcPort>,
+    during: impl FnOnce(MockBus) -> F,
+) -> (
+    uquad::app::report::FlySummary,
+    u64,
+    MockBus,
+    tempfile::TempDir,
+) {
     let profile = uquad::config::load(&profile_2012(), &sets(extra)).unwrap();
     let logs = tempfile::tempdir().unwrap();
     let (feeder, slave) = ImuFeeder::start(plan, link);
@@ -562,7 +582,7 @@ pub async fn fly_with<F: std::future::Future<Output = ()>>(
                     gps_fixes: None,
                     live: None,
                     operator: None,
-                    rc: None,
+                    rc,
                 },
                 uquad::app::fly::FlyOptions {
                     log_dir: Some(log_dir),
