@@ -30,7 +30,7 @@ enum Input {
     Wait,
 }
 
-const INPUTS: [Input; 17] = [
+const INPUTS: [Input; 18] = [
     Input::Command(Command::Arm),
     Input::Command(Command::Takeoff(None)),
     Input::Command(Command::Land),
@@ -40,6 +40,7 @@ const INPUTS: [Input; 17] = [
     Input::Command(Command::Hold(None)),
     Input::Command(Command::Start),
     Input::Command(Command::Sticks(StickMode::Position)),
+    Input::Command(Command::Sticks(StickMode::Altitude)),
     Input::Command(Command::MotorTest {
         motor: 1,
         throttle_pct: 10.0,

@@ -1008,6 +1008,8 @@ def joystick(s):
     if ack.result != mav.MAV_RESULT_ACCEPTED:
         fail(f"SET_MODE position on the ground: result {ack.result}; texts: {s.texts}")
     arm(s)
+    # The throttle at its centre while the ESCs' start-up ramp runs, then raised.
+    joystick_for(s, 0, 500, 3.0)
     in_position = lambda m: m.get_type() == "HEARTBEAT" and m.custom_mode == POSCTL
     joystick_for(s, 0, 1000, LONG, in_position)
     start = joystick_for(s, 0, 500, 2.0)

@@ -111,6 +111,8 @@ fn the_arm_switch_reaches_the_flight_and_the_kill_switch_stops_the_escs_at_its_f
         operator: tx,
         beats: beats.clone(),
         stats: stats.clone(),
+        esc: status.clone(),
+        kill: uquad::tasks::rc_reader::KillWatch::Off,
     };
     let cancel = tokio_util::sync::CancellationToken::new();
     let task = rt.spawn(reader.run(port, cancel.clone()));
@@ -179,4 +181,12 @@ fn the_arm_switch_reaches_the_flight_and_the_kill_switch_stops_the_escs_at_its_f
     mailbox.shutdown();
     let _ = writer.join();
     assert!(stats.frames.load(std::sync::atomic::Ordering::Relaxed) >= 4);
+    // The reader timed each kill itself, from its frame's read to the confirmed stop (the
+    // figure `sim --realtime` reports).
+    let kills = stats.kills();
+    assert_eq!(kills.len(), trials(), "{kills:?}");
+    assert!(
+        kills.iter().all(|k| k.confirmed_us >= k.frame_us),
+        "{kills:?}"
+    );
 }

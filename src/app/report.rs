@@ -49,6 +49,8 @@ pub struct FlySummary {
     pub gcs: Option<crate::tasks::gcs::GcsReport>,
     /// The RC receiver's counters, with a radio (`rc.protocol`).
     pub rc: Option<RcCounts>,
+    /// Each kill switch's stop as the receiver's reader timed it.
+    pub rc_kills: Vec<crate::tasks::rc_reader::KillTimes>,
     /// Records written per stream.
     pub log_records: PerStream<u64>,
     /// Frame arrival → ESC write and its stages, µs (all 0 in lock-step runs).
@@ -169,8 +171,9 @@ pub struct KillFigures {
     /// Every ESC had acknowledged its zero and its disable, s (none: never confirmed).
     pub confirmed_s: Option<f64>,
     /// The true height then, m, and the true vertical speed as the vehicle reached the
-    /// ground, m/s (up positive; none: it was on the ground, or had not come down).
-    pub height_m: f64,
+    /// ground, m/s (up positive; none: it was on the ground, or had not come down). Both
+    /// none in `--realtime`, whose kills the receiver's reader times on the run's clock.
+    pub height_m: Option<f64>,
     pub impact_v_m_s: Option<f64>,
 }
 
@@ -182,12 +185,10 @@ impl KillFigures {
                 (c - self.frame_s) * 1e3
             )
         });
-        let fall = self.impact_v_m_s.map_or(String::new(), |v| {
-            format!(
-                ", fell from {:.2} m to the ground at {:.2} m/s",
-                self.height_m, -v
-            )
-        });
+        let fall = match (self.height_m, self.impact_v_m_s) {
+            (Some(h), Some(v)) => format!(", fell from {h:.2} m to the ground at {:.2} m/s", -v),
+            _ => String::new(),
+        };
         format!(
             "\n  kill switch at {:.2} s: {confirmed}{fall}",
             self.frame_s

@@ -354,7 +354,7 @@ impl<'a> FastSim<'a> {
                 self.kills.push(crate::app::report::KillFigures {
                     frame_s: t as f64 / 1e6,
                     confirmed_s: None,
-                    height_m: self.plant.position_m()[2],
+                    height_m: Some(self.plant.position_m()[2]),
                     impact_v_m_s: None,
                 });
             }
@@ -418,7 +418,7 @@ impl<'a> FastSim<'a> {
             {
                 k.confirmed_s = Some(o.settled_us as f64 / 1e6);
             }
-            if k.impact_v_m_s.is_none() && on_ground && k.height_m > 0.05 {
+            if k.impact_v_m_s.is_none() && on_ground && k.height_m.is_some_and(|h| h > 0.05) {
                 k.impact_v_m_s = Some(self.last_vz_m_s);
             }
         }

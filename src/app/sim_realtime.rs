@@ -278,7 +278,16 @@ pub async fn run(profile: &Profile, opts: &SimOptions) -> anyhow::Result<SimSumm
     fly.commander.flights = result.flights;
     Ok(SimSummary {
         esc_end,
-        kill_switch: Vec::new(),
+        kill_switch: fly
+            .rc_kills
+            .iter()
+            .map(|k| crate::app::report::KillFigures {
+                frame_s: k.frame_us as f64 / 1e6,
+                confirmed_s: Some(k.confirmed_us as f64 / 1e6),
+                height_m: None,
+                impact_v_m_s: None,
+            })
+            .collect(),
         fly,
         hover: result.hover,
         track: None,

@@ -106,14 +106,13 @@ pub fn write_input(
         OperatorInput::Rc(r) => {
             let [roll, pitch, yaw, throttle] = r.sticks;
             let kill = if r.kill { "on" } else { "off" };
-            let _ = write!(
+            let mode = r
+                .stick_mode
+                .map_or(String::new(), |m| format!(" mode {}", m.name()));
+            writeln!(
                 out,
-                "{t_us} rc kill {kill} sticks {roll} {pitch} {yaw} {throttle}"
-            );
-            match r.stick_mode {
-                Some(m) => writeln!(out, " mode {}", m.name()),
-                None => writeln!(out),
-            }
+                "{t_us} rc kill {kill} sticks {roll} {pitch} {yaw} {throttle}{mode}"
+            )
         }
         OperatorInput::Sticks([roll, pitch, yaw, throttle]) => {
             writeln!(out, "{t_us} sticks {roll} {pitch} {yaw} {throttle}")

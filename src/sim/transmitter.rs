@@ -180,13 +180,13 @@ impl Transmitter {
         frames
     }
 
-    /// What the receiver's decoder made of the frames (the lock-step modes'; nothing is
-    /// dropped between it and the flight).
     /// The radio as a watcher sees it (a paced run's link and console).
     pub fn status(&self) -> Option<crate::core::status::RcStatus> {
         self.link.status()
     }
 
+    /// What the receiver's decoder made of the frames (the lock-step modes'; nothing is
+    /// dropped between it and the flight).
     pub fn counts(&self) -> crate::core::rc::RcCounts {
         let d = self.decoder.stats();
         crate::core::rc::RcCounts {

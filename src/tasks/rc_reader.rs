@@ -32,21 +32,59 @@ pub struct RcStats {
     pub dropped_inputs: AtomicU64,
     /// The radio as a watcher sees it. The reader only tries the lock (a watcher holding it
     /// delays nothing: the next frame publishes); a watcher waits at most for a copy.
-    status: std::sync::Mutex<Option<crate::core::status::RcStatus>>,
+    status: std::sync::Mutex<Option<(crate::core::status::RcStatus, Instant)>>,
+    /// A status older than this reads lost (a receiver fallen silent sends no failsafe flag);
+    /// none: never.
+    stale_after: Option<std::time::Duration>,
+    /// Each kill: its frame's arrival and the ESCs' confirmed stop, µs on the run's clock
+    /// (the first [`KILLS_KEPT`]).
+    kills: std::sync::Mutex<Vec<KillTimes>>,
 }
 
+/// A kill switch's stop as the reader timed it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct KillTimes {
+    /// The read that brought the first frame with the switch on returned, µs.
+    pub frame_us: i64,
+    /// Every ESC acknowledged its zero and its disable, µs.
+    pub confirmed_us: i64,
+}
+
+/// Kills timed per run, at most.
+pub const KILLS_KEPT: usize = 1000;
+
 impl RcStats {
-    /// The radio as the reader last published it.
+    /// The radio as the reader last published it: lost once it is older than
+    /// [`RcStats::stale_after`].
     pub fn status(&self) -> Option<crate::core::status::RcStatus> {
-        match self.status.lock() {
+        let newest = match self.status.lock() {
             Ok(s) => *s,
             Err(poisoned) => *poisoned.into_inner(),
+        };
+        let (mut status, at) = newest?;
+        status.lost |= self.stale_after.is_some_and(|limit| at.elapsed() > limit);
+        Some(status)
+    }
+
+    fn publish(&self, status: Option<crate::core::status::RcStatus>, at: Instant) {
+        if let Ok(mut s) = self.status.try_lock() {
+            *s = status.map(|st| (st, at));
         }
     }
 
-    fn publish(&self, status: Option<crate::core::status::RcStatus>) {
-        if let Ok(mut s) = self.status.try_lock() {
-            *s = status;
+    /// Stats whose status reads lost once older than `limit` (`failsafe.rc_timeout_s`).
+    pub fn stale_after(limit: std::time::Duration) -> Self {
+        RcStats {
+            stale_after: Some(limit),
+            ..RcStats::default()
+        }
+    }
+
+    /// The kills timed so far.
+    pub fn kills(&self) -> Vec<KillTimes> {
+        match self.kills.lock() {
+            Ok(k) => k.clone(),
+            Err(poisoned) => poisoned.into_inner().clone(),
         }
     }
 
@@ -75,6 +113,21 @@ pub struct RcReader {
     pub operator: mpsc::Sender<OperatorInput>,
     pub beats: Arc<Heartbeats>,
     pub stats: Arc<RcStats>,
+    /// The ESC writer's status: a kill's stop is timed when it is confirmed.
+    pub esc: Arc<crate::tasks::esc_writer::EscStatus>,
+    /// A kill switch on since this frame (µs), its stop not yet confirmed; or on and timed.
+    pub kill: KillWatch,
+}
+
+/// The kill switch as the reader times it.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum KillWatch {
+    #[default]
+    Off,
+    /// On since a frame at this time, the stop not yet confirmed.
+    Waiting(i64),
+    /// On, its stop timed.
+    Timed,
 }
 
 impl RcReader {
@@ -130,6 +183,41 @@ impl RcReader {
         }
     }
 
+    /// The kill switch read `on` in a frame at `t_us`: a new kill starts its timing; a kill
+    /// waiting for its stop stays timed however short the switch's flick.
+    fn watch_kill(&mut self, on: bool, t_us: i64) {
+        self.kill = match (on, self.kill) {
+            (false, KillWatch::Waiting(frame_us)) => KillWatch::Waiting(frame_us),
+            (false, _) => KillWatch::Off,
+            (true, KillWatch::Off) => KillWatch::Waiting(t_us),
+            (true, k) => k,
+        };
+    }
+
+    /// A kill waiting for its stop: timed once the ESC writer says every ESC acknowledged
+    /// a stop named `kill` settled after the frame (then off, or on and timed).
+    fn time_kill(&mut self, on: bool) {
+        let KillWatch::Waiting(frame_us) = self.kill else {
+            return;
+        };
+        let Some(o) = self.esc.stop_outcome() else {
+            return;
+        };
+        let killed = self.esc.stop_reason() == Some(StopReason::KillSwitch);
+        if !(killed && o.confirmed() && o.settled_us >= frame_us) {
+            return;
+        }
+        self.kill = if on { KillWatch::Timed } else { KillWatch::Off };
+        if let Ok(mut k) = self.stats.kills.lock()
+            && k.len() < KILLS_KEPT
+        {
+            k.push(KillTimes {
+                frame_us,
+                confirmed_us: o.settled_us,
+            });
+        }
+    }
+
     /// The device failed: said once with the reader's counts; the commander's rc-loss acts
     /// on the silence.
     fn ended(&self, why: &str) {
@@ -149,14 +237,17 @@ impl RcReader {
         for e in events {
             match e {
                 RcEvent::Channels(f) => {
-                    if self.link.frame(f, t_us, inputs) {
+                    let kill = self.link.frame(f, t_us, inputs);
+                    if kill {
                         self.mailbox.halt(StopReason::KillSwitch);
                     }
+                    self.watch_kill(kill, t_us);
+                    self.time_kill(kill);
                 }
                 RcEvent::Link(s) => self.link.link(s, inputs),
             }
         }
-        self.stats.publish(self.link.status());
+        self.stats.publish(self.link.status(), at);
         let d = self.decoder.stats();
         self.stats.frames.store(d.frames, Ordering::Relaxed);
         self.stats

@@ -447,6 +447,8 @@ fn nav_state(custom: usize) -> u8 {
         Some("kill") => 13,
         Some("mission") => 3,
         Some("return") => 5,
+        Some("altitude") => 1,
+        Some("position") => 2,
         // Disarmed, armed on the ground, hold: loiter.
         _ => 4,
     }

@@ -259,7 +259,11 @@ fn rc_reader(
         mailbox: h.mailbox.clone(),
         operator: operator.clone(),
         beats: h.beats.clone(),
-        stats: Arc::default(),
+        stats: Arc::new(crate::tasks::rc_reader::RcStats::stale_after(
+            std::time::Duration::from_secs_f64(cfg.failsafe.rc_timeout_s),
+        )),
+        esc: h.esc_status.clone(),
+        kill: crate::tasks::rc_reader::KillWatch::Off,
     }
 }
 
@@ -449,6 +453,7 @@ async fn shut_down(h: RunHandles, threads: Threads, loggers: Loggers) -> FlySumm
         tracing::error!("{e}");
     }
     let mut summary = summarise(&h, reports, error);
+    summary.rc_kills = threads.rc.as_ref().map(|s| s.kills()).unwrap_or_default();
     summary.rc = threads.rc.map(|s| s.counts());
     for r in summary.closing_records() {
         h.logs.log(r);
@@ -502,6 +507,7 @@ fn summarise(h: &RunHandles, r: control::Reports, error: Option<String>) -> FlyS
         log_io_errors: h.logs.io_errors(),
         console_drops: load(&h.console_drops),
         rc: None,
+        rc_kills: Vec::new(),
         gcs: h
             .gcs_stats
             .as_ref()

@@ -181,9 +181,13 @@ impl Commander {
         }
         // Lost since the moment the last fix went stale: the same whichever frame notices it.
         self.gps_lost_us = gps_stale.then(|| self.gps_stale_since(t_us));
-        let gps_due = self
-            .gps_lost_us
-            .is_some_and(|s| (t_us - s) as f64 / 1e6 >= p.gps_loss_land_s);
+        // A pilot flying `altitude` needs no position: while one is on the sticks its action
+        // waits (and is taken the moment no one is).
+        let flown = self.mode == Mode::Altitude && self.pilot_on_sticks(t_us);
+        let gps_due = !flown
+            && self
+                .gps_lost_us
+                .is_some_and(|s| (t_us - s) as f64 / 1e6 >= p.gps_loss_land_s);
         let action = p.gps_loss_action;
         self.edge(
             Failsafe::GpsLoss,
@@ -360,10 +364,6 @@ impl Commander {
         out: &mut Vec<Event>,
     ) -> Option<EscRequest> {
         let why = format!("failsafe {}", kind.name());
-        // A pilot flying `altitude` needs no position: the sticks are the answer to its loss.
-        if kind == Failsafe::GpsLoss && self.mode == Mode::Altitude && self.pilot_on_sticks(t_us) {
-            return None;
-        }
         match action {
             Action::Kill => return Some(EscRequest::Kill),
             Action::Return if self.position_known() => self.begin_return(est, t_us, &why, out),

@@ -43,6 +43,8 @@ pub struct ClimbTrace {
     peaked: bool,
     hold_sum_m: f64,
     hold_n: u32,
+    /// The sticks took over after the takeoff: a later hold is not its settling.
+    sticks: bool,
 }
 
 impl ClimbTrace {
@@ -60,6 +62,8 @@ impl ClimbTrace {
     pub fn sample(&mut self, mode: Mode, z_m: f64, vz_m_s: f64) {
         match mode {
             Mode::Takeoff => self.peak_m = self.peak_m.max(z_m),
+            Mode::Position | Mode::Altitude => self.sticks = true,
+            Mode::Hold if self.sticks => {}
             Mode::Hold if !self.peaked => {
                 self.peak_m = self.peak_m.max(z_m);
                 self.peaked = vz_m_s <= 0.0;

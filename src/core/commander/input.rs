@@ -246,12 +246,16 @@ pub enum OperatorInput {
 }
 
 impl OperatorInput {
-    /// Whether the input is the operator's asking (a command, a key, a mission), which is
+    /// Whether the input is the operator's asking (a command, a key, a mission, a joystick's
+    /// sticks), which is
     /// refused once stale; a link's beat and a fix are facts of their arrival and never are.
     pub fn expires(&self) -> bool {
         matches!(
             self,
-            OperatorInput::Command(..) | OperatorInput::Key(_) | OperatorInput::Mission(_)
+            OperatorInput::Command(..)
+                | OperatorInput::Key(_)
+                | OperatorInput::Mission(_)
+                | OperatorInput::Sticks(_)
         )
     }
 

@@ -67,7 +67,7 @@ impl Commander {
                 Some(Item::Takeoff { .. }) => self.estimator_ready(est),
                 _ => Err(Refusal::MissionWithoutTakeoff),
             },
-            Mode::Hold => self.position_held(),
+            Mode::Hold | Mode::Position => self.position_held(),
             m => Err(Refusal::StartNeedsArmedOrHold(m)),
         }
     }
@@ -179,6 +179,9 @@ impl Commander {
     pub(super) fn here(&self) -> PathPoint {
         if let (Some(run), Mode::Mission | Mode::Return) = (&self.run, self.mode) {
             return run.last();
+        }
+        if matches!(self.mode, Mode::Position | Mode::Altitude) {
+            return self.stick;
         }
         PathPoint {
             pos_m: [self.target_m[0], self.target_m[1], self.profile.z_m],

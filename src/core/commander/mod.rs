@@ -506,8 +506,12 @@ pub struct Commander {
     /// The stick mode a ground station chose on the ground (no radio configured): a throttle
     /// raised takes off into it.
     stick_choice: Option<StickMode>,
-    /// A takeoff by throttle: the stick mode that follows it.
+    /// A takeoff by throttle: the stick mode that follows it; the throttle seen at its
+    /// centre or below since the ESCs run (a raise after it takes off).
     sticks_after_takeoff: Option<StickMode>,
+    throttle_low_seen: bool,
+    /// In a stick mode, the throttle has been to its centre (only then does it climb).
+    throttle_centred: bool,
 }
 
 impl Commander {
@@ -580,6 +584,8 @@ impl Commander {
             gcs_sticks: None,
             stick_choice: None,
             sticks_after_takeoff: None,
+            throttle_low_seen: false,
+            throttle_centred: false,
         }
     }
 
@@ -1169,6 +1175,10 @@ impl Commander {
 
     fn disarm(&mut self, t_us: i64, why: &str, out: &mut Vec<Event>) {
         self.spent = !self.p.rearm;
+        // A ground station's choice of a stick mode is for the flight it was made in; a
+        // throttle seen low, for the arming it was seen in.
+        self.stick_choice = None;
+        self.throttle_low_seen = false;
         self.armed_us = None;
         self.escs_running = false;
         self.ground_since_us = None;

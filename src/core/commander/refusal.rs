@@ -142,7 +142,11 @@ impl fmt::Display for Refusal {
                 f.write_str("the mission does not begin with a takeoff: take off, then start")
             }
             StartNeedsArmedOrHold(m) => {
-                write!(f, "{}: start needs armed (on the ground) or hold", m.name())
+                write!(
+                    f,
+                    "{}: start needs armed (on the ground), hold or position",
+                    m.name()
+                )
             }
             NoRecentFix => {
                 f.write_str("gps: no fix lately (position hold is off): a path cannot be flown")

@@ -62,6 +62,11 @@ pub const LEASH_M: f64 = 2.0;
 /// its failsafe.
 pub const FENCE_MARGIN_M: f64 = 1.0;
 
+/// In `altitude`, the roll and pitch sticks tilt the vehicle from this share of their travel
+/// on; nearer the centre the velocity is damped instead (a joystick's jitter of a step or two
+/// does not switch between the two at every message).
+pub const TILT_STICK_MIN: f64 = 0.05;
+
 /// A ground station's joystick counts this long after its last message, s; then the sticks
 /// are centred (the vehicle holds).
 pub const GCS_STICKS_S: f64 = 0.5;
@@ -87,9 +92,12 @@ impl Commander {
         }
     }
 
-    /// A ground station's joystick (MANUAL_CONTROL) at `t_us`, each axis −1…1.
+    /// A ground station's joystick (MANUAL_CONTROL) at `t_us`, each axis −1…1 (a reading
+    /// that is not a number is not one).
     pub fn gcs_sticks(&mut self, sticks: [f64; 4], t_us: i64) {
-        self.gcs_sticks = Some((sticks.map(|v| v.clamp(-1.0, 1.0)), t_us));
+        if sticks.iter().all(|v| v.is_finite()) {
+            self.gcs_sticks = Some((sticks.map(|v| v.clamp(-1.0, 1.0)), t_us));
+        }
     }
 
     /// The stick mode selected for a takeoff by throttle: the radio's mode switch while a
@@ -129,6 +137,10 @@ impl Commander {
         start.acc_m_s2 = [0.0; 3];
         start.yaw_rate_rad_s = 0.0;
         self.stick = start;
+        // The throttle climbs only once it has been to its centre in this mode: a mode
+        // chosen with the throttle away from it (a ground station's choice while the radio's
+        // throttle rests low; the end of a takeoff by throttle) holds the height till then.
+        self.throttle_centred = false;
         self.set_mode(mode, t_us, &why, out);
     }
 
@@ -139,7 +151,12 @@ impl Commander {
         let [roll, pitch, yaw, throttle] = self.sticks_at(o.t_us);
         let p = &mut self.stick;
         let (s, c) = p.yaw_rad.sin_cos();
-        let climb_m_s = climb_share(throttle) * l.max_climb_m_s;
+        self.throttle_centred |= climb_share(throttle) == 0.0;
+        let climb_m_s = if self.throttle_centred {
+            climb_share(throttle) * l.max_climb_m_s
+        } else {
+            0.0
+        };
         let position = self.mode == Mode::Position;
         // Forward and left in the heading's frame, turned into the world's (x forward, y
         // left, z up): the pitch stick forward flies forward, the roll stick right flies right.
@@ -164,7 +181,9 @@ impl Commander {
                 0.0
             };
         }
-        p.yaw_rate_rad_s = yaw * l.max_yaw_rate_rad_s;
+        // The yaw stick right turns clockwise seen from above: the heading (counter-clockwise
+        // about z up) decreases.
+        p.yaw_rate_rad_s = -yaw * l.max_yaw_rate_rad_s;
         p.yaw_rad += p.yaw_rate_rad_s * dt_s;
         if !position {
             p.pos_m[0] = o.pos_m[0];
@@ -176,7 +195,7 @@ impl Commander {
         let p = self.stick;
         // Centred, the sticks ask no tilt: the velocity is damped where the filter observes
         // it, as a hold without a position does (PX4's Altitude mode drifts instead).
-        let tilting = !position && (roll != 0.0 || pitch != 0.0);
+        let tilting = !position && (roll.abs() >= TILT_STICK_MIN || pitch.abs() >= TILT_STICK_MIN);
         self.tilt_rad = tilting.then_some([roll * l.max_tilt_rad, pitch * l.max_tilt_rad]);
         self.target_m = p.pos_m;
         self.profile.z_m = p.pos_m[2];
@@ -193,9 +212,9 @@ impl Commander {
         ));
     }
 
-    /// The stick set point within the heights every set point keeps, inside the fence by
-    /// [`FENCE_MARGIN_M`], and within [`LEASH_M`] of the estimate; a bound reached stops the
-    /// motion across it.
+    /// The stick set point within the heights every set point keeps, within [`LEASH_M`] of
+    /// the estimate, and inside the fence by [`FENCE_MARGIN_M`] (last: the hard limit); a
+    /// bound reached stops the motion across it.
     fn bound_stick_point(&mut self, o: &Observation) {
         let home = self.home_m.unwrap_or(o.pos_m);
         let heights = self.p.height_range_m();
@@ -206,7 +225,7 @@ impl Commander {
             (p.vel_m_s[2], p.acc_m_s2[2]) = (0.0, 0.0);
         }
         let radius_m = (self.p.fence_radius_m - FENCE_MARGIN_M).max(0.0);
-        for (centre, limit_m) in [(home, radius_m), (o.pos_m, LEASH_M)] {
+        for (centre, limit_m) in [(o.pos_m, LEASH_M), (home, radius_m)] {
             let d = [p.pos_m[0] - centre[0], p.pos_m[1] - centre[1]];
             let r = d[0].hypot(d[1]);
             if r > limit_m && r.is_finite() {
@@ -222,18 +241,27 @@ impl Commander {
         }
     }
 
-    /// Armed on the ground, started up, a stick mode selected and the throttle raised past
-    /// [`TAKEOFF_THROTTLE`]: the takeoff to the profile's hover height, then the stick mode.
+    /// Armed on the ground, started up, a stick mode selected, and the throttle raised past
+    /// [`TAKEOFF_THROTTLE`] after it was seen at its centre or below with the ESCs running (a
+    /// throttle left up is not a pilot's raise): the takeoff to the profile's hover height, then the stick
+    /// mode. A raise the takeoff's checks refuse is refused as a `takeoff` would be, and the
+    /// throttle must come low again.
     pub(super) fn takeoff_by_throttle(&mut self, o: &Observation, out: &mut Vec<Event>) {
-        let Some(m) = self.stick_selection() else {
+        let ready = self.mode == Mode::Armed && self.escs_running && self.ground_since_us.is_some();
+        let (Some(m), true, true) = (self.stick_selection(), ready, self.pilot_on_sticks(o.t_us))
+        else {
             return;
         };
-        let ready = self.mode == Mode::Armed && self.escs_running && self.ground_since_us.is_some();
-        if !ready || self.sticks_at(o.t_us)[3] < TAKEOFF_THROTTLE || !self.pilot_on_sticks(o.t_us) {
+        let throttle = self.sticks_at(o.t_us)[3];
+        if climb_share(throttle) <= 0.0 {
+            self.throttle_low_seen = true;
+        }
+        if !self.throttle_low_seen || throttle < TAKEOFF_THROTTLE {
             return;
         }
-        if self.estimator_ready(Some(o)).is_err() || self.fix_ready(o.t_us).is_err() {
-            return;
+        self.throttle_low_seen = false;
+        if let Err(why) = self.estimator_ready(Some(o)).and(self.fix_ready(o.t_us)) {
+            return self.refuse(super::Command::Takeoff(None), o.t_us, why, out);
         }
         let why = format!("throttle raised in {}", m.name());
         let alt = self.p.hover_z_m;

@@ -1693,3 +1693,210 @@ fn a_lost_radio_returns_in_the_air_and_disarms_on_the_ground() {
     assert_eq!(c.tick(110_000, &mut ev), Some(EscRequest::Stop));
     assert_eq!(c.mode(), Mode::Disarmed);
 }
+
+/// Holding at 1 m (no radio), then `position` from a ground station; `steps` of the
+/// joystick's `sticks` from 10 s, the vehicle exactly on its set point.
+fn fly_sticks(mode: StickMode, sticks: [f64; 4], seconds: f64) -> (Commander, Guidance) {
+    let (mut c, mut ev) = holding();
+    c.command(
+        Command::Sticks(mode),
+        10_000_000,
+        Ok(()),
+        Some(&at(10_000_000, 1.0)),
+        &mut ev,
+    );
+    assert_eq!(c.mode(), mode.mode(), "{ev:?}");
+    let mut g = c.guidance();
+    let end = 10_000_000 + (seconds * 1e6) as i64;
+    let mut t = 10_010_000;
+    while t <= end {
+        if t % 100_000 == 0 {
+            c.gcs_sticks(sticks, t);
+        }
+        if t % 1_000_000 == 0 {
+            c.link_beat(LinkSource::Gcs, t);
+        }
+        let mut o = at(t, g.pos_m[2]);
+        o.pos_m[0] = g.pos_m[0];
+        o.pos_m[1] = g.pos_m[1];
+        c.tick(t, &mut ev);
+        g = c.on_estimate(&o, &mut ev).0;
+        t += STEP_US;
+    }
+    (c, g)
+}
+
+#[test]
+fn the_sticks_fly_forward_right_and_clockwise_as_a_pilot_expects() {
+    // The heading at calibration is 0.25 rad: forward is (cos, sin) of it, right is
+    // (sin, −cos); z up.
+    let (s, co) = 0.25f64.sin_cos();
+    let (_, g) = fly_sticks(StickMode::Position, [0.0, 1.0, 0.0, 0.0], 3.0);
+    let (p, _, _) = g.path.expect("position flies a path");
+    let along = p.pos_m[0] * co + p.pos_m[1] * s;
+    let across = p.pos_m[0] * s - p.pos_m[1] * co;
+    // About 3 s at most 0.5 m/s² (the profile's mission.acc_m_s2): 2.2 m.
+    assert!(
+        (along - 2.2).abs() < 0.15 && across.abs() < 1e-6,
+        "forward: {p:?}"
+    );
+    let (_, g) = fly_sticks(StickMode::Position, [1.0, 0.0, 0.0, 0.0], 3.0);
+    let (p, _, _) = g.path.expect("a path");
+    let across = p.pos_m[0] * s - p.pos_m[1] * co;
+    assert!((across - 2.2).abs() < 0.15, "right: {p:?}");
+    // Yaw right: clockwise seen from above, the heading decreases (1 rad/s for 2 s).
+    let (_, g) = fly_sticks(StickMode::Position, [0.0, 0.0, 1.0, 0.0], 2.0);
+    let yaw = g.yaw_rad.expect("a heading");
+    // The joystick's first message at 10.1 s: 1.9 s of turning.
+    assert!((yaw - (0.25 - 1.9)).abs() < 0.02, "{yaw}");
+    // Throttle up: a climb (the sticks read centred till the joystick's first message).
+    let (_, g) = fly_sticks(StickMode::Position, [0.0, 0.0, 0.0, 1.0], 1.0);
+    assert!(g.pos_m[2] > 1.15 && g.vz_m_s > 0.4, "{g:?}");
+    // Altitude: the sticks are a tilt (roll right ψ > 0, pitch forward φ > 0), the heading
+    // set at every step.
+    let (_, g) = fly_sticks(StickMode::Altitude, [0.5, -1.0, 0.0, 0.0], 0.5);
+    assert_eq!(g.tilt_rad, Some([0.5 * 0.27, -0.27]));
+    assert!(!g.hold_xy && g.path.is_none());
+    let (_, g) = fly_sticks(StickMode::Altitude, [0.02, 0.0, 0.0, 0.0], 0.5);
+    assert_eq!(g.tilt_rad, None, "a joystick's jitter is not a tilt");
+}
+
+#[test]
+fn a_throttle_away_from_its_centre_climbs_only_once_it_has_been_there() {
+    let (mut c, _) = fly_sticks(StickMode::Position, [0.0, 0.0, 0.0, -1.0], 0.0);
+    let mut ev = Vec::new();
+    // The mode was entered with the throttle low (a radio's resting throttle): held.
+    let mut g = c.guidance();
+    for k in 1..=100 {
+        let t = 10_000_000 + k * STEP_US;
+        c.gcs_sticks([0.0, 0.0, 0.0, -1.0], t);
+        g = c.on_estimate(&at(t, g.pos_m[2]), &mut ev).0;
+    }
+    assert!((g.pos_m[2] - 1.0).abs() < 1e-9, "{g:?}");
+    // Centred once, then low: it descends.
+    for k in 101..=400 {
+        let t = 10_000_000 + k * STEP_US;
+        let throttle = if k < 110 { 0.0 } else { -1.0 };
+        c.gcs_sticks([0.0, 0.0, 0.0, throttle], t);
+        g = c.on_estimate(&at(t, g.pos_m[2]), &mut ev).0;
+    }
+    assert!(g.pos_m[2] < 0.5, "{g:?}");
+}
+
+#[test]
+fn the_fence_bounds_the_sticks_set_point_and_the_leash_keeps_it_near_the_vehicle() {
+    let p = Params {
+        fence_radius_m: 5.0,
+        ..params()
+    };
+    let (mut c, mut ev) = holding_with(p);
+    c.command(
+        Command::Sticks(StickMode::Position),
+        6_000_000,
+        Ok(()),
+        Some(&at(6_000_000, 1.0)),
+        &mut ev,
+    );
+    // The vehicle stays put while the stick asks full speed: the leash holds the set point
+    // 2 m ahead of it.
+    let mut g = c.guidance();
+    for k in 1..=300 {
+        let t = 6_000_000 + k * STEP_US;
+        c.gcs_sticks([0.0, 1.0, 0.0, 0.0], t);
+        g = c.on_estimate(&at(t, 1.0), &mut ev).0;
+    }
+    let (p, _, _) = g.path.unwrap_or_else(|| panic!("{:?}: {ev:?}", c.mode()));
+    assert!(
+        (p.pos_m[0].hypot(p.pos_m[1]) - sticks::LEASH_M).abs() < 1e-6,
+        "{p:?}"
+    );
+    // Following it, the vehicle meets the fence less its margin.
+    for k in 301..=1300 {
+        let t = 6_000_000 + k * STEP_US;
+        c.gcs_sticks([0.0, 1.0, 0.0, 0.0], t);
+        let mut o = at(t, 1.0);
+        (o.pos_m[0], o.pos_m[1]) = (g.pos_m[0], g.pos_m[1]);
+        g = c.on_estimate(&o, &mut ev).0;
+    }
+    let r = g.pos_m[0].hypot(g.pos_m[1]);
+    assert!((r - (5.0 - sticks::FENCE_MARGIN_M)).abs() < 1e-6, "{r}");
+}
+
+#[test]
+fn without_fixes_the_sticks_fly_altitude_and_the_gps_landing_waits_for_no_one_on_them() {
+    let (mut c, mut ev) = holding();
+    c.command(
+        Command::Sticks(StickMode::Position),
+        10_000_000,
+        Ok(()),
+        Some(&at(10_000_000, 1.0)),
+        &mut ev,
+    );
+    let mut t = 10_010_000;
+    // The fixes stop at 12 s (lost at 15 s); the joystick sends till 40 s.
+    while t < 60_000_000 {
+        let mut o = at(t, 1.0);
+        o.gps_fused = t <= 12_000_000 && t % 1_000_000 == 0;
+        if t % 1_000_000 == 0 {
+            c.link_beat(LinkSource::Gcs, t);
+        }
+        if t < 40_000_000 && t % 100_000 == 0 {
+            c.gcs_sticks([0.0; 4], t);
+        }
+        c.tick(t, &mut ev);
+        c.on_estimate(&o, &mut ev);
+        if (15_100_000..40_000_000).contains(&t) {
+            assert_eq!(c.mode(), Mode::Altitude, "at {t}: {ev:?}");
+        }
+        t += STEP_US;
+    }
+    // No one on the sticks from 40 s (the last message at 39.9 s, read for 0.5 s): land.
+    let land_at = ev.iter().find_map(|e| match e {
+        Event::Mode {
+            mode: Mode::Land,
+            t_us,
+            ..
+        } => Some(*t_us),
+        _ => None,
+    });
+    assert!(
+        land_at.is_some_and(|t| (40_400_000..40_500_000).contains(&t)),
+        "{land_at:?}"
+    );
+}
+
+#[test]
+fn a_throttle_takeoff_needs_a_stick_mode_and_a_raise_from_low_after_the_ramp() {
+    let (mut c, mut ev) = armed();
+    let step = |c: &mut Commander, t: i64, throttle: f64, ev: &mut Vec<Event>| {
+        c.gcs_sticks([0.0, 0.0, 0.0, throttle], t);
+        c.on_estimate(&at(t, 0.0), ev);
+    };
+    // No stick mode chosen: the throttle is nothing.
+    for k in 1..=20 {
+        step(&mut c, k * STEP_US, 1.0, &mut ev);
+    }
+    assert_eq!(c.mode(), Mode::Armed);
+    c.command(
+        Command::Sticks(StickMode::Position),
+        300_000,
+        Ok(()),
+        None,
+        &mut ev,
+    );
+    // Chosen, the throttle left up is not a raise.
+    for k in 31..=60 {
+        step(&mut c, k * STEP_US, 1.0, &mut ev);
+    }
+    assert_eq!(c.mode(), Mode::Armed);
+    // Low, then up: the takeoff, then position once at its height.
+    step(&mut c, 610_000, -1.0, &mut ev);
+    step(&mut c, 620_000, 0.8, &mut ev);
+    assert_eq!(c.mode(), Mode::Takeoff, "{ev:?}");
+    assert!(
+        ev.iter()
+            .any(|e| matches!(e, Event::Mode { why, .. } if why == "throttle raised in position"))
+    );
+    follow(&mut c, 630_000, 8_000_000, &mut ev);
+    assert_eq!(c.mode(), Mode::Position, "{ev:?}");
+}

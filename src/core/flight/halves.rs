@@ -543,9 +543,10 @@ impl ControllerCore {
             planner.sp.x[3..].fill(0.0);
             planner.sp.x[crate::core::ekf::idx::THETA] = g.yaw_rad.unwrap_or(est.theta_cal_rad);
         }
-        // The `altitude` mode's sticks: the tilt and the heading they fly (the set point goes
-        // back to rest when they are left, as off a path).
-        if let Some([roll_rad, pitch_rad]) = g.tilt_rad {
+        // The `altitude` mode's sticks: the tilt (none: level) and the heading they fly, at
+        // every step (the set point goes back to rest when the mode is left, as off a path).
+        if g.mode == crate::core::commander::Mode::Altitude {
+            let [roll_rad, pitch_rad] = g.tilt_rad.unwrap_or([0.0, 0.0]);
             (planner.sp.x[3], planner.sp.x[4]) = (roll_rad, pitch_rad);
             planner.sp.x[crate::core::ekf::idx::THETA] = g.yaw_rad.unwrap_or(est.theta_cal_rad);
             self.following = true;

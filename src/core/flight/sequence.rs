@@ -512,6 +512,27 @@ impl EstimatorSide {
             input: input.clone(),
             verdict: verdict.clone(),
         });
+        let request = match self.apply(input, verdict, t_us, out) {
+            Ok(request) => request,
+            Err(action) => return action,
+        };
+        self.last_refusal = self.events.iter().find_map(|e| match e {
+            commander::Event::Refusal { why, .. } => Some(why.clone()),
+            _ => None,
+        });
+        self.record_events(out);
+        self.act_on(request, t_us, out)
+    }
+
+    /// What `input` asks of the commander (and the ESCs); `Err` when it ends the handling
+    /// at once (a quit).
+    fn apply(
+        &mut self,
+        input: OperatorInput,
+        verdict: Option<Result<(), String>>,
+        t_us: i64,
+        out: &mut impl Outputs,
+    ) -> Result<Option<EscRequest>, OperatorAction> {
         let request = match input {
             OperatorInput::Beat(src) => {
                 self.commander.link_beat(src, t_us);
@@ -520,7 +541,7 @@ impl EstimatorSide {
             OperatorInput::Key(ManualCommand::Quit) => {
                 if self.commander.quit(t_us, &mut self.events) {
                     out.record(FlightRecord::Note("manual quit: stopping".into()));
-                    return OperatorAction::Quit;
+                    return Err(OperatorAction::Quit);
                 }
                 None
             }
@@ -559,24 +580,7 @@ impl EstimatorSide {
             {
                 None
             }
-            OperatorInput::Command(cmd, src) => {
-                // A link that gives a command is an operator link from then on: its silence
-                // is a link-loss, whether or not it ever sent a heartbeat.
-                self.commander.link_beat(src, t_us);
-                let v = verdict.unwrap_or(Ok(()));
-                let o = self.observed;
-                let request = self
-                    .commander
-                    .command(cmd, t_us, v, o.as_ref(), &mut self.events);
-                let refused = self
-                    .events
-                    .iter()
-                    .any(|e| matches!(e, commander::Event::Refusal { .. }));
-                if cmd == commander::Command::Calibrate && !refused {
-                    self.calibrate_again(out);
-                }
-                request
-            }
+            OperatorInput::Command(cmd, src) => self.command(cmd, src, verdict, t_us, out),
             OperatorInput::Mission(plan) => {
                 self.load_mission(plan, t_us, out);
                 None
@@ -587,11 +591,43 @@ impl EstimatorSide {
                 None
             }
         };
-        self.last_refusal = self.events.iter().find_map(|e| match e {
-            commander::Event::Refusal { why, .. } => Some(why.clone()),
-            _ => None,
-        });
-        self.record_events(out);
+        Ok(request)
+    }
+
+    /// An operator's command: its link heard, the commander's verdict, a calibration taken.
+    fn command(
+        &mut self,
+        cmd: commander::Command,
+        src: commander::LinkSource,
+        verdict: Option<Result<(), String>>,
+        t_us: i64,
+        out: &mut impl Outputs,
+    ) -> Option<EscRequest> {
+        // A link that gives a command is an operator link from then on: its silence is a
+        // link-loss, whether or not it ever sent a heartbeat.
+        self.commander.link_beat(src, t_us);
+        let v = verdict.unwrap_or(Ok(()));
+        let o = self.observed;
+        let request = self
+            .commander
+            .command(cmd, t_us, v, o.as_ref(), &mut self.events);
+        let refused = self
+            .events
+            .iter()
+            .any(|e| matches!(e, commander::Event::Refusal { .. }));
+        if cmd == commander::Command::Calibrate && !refused {
+            self.calibrate_again(out);
+        }
+        request
+    }
+
+    /// What the ESCs are asked after an input, as the driver's action.
+    fn act_on(
+        &mut self,
+        request: Option<EscRequest>,
+        t_us: i64,
+        out: &mut impl Outputs,
+    ) -> OperatorAction {
         if request == Some(EscRequest::Start) && self.at_rest && !self.esc_start_asked {
             // Under a running estimate the ESCs start with the arm, not at the next settle.
             self.esc_start_asked = true;

@@ -193,7 +193,7 @@ pub const RECEIVED: &[(&str, &str)] = &[
         "a joystick: x pitch, y roll, r yaw (each -1000..1000), z throttle (0..1000, 500 its \
          centre) flown as the radio's sticks in `position` and `altitude` while no radio is \
          heard (`hold` ignores them); passed on when they move and every 0.2 s; a joystick \
-         silent for 0.5 s reads centred (the vehicle holds)",
+         silent for 0.5 s reads centred (the vehicle holds its height, and in position its point)",
     ),
     (
         "SET_POSITION_TARGET_LOCAL_NED",
