@@ -10,7 +10,6 @@
 use super::RcFrame;
 use super::sticks::{RcInput, RcMap};
 use crate::core::commander::{Command, LinkSource, OperatorInput, RcReport, StickMode};
-use crate::core::status::RcStatus;
 
 /// The receiver is reported heard at least this many times within `failsafe.rc_timeout_s`:
 /// a frame or two lost in between is not a loss.
@@ -242,6 +241,48 @@ impl RcLink {
     }
 }
 
+/// The pilot's radio as a watcher reads it (RC_CHANNELS, the console's statistics line).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RcStatus {
+    /// Channels 1–16 of the newest frame, µs.
+    pub channels_us: [u16; crate::core::rc::CHANNELS],
+    /// What they read as through the map: roll, pitch, yaw, throttle (each −1…1) and the
+    /// switches; the mode switch's selection.
+    pub sticks: [f64; 4],
+    pub arm: bool,
+    pub kill: bool,
+    pub mode: Option<RcMode>,
+    /// The receiver's link statistics (CRSF): packets received of the last 100, %, and the
+    /// signal strength, dBm.
+    pub link_quality_pct: Option<u8>,
+    pub rssi_dbm: Option<i16>,
+    /// The receiver says its transmitter is gone.
+    pub lost: bool,
+}
+
+impl RcStatus {
+    /// The console's words for it: ` rc=[ROLL,PITCH,YAW,THROTTLE] arm=on|off kill=on|off
+    /// mode=NAME` and the link's `lq=PCT rssi=DBM` where the receiver measures them;
+    /// ` rc=lost` once its receiver is in failsafe.
+    pub fn words(&self) -> String {
+        if self.lost {
+            return " rc=lost".into();
+        }
+        let on = |b: bool| if b { "on" } else { "off" };
+        let [r, p, y, t] = self.sticks;
+        let mut s = format!(
+            " rc=[{r:+.2},{p:+.2},{y:+.2},{t:+.2}] arm={} kill={} mode={}",
+            on(self.arm),
+            on(self.kill),
+            self.mode.map_or("-", |m| m.name())
+        );
+        if let (Some(lq), Some(rssi)) = (self.link_quality_pct, self.rssi_dbm) {
+            s += &format!(" lq={lq}% rssi={rssi}dBm");
+        }
+        s
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -395,5 +436,25 @@ mod tests {
         );
         l.frame(&frame(&m, true, false, 1, -1.0), 60_000, &mut out);
         assert!(matches!(out.last(), Some(OperatorInput::Rc(r)) if !r.lost));
+    }
+
+    #[test]
+    fn the_console_says_the_sticks_switches_and_link() {
+        let mut rc = RcStatus {
+            channels_us: [1500; crate::core::rc::CHANNELS],
+            sticks: [0.0, 0.5, -0.25, -1.0],
+            arm: true,
+            kill: false,
+            mode: Some(RcMode::Position),
+            link_quality_pct: Some(98),
+            rssi_dbm: Some(-61),
+            lost: false,
+        };
+        assert_eq!(
+            rc.words(),
+            " rc=[+0.00,+0.50,-0.25,-1.00] arm=on kill=off mode=position lq=98% rssi=-61dBm"
+        );
+        rc.lost = true;
+        assert_eq!(rc.words(), " rc=lost");
     }
 }
