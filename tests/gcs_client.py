@@ -515,19 +515,24 @@ def ftp(s):
     return round(answer_ms, 1)
 
 
+def set_mode_as_qgc(s, custom, what):
+    """SET_MODE with a packed custom mode, as QGroundControl sends it: accepted."""
+    s.conn.mav.set_mode_send(1, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, custom)
+    ack = s.wait(
+        "COMMAND_ACK of SET_MODE",
+        lambda m: m.get_type() == "COMMAND_ACK" and m.command == mav.MAV_CMD_DO_SET_MODE,
+    )
+    if ack.result != mav.MAV_RESULT_ACCEPTED:
+        fail(f"SET_MODE {what}: result {ack.result}; texts: {s.texts}")
+
+
 def mode_requests(s):
     """In the air, in hold: hold asked for as each common client asks (QGroundControl's
     SET_MODE with the packed custom mode; MAVSDK's DO_SET_MODE, base 1|128, main, sub; a
     COMMAND_INT), a mode uquad lacks (PX4's acro mode) refused with its name, the
     standard modes listed; the mode names pymavlink shows so far."""
     names = [mavutil.mode_string_v10(s.last["HEARTBEAT"])]
-    s.conn.mav.set_mode_send(1, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, HOLD)
-    ack = s.wait(
-        "COMMAND_ACK of SET_MODE",
-        lambda m: m.get_type() == "COMMAND_ACK" and m.command == mav.MAV_CMD_DO_SET_MODE,
-    )
-    if ack.result != mav.MAV_RESULT_ACCEPTED:
-        fail(f"SET_MODE hold (QGroundControl's): result {ack.result}; texts: {s.texts}")
+    set_mode_as_qgc(s, HOLD, "hold (QGroundControl's)")
     s.command(mav.MAV_CMD_DO_SET_MODE, [129, AUTO, LOITER, 0, 0, 0, 0])
     s.conn.mav.command_int_send(
         1, 1, mav.MAV_FRAME_GLOBAL, mav.MAV_CMD_DO_SET_MODE, 0, 0,
@@ -1000,13 +1005,7 @@ def joystick(s):
     3 s flies forward, then centred holds; in Hold the same stick moves nothing; land."""
     s.wait("a heartbeat", lambda m: m.get_type() == "HEARTBEAT", 5.0)
     s.wait("ATTITUDE", lambda m: m.get_type() == "ATTITUDE")
-    s.conn.mav.set_mode_send(1, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, POSCTL)
-    ack = s.wait(
-        "COMMAND_ACK of SET_MODE",
-        lambda m: m.get_type() == "COMMAND_ACK" and m.command == mav.MAV_CMD_DO_SET_MODE,
-    )
-    if ack.result != mav.MAV_RESULT_ACCEPTED:
-        fail(f"SET_MODE position on the ground: result {ack.result}; texts: {s.texts}")
+    set_mode_as_qgc(s, POSCTL, "position on the ground")
     arm(s)
     # The throttle at its centre while the ESCs' start-up ramp runs, then raised.
     joystick_for(s, 0, 500, 3.0)
@@ -1016,7 +1015,7 @@ def joystick(s):
     joystick_for(s, 1000, 500, 3.0)
     flown = joystick_for(s, 0, 500, 4.0)
     moved = math.hypot(flown.x - start.x, flown.y - start.y)
-    s.conn.mav.set_mode_send(1, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, HOLD)
+    set_mode_as_qgc(s, HOLD, "hold in the air")
     s.wait_text("mode hold: command hold")
     # Settled in its hold (the stop from the stick's speed over) before the stick moves.
     before = joystick_for(s, 0, 500, 4.0)

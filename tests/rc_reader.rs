@@ -113,6 +113,7 @@ fn the_arm_switch_reaches_the_flight_and_the_kill_switch_stops_the_escs_at_its_f
         stats: stats.clone(),
         esc: status.clone(),
         kill: uquad::tasks::rc_reader::KillWatch::Off,
+        frame_at: None,
     };
     let cancel = tokio_util::sync::CancellationToken::new();
     let task = rt.spawn(reader.run(port, cancel.clone()));

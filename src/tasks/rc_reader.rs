@@ -3,7 +3,8 @@
 //! In: the receiver's bytes (tokio-serial; a pty in tests). Out: the operator inputs its frames
 //! make (`core::rc::link`) into the flight's operator queue, and — before anything else — a
 //! halt named `kill` to the ESC writer's mailbox for every frame with the kill switch on: the
-//! pilot's kill reaches the motors without waiting for a control step. Counters in
+//! pilot's kill reaches the motors without waiting for a control step. Counters, the radio as
+//! a watcher sees it, and each kill timed from its frame to the confirmed stop, in
 //! [`RcStats`]. Rate: as the receiver sends (SBUS every 7 or 14 ms, CRSF up to 500 Hz).
 //! Ends: on cancel, or when the device fails (logged; the commander's `rc-loss` failsafe then
 //! acts on the silence).
@@ -117,6 +118,8 @@ pub struct RcReader {
     pub esc: Arc<crate::tasks::esc_writer::EscStatus>,
     /// A kill switch on since this frame (µs), its stop not yet confirmed; or on and timed.
     pub kill: KillWatch,
+    /// When the newest frame of channels was read.
+    pub frame_at: Option<Instant>,
 }
 
 /// The kill switch as the reader times it.
@@ -204,10 +207,15 @@ impl RcReader {
             return;
         };
         let killed = self.esc.stop_reason() == Some(StopReason::KillSwitch);
-        if !(killed && o.confirmed() && o.settled_us >= frame_us) {
+        if !(killed && o.settled_us >= frame_us) {
             return;
         }
+        // Settled: timed if every ESC acknowledged it (an unconfirmed stop is the writer's
+        // to report); the next kill is timed afresh either way.
         self.kill = if on { KillWatch::Timed } else { KillWatch::Off };
+        if !o.confirmed() {
+            return;
+        }
         if let Ok(mut k) = self.stats.kills.lock()
             && k.len() < KILLS_KEPT
         {
@@ -234,6 +242,11 @@ impl RcReader {
     /// The frames read at `at`: the kill switch to the ESCs at once, the rest as inputs.
     fn take(&mut self, events: &[RcEvent], at: Instant, inputs: &mut Vec<OperatorInput>) {
         let t_us = self.beats.us(at);
+        // A watcher's radio is as fresh as its newest frame of channels (not a link
+        // statistic, nor noise).
+        if events.iter().any(|e| matches!(e, RcEvent::Channels(_))) {
+            self.frame_at = Some(at);
+        }
         for e in events {
             match e {
                 RcEvent::Channels(f) => {
@@ -247,7 +260,9 @@ impl RcReader {
                 RcEvent::Link(s) => self.link.link(s, inputs),
             }
         }
-        self.stats.publish(self.link.status(), at);
+        if let Some(frame_at) = self.frame_at {
+            self.stats.publish(self.link.status(), frame_at);
+        }
         let d = self.decoder.stats();
         self.stats.frames.store(d.frames, Ordering::Relaxed);
         self.stats

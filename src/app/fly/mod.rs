@@ -264,6 +264,7 @@ fn rc_reader(
         )),
         esc: h.esc_status.clone(),
         kill: crate::tasks::rc_reader::KillWatch::Off,
+        frame_at: None,
     }
 }
 

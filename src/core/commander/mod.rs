@@ -506,9 +506,9 @@ pub struct Commander {
     /// The stick mode a ground station chose on the ground (no radio configured): a throttle
     /// raised takes off into it.
     stick_choice: Option<StickMode>,
-    /// A takeoff by throttle: the stick mode that follows it; the throttle seen at its
-    /// centre or below since the ESCs run (a raise after it takes off).
-    sticks_after_takeoff: Option<StickMode>,
+    /// A takeoff by throttle is under way (a stick mode follows it); the throttle seen at
+    /// its centre or below since the ESCs run (a raise after it takes off).
+    sticks_after_takeoff: bool,
     throttle_low_seen: bool,
     /// In a stick mode, the throttle has been to its centre (only then does it climb).
     throttle_centred: bool,
@@ -583,7 +583,7 @@ impl Commander {
             tilt_rad: None,
             gcs_sticks: None,
             stick_choice: None,
-            sticks_after_takeoff: None,
+            sticks_after_takeoff: false,
             throttle_low_seen: false,
             throttle_centred: false,
         }
@@ -659,7 +659,7 @@ impl Commander {
             self.lifted = false;
             self.takeoff_steps = 0;
             self.mission_after_takeoff = false;
-            self.sticks_after_takeoff = None;
+            self.sticks_after_takeoff = false;
             self.items_done = 0;
             self.landing_item = None;
             self.yaw_rad = None;
@@ -686,16 +686,19 @@ impl Commander {
 
     fn set_mode(&mut self, mode: Mode, t_us: i64, why: &str, out: &mut Vec<Event>) {
         // A path's set point is only the mission's, the return's and the sticks' in
-        // `position`; a tilt only `altitude`'s; a run is kept only by a pause.
+        // `position`; a tilt only `altitude`'s; a run is kept only by a pause (the sticks
+        // flying in between end it).
         if mode != Mode::Altitude {
             self.tilt_rad = None;
         }
         if !matches!(mode, Mode::Mission | Mode::Return | Mode::Position) {
             self.path = None;
-            if !(mode == Mode::Hold && self.paused) {
-                self.run = None;
-                self.paused = false;
-            }
+        }
+        let keeps_run = matches!(mode, Mode::Mission | Mode::Return)
+            || (mode, self.paused) == (Mode::Hold, true);
+        if !keeps_run {
+            self.run = None;
+            self.paused = false;
         }
         self.mode = mode;
         out.push(Event::Mode {
@@ -1364,8 +1367,8 @@ impl Commander {
                         name: "takeoff",
                     });
                     self.enter_mission(1, o.t_us, "takeoff height reached", out);
-                } else if reached && let Some(m) = self.sticks_after_takeoff.take() {
-                    self.enter_sticks(m, o.t_us, "takeoff height reached", out);
+                } else if reached && std::mem::take(&mut self.sticks_after_takeoff) {
+                    self.after_throttle_takeoff(o.t_us, out);
                 } else if reached {
                     self.set_mode(Mode::Hold, o.t_us, "takeoff height reached", out);
                 }

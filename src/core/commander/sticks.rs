@@ -83,13 +83,22 @@ impl Commander {
     /// heard, else a ground station's joystick while it sends, else centred (the vehicle
     /// holds). A lost radio's sticks are never flown.
     pub fn sticks_at(&self, t_us: i64) -> [f64; 4] {
-        if self.p.rc.is_some() && !self.rc_lost_at(t_us) {
+        if self.rc_heard(t_us) {
             return self.rc.sticks;
         }
-        match self.gcs_sticks {
-            Some((s, at)) if (t_us - at) as f64 / 1e6 <= GCS_STICKS_S => s,
-            _ => [0.0; 4],
-        }
+        self.gcs_sticks_now(t_us).unwrap_or([0.0; 4])
+    }
+
+    /// A radio is configured and heard at `t_us`.
+    fn rc_heard(&self, t_us: i64) -> bool {
+        self.p.rc.is_some() && !self.rc_lost_at(t_us)
+    }
+
+    /// A ground station's joystick, while it sends.
+    fn gcs_sticks_now(&self, t_us: i64) -> Option<[f64; 4]> {
+        self.gcs_sticks
+            .filter(|&(_, at)| (t_us - at) as f64 / 1e6 <= GCS_STICKS_S)
+            .map(|(s, _)| s)
     }
 
     /// A ground station's joystick (MANUAL_CONTROL) at `t_us`, each axis −1…1 (a reading
@@ -112,10 +121,7 @@ impl Commander {
 
     /// Someone is on the sticks: the radio heard, or a ground station's joystick sending.
     pub(super) fn pilot_on_sticks(&self, t_us: i64) -> bool {
-        (self.p.rc.is_some() && !self.rc_lost_at(t_us))
-            || self
-                .gcs_sticks
-                .is_some_and(|(_, at)| (t_us - at) as f64 / 1e6 <= GCS_STICKS_S)
+        self.rc_heard(t_us) || self.gcs_sticks_now(t_us).is_some()
     }
 
     /// Enters a stick mode from the present set point. `position` without a position (no
@@ -145,12 +151,10 @@ impl Commander {
     }
 
     /// One step of a stick mode: the set point moved by the sticks, within the heights and
-    /// the fence, on a leash to the estimate.
+    /// the fence, on a leash to the estimate; the guidance's parts from it.
     pub(super) fn fly_sticks(&mut self, o: &Observation, dt_s: f64) {
         let l = self.p.sticks;
         let [roll, pitch, yaw, throttle] = self.sticks_at(o.t_us);
-        let p = &mut self.stick;
-        let (s, c) = p.yaw_rad.sin_cos();
         self.throttle_centred |= climb_share(throttle) == 0.0;
         let climb_m_s = if self.throttle_centred {
             climb_share(throttle) * l.max_climb_m_s
@@ -165,13 +169,37 @@ impl Commander {
         } else {
             (0.0, 0.0)
         };
-        let want = [c * fwd - s * left, s * fwd + c * left];
+        let (s, c) = self.stick.yaw_rad.sin_cos();
+        let want_m_s = [c * fwd - s * left, s * fwd + c * left, climb_m_s];
+        // The yaw stick right turns clockwise seen from above: the heading (counter-clockwise
+        // about z up) decreases.
+        self.move_stick_point(want_m_s, -yaw * l.max_yaw_rate_rad_s, dt_s);
+        if !position {
+            let p = &mut self.stick;
+            p.pos_m[0] = o.pos_m[0];
+            p.pos_m[1] = o.pos_m[1];
+            p.vel_m_s[..2].fill(0.0);
+            p.acc_m_s2[..2].fill(0.0);
+        }
+        self.bound_stick_point(o);
+        // Centred, the sticks ask no tilt: the velocity is damped where the filter observes
+        // it, as a hold without a position does (PX4's Altitude mode drifts instead).
+        let tilting = !position && (roll.abs() >= TILT_STICK_MIN || pitch.abs() >= TILT_STICK_MIN);
+        self.tilt_rad = tilting.then_some([roll * l.max_tilt_rad, pitch * l.max_tilt_rad]);
+        self.guide_by_sticks(position);
+    }
+
+    /// The stick set point's velocity toward `want_m_s` (the horizontal at
+    /// `mission.acc_m_s2`, the vertical at `commander.climb_acc_m_s2`), its position and
+    /// heading moved over `dt_s`.
+    fn move_stick_point(&mut self, want_m_s: [f64; 3], yaw_rate_rad_s: f64, dt_s: f64) {
+        let p = &mut self.stick;
         let old = p.vel_m_s;
-        let dv = [want[0] - old[0], want[1] - old[1]];
+        let dv = [want_m_s[0] - old[0], want_m_s[1] - old[1]];
         let max_dv = self.p.mission.acc_m_s2 * dt_s;
         let scale = (max_dv / dv[0].hypot(dv[1])).min(1.0);
         let max_dvz = self.p.climb_acc_m_s2 * dt_s;
-        let dvz = (climb_m_s - old[2]).clamp(-max_dvz, max_dvz);
+        let dvz = (want_m_s[2] - old[2]).clamp(-max_dvz, max_dvz);
         p.vel_m_s = [old[0] + dv[0] * scale, old[1] + dv[1] * scale, old[2] + dvz];
         for (i, v_old) in old.into_iter().enumerate() {
             p.pos_m[i] += p.vel_m_s[i] * dt_s;
@@ -181,22 +209,13 @@ impl Commander {
                 0.0
             };
         }
-        // The yaw stick right turns clockwise seen from above: the heading (counter-clockwise
-        // about z up) decreases.
-        p.yaw_rate_rad_s = -yaw * l.max_yaw_rate_rad_s;
-        p.yaw_rad += p.yaw_rate_rad_s * dt_s;
-        if !position {
-            p.pos_m[0] = o.pos_m[0];
-            p.pos_m[1] = o.pos_m[1];
-            p.vel_m_s[..2].fill(0.0);
-            p.acc_m_s2[..2].fill(0.0);
-        }
-        self.bound_stick_point(o);
+        p.yaw_rate_rad_s = yaw_rate_rad_s;
+        p.yaw_rad += yaw_rate_rad_s * dt_s;
+    }
+
+    /// The commander's set point, profile, heading and path from the stick set point.
+    fn guide_by_sticks(&mut self, position: bool) {
         let p = self.stick;
-        // Centred, the sticks ask no tilt: the velocity is damped where the filter observes
-        // it, as a hold without a position does (PX4's Altitude mode drifts instead).
-        let tilting = !position && (roll.abs() >= TILT_STICK_MIN || pitch.abs() >= TILT_STICK_MIN);
-        self.tilt_rad = tilting.then_some([roll * l.max_tilt_rad, pitch * l.max_tilt_rad]);
         self.target_m = p.pos_m;
         self.profile.z_m = p.pos_m[2];
         self.profile.vz_m_s = p.vel_m_s[2];
@@ -243,13 +262,16 @@ impl Commander {
 
     /// Armed on the ground, started up, a stick mode selected, and the throttle raised past
     /// [`TAKEOFF_THROTTLE`] after it was seen at its centre or below with the ESCs running (a
-    /// throttle left up is not a pilot's raise): the takeoff to the profile's hover height, then the stick
-    /// mode. A raise the takeoff's checks refuse is refused as a `takeoff` would be, and the
-    /// throttle must come low again.
+    /// throttle left up is not a pilot's raise): the takeoff to the profile's hover height,
+    /// then the stick mode. A raise the takeoff's checks refuse is refused as a `takeoff`
+    /// would be, and the throttle must come low again.
     pub(super) fn takeoff_by_throttle(&mut self, o: &Observation, out: &mut Vec<Event>) {
         let ready = self.mode == Mode::Armed && self.escs_running && self.ground_since_us.is_some();
         let (Some(m), true, true) = (self.stick_selection(), ready, self.pilot_on_sticks(o.t_us))
         else {
+            // Only a low throttle seen while a stick mode is selected and someone is on the
+            // sticks counts: a throttle raised under another mode is not a raise in this one.
+            self.throttle_low_seen = false;
             return;
         };
         let throttle = self.sticks_at(o.t_us)[3];
@@ -266,7 +288,17 @@ impl Commander {
         let why = format!("throttle raised in {}", m.name());
         let alt = self.p.hover_z_m;
         self.begin_takeoff(o, alt, o.t_us, &why, out);
-        self.sticks_after_takeoff = Some(m);
+        self.sticks_after_takeoff = true;
+    }
+
+    /// A takeoff by throttle reached its height: the stick mode selected now (the switch
+    /// may have moved during the climb), or `hold` if none is.
+    pub(super) fn after_throttle_takeoff(&mut self, t_us: i64, out: &mut Vec<Event>) {
+        let why = "takeoff height reached";
+        match self.stick_selection() {
+            Some(m) => self.enter_sticks(m, t_us, why, out),
+            None => self.set_mode(Mode::Hold, t_us, why, out),
+        }
     }
 }
 

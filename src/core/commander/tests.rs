@@ -136,6 +136,14 @@ fn follow_with(
     g
 }
 
+/// When `mode` was first entered.
+fn entered_at(ev: &[Event], mode: Mode) -> Option<i64> {
+    ev.iter().find_map(|e| match e {
+        Event::Mode { mode: m, t_us, .. } if *m == mode => Some(*t_us),
+        _ => None,
+    })
+}
+
 fn refusals(ev: &[Event]) -> Vec<String> {
     ev.iter()
         .filter_map(|e| match e {
@@ -500,14 +508,7 @@ fn a_lost_gps_holds_attitude_then_lands_after_its_grace_time() {
     }
     assert!(!g.hold_xy);
     assert_eq!(failsafes(&ev), [(Failsafe::GpsLoss, Action::Land)]);
-    let land_at = ev.iter().find_map(|e| match e {
-        Event::Mode {
-            mode: Mode::Land,
-            t_us,
-            ..
-        } => Some(*t_us),
-        _ => None,
-    });
+    let land_at = entered_at(&ev, Mode::Land);
     // Last fix at 12 s, lost 3 s later (at 15 s, whichever step notices), land 10 s later.
     assert_eq!(land_at, Some(25_000_000));
 }
@@ -1851,14 +1852,7 @@ fn without_fixes_the_sticks_fly_altitude_and_the_gps_landing_waits_for_no_one_on
         t += STEP_US;
     }
     // No one on the sticks from 40 s (the last message at 39.9 s, read for 0.5 s): land.
-    let land_at = ev.iter().find_map(|e| match e {
-        Event::Mode {
-            mode: Mode::Land,
-            t_us,
-            ..
-        } => Some(*t_us),
-        _ => None,
-    });
+    let land_at = entered_at(&ev, Mode::Land);
     assert!(
         land_at.is_some_and(|t| (40_400_000..40_500_000).contains(&t)),
         "{land_at:?}"
@@ -1899,4 +1893,36 @@ fn a_throttle_takeoff_needs_a_stick_mode_and_a_raise_from_low_after_the_ramp() {
     );
     follow(&mut c, 630_000, 8_000_000, &mut ev);
     assert_eq!(c.mode(), Mode::Position, "{ev:?}");
+}
+
+#[test]
+fn a_throttle_raised_under_another_mode_is_not_a_raise_in_a_stick_mode() {
+    let mut c = Commander::new(rc_params());
+    let mut ev = Vec::new();
+    c.start(0, &mut ev);
+    let report = |throttle: f64, stick_mode: Option<StickMode>| RcReport {
+        stick_mode,
+        ..rc(false, throttle)
+    };
+    c.rc_report(report(-1.0, Some(StickMode::Position)), 0, &mut ev);
+    c.command(Command::Arm, 0, Ok(()), None, &mut ev);
+    c.escs_running();
+    let mut t = 0;
+    let mut fly = |c: &mut Commander, throttle: f64, mode: Option<StickMode>, steps: i64| {
+        for _ in 0..steps {
+            c.rc_report(report(throttle, mode), t, &mut ev);
+            c.on_estimate(&at(t, 0.0), &mut ev);
+            t += STEP_US;
+        }
+    };
+    // Low in position, then the switch at hold and the throttle up, then back to position:
+    // the throttle was never raised in position.
+    fly(&mut c, -1.0, Some(StickMode::Position), 10);
+    fly(&mut c, 1.0, None, 10);
+    fly(&mut c, 1.0, Some(StickMode::Position), 10);
+    assert_eq!(c.mode(), Mode::Armed);
+    // Low again in position, then up: the takeoff.
+    fly(&mut c, -1.0, Some(StickMode::Position), 2);
+    fly(&mut c, 1.0, Some(StickMode::Position), 2);
+    assert_eq!(c.mode(), Mode::Takeoff);
 }

@@ -5,7 +5,8 @@
 //! moves as `arm` and
 //! `disarm`, the mode switch's as the command of its new position, and the receiver's
 //! failsafe as a loss. A switch found on at the first frame (or after a loss) is not a move:
-//! it must go off and on again to arm.
+//! it must go off and on again to arm. Also what a watcher sees of the radio ([`RcStatus`]:
+//! RC_CHANNELS, the console's line).
 
 use super::RcFrame;
 use super::sticks::{RcInput, RcMap};
@@ -174,10 +175,7 @@ impl RcLink {
             lost: false,
             kill: input.kill,
             sticks: [q(s.roll), q(s.pitch), q(s.yaw), q(s.throttle)],
-            stick_mode: self
-                .mode
-                .and_then(|i| self.modes.get(i))
-                .and_then(|m| m.stick_mode()),
+            stick_mode: self.selected().and_then(RcMode::stick_mode),
         };
         let due = self
             .reported
@@ -212,11 +210,16 @@ impl RcLink {
             sticks: [s.roll, s.pitch, s.yaw, s.throttle],
             arm: input.arm,
             kill: input.kill,
-            mode: self.mode.and_then(|i| self.modes.get(i)).copied(),
+            mode: self.selected(),
             link_quality_pct: old.and_then(|o| o.link_quality_pct),
             rssi_dbm: old.and_then(|o| o.rssi_dbm),
             lost: false,
         });
+    }
+
+    /// What the mode switch's position acted on selects (none before it is read).
+    fn selected(&self) -> Option<RcMode> {
+        self.mode.and_then(|i| self.modes.get(i)).copied()
     }
 
     /// The mode switch read at `position`: a position held for [`MODE_FRAMES`] frames, not

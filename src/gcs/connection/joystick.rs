@@ -2,7 +2,8 @@
 //! path the radio's take (`position`, `altitude`; `hold` ignores them, as PX4's Hold does).
 //! x is the pitch stick (forward +), y the roll (right +), r the yaw (clockwise +), each
 //! −1000…1000, and z the throttle, 0…1000 with 500 its centre (QGroundControl's and PX4's
-//! reading); an axis sent as INT16_MAX (the message's "unused") reads centred. A stream is
+//! reading: the message's own text says r counter-clockwise positive, but QGroundControl
+//! sends and PX4 reads a yaw stick right as positive, and so does uquad); an axis sent as INT16_MAX (the message's "unused") reads centred. A stream is
 //! thinned to changes of [`STEP`] and a keep-alive every [`EVERY`], so mode.log records the
 //! moves, not the stream; a stream that stops centres the sticks after
 //! `commander::sticks::GCS_STICKS_S`: the vehicle holds.
