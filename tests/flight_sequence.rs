@@ -332,19 +332,26 @@ fn the_quit_key_ends_the_run_in_any_mode_and_keys_wait_for_their_planner() {
     );
 }
 
-#[test]
-fn calibrated_before_arming_the_estimate_runs_and_an_arm_starts_the_escs_under_it() {
-    use uquad::core::commander::{ArmFacts, Command, LinkSource, Mode, OperatorInput};
-    use uquad::core::flight::{ArmCheck, OperatorAction};
-    let mut b = Bench::with(
-        30,
+/// A bench of `frames` calibrating at rest before arming (fake fixes), and the facts of a
+/// driver whose IMU is stable.
+fn before_arm_bench(frames: u32) -> (Bench, uquad::core::commander::ArmFacts) {
+    let b = Bench::with(
+        frames,
         &["imu.calibrate=\"before-arm\"", "gps.mode=\"fake-zero\""],
     );
-    let facts = ArmFacts {
+    let facts = uquad::core::commander::ArmFacts {
         imu_stable: true,
         realtime: true,
-        ..ArmFacts::default()
+        ..Default::default()
     };
+    (b, facts)
+}
+
+#[test]
+fn calibrated_before_arming_the_estimate_runs_and_an_arm_starts_the_escs_under_it() {
+    use uquad::core::commander::{Command, LinkSource, Mode, OperatorInput};
+    use uquad::core::flight::{ArmCheck, OperatorAction};
+    let (mut b, facts) = before_arm_bench(30);
     let arm = |b: &mut Bench| {
         let input = OperatorInput::Command(Command::Arm, LinkSource::Console);
         let f = facts.clone();
@@ -400,17 +407,9 @@ fn calibrated_before_arming_the_estimate_runs_and_an_arm_starts_the_escs_under_i
 /// disarmed, the kill recorded as the radio's report (a replay takes it at the same step).
 #[test]
 fn escs_stopped_by_the_kill_switch_during_their_ramp_disarm_and_the_run_goes_on() {
-    use uquad::core::commander::{ArmFacts, Command, LinkSource, Mode, OperatorInput};
+    use uquad::core::commander::{Command, LinkSource, Mode, OperatorInput};
     use uquad::core::flight::ArmCheck;
-    let mut b = Bench::with(
-        1_000,
-        &["imu.calibrate=\"before-arm\"", "gps.mode=\"fake-zero\""],
-    );
-    let facts = ArmFacts {
-        imu_stable: true,
-        realtime: true,
-        ..ArmFacts::default()
-    };
+    let (mut b, facts) = before_arm_bench(1_000);
     b.until(Phase::Estimating, 800);
     while !b.estimator.ready_to_arm(b.t_us) {
         b.frame();

@@ -31,6 +31,28 @@ fn failsafes(r: &Value) -> Vec<(String, String, f64)> {
         .collect()
 }
 
+/// The run's one failsafe is `rc-loss`, acted on by a return: its time, s.
+fn the_one_failsafe_is_an_rc_loss_return(r: &Value, what: &str) -> f64 {
+    let f = failsafes(r);
+    assert_eq!(f.len(), 1, "{what}: {r}");
+    assert_eq!(
+        (f[0].0.as_str(), f[0].1.as_str()),
+        ("rc-loss", "return"),
+        "{r}"
+    );
+    f[0].2
+}
+
+/// The flight touched down at 0.5 m/s or less.
+fn assert_soft_touchdown(r: &Value, what: &str) {
+    let v = r["touchdown"]["v_m_s"].as_f64().unwrap_or(f64::NAN);
+    assert!(
+        v <= 0.5,
+        "{what}: touchdown at {v} m/s ({})",
+        r["est_error"]
+    );
+}
+
 #[test]
 fn the_kill_switch_stops_the_motors_at_its_frame_and_the_run_goes_on() {
     let script = "switch arm on@8,takeoff@12,switch kill on@20,switch kill off@25,\
@@ -90,14 +112,7 @@ fn a_lost_radio_returns_and_lands_whether_the_receiver_flags_it_or_falls_silent(
         ];
         let (ok, r, run, _logs) = fast(&args);
         assert!(ok, "{protocol}: {r}");
-        let f = failsafes(&r);
-        assert_eq!(f.len(), 1, "{protocol}: {r}");
-        assert_eq!(
-            (f[0].0.as_str(), f[0].1.as_str()),
-            ("rc-loss", "return"),
-            "{r}"
-        );
-        let after_s = f[0].2 - 25.0;
+        let after_s = the_one_failsafe_is_an_rc_loss_return(&r, protocol) - 25.0;
         assert!(
             (earliest_s..=latest_s).contains(&after_s),
             "{protocol}: the failsafe {after_s} s after the loss"
@@ -107,8 +122,7 @@ fn a_lost_radio_returns_and_lands_whether_the_receiver_flags_it_or_falls_silent(
             ["hold", "return", "land", "disarmed"],
             "{protocol}: {r}"
         );
-        let v = r["touchdown"]["v_m_s"].as_f64().unwrap_or(f64::NAN);
-        assert!(v <= 0.5, "{protocol}: touchdown at {v} m/s");
+        assert_soft_touchdown(&r, protocol);
         assert_replays_same(&run, &["mode.log", "w.log", "x_hat.log"]);
     }
 }
@@ -210,9 +224,7 @@ fn the_sticks_fly_a_ten_metre_box_in_position_then_the_switch_holds_and_lands() 
             dot.abs() < 1.0,
             "{protocol}: the first corner is square: {corners:?}"
         );
-        let est = &r["est_error"];
-        let v = r["touchdown"]["v_m_s"].as_f64().unwrap_or(f64::NAN);
-        assert!(v <= 0.5, "{protocol}: touchdown at {v} m/s ({est})");
+        assert_soft_touchdown(&r, protocol);
         assert_replays_same(&run, &["mode.log", "w.log", "x_hat.log"]);
     }
 }
@@ -231,21 +243,14 @@ fn a_radio_lost_in_position_returns_and_lands_and_without_gps_altitude_lands() {
         "90",
     ]);
     assert!(ok, "{r}");
-    let f = failsafes(&r);
-    assert_eq!(f.len(), 1, "{r}");
-    assert_eq!(
-        (f[0].0.as_str(), f[0].1.as_str()),
-        ("rc-loss", "return"),
-        "{r}"
-    );
-    assert!((0.0..0.02).contains(&(f[0].2 - 33.0)), "{f:?}");
+    let loss_s = the_one_failsafe_is_an_rc_loss_return(&r, "position");
+    assert!((0.0..0.02).contains(&(loss_s - 33.0)), "{loss_s}");
     assert_eq!(
         report_modes(&r)[3..],
         ["position", "return", "land", "disarmed"],
         "{r}"
     );
-    let v = r["touchdown"]["v_m_s"].as_f64().unwrap_or(f64::NAN);
-    assert!(v <= 0.5, "touchdown at {v} m/s");
+    assert_soft_touchdown(&r, "the radio lost");
     let home_m = r["touchdown"]["from_takeoff_m"]
         .as_f64()
         .unwrap_or(f64::NAN);
@@ -277,7 +282,6 @@ fn a_radio_lost_in_position_returns_and_lands_and_without_gps_altitude_lands() {
     let modes = r["modes"].as_array().expect("modes");
     let t = |i: usize| modes[i]["t_s"].as_f64().unwrap_or(f64::NAN);
     assert!(t(5) - 45.0 < 0.02, "landed by the radio's loss: {r}");
-    let v = r["touchdown"]["v_m_s"].as_f64().unwrap_or(f64::NAN);
-    assert!(v <= 0.5, "touchdown at {v} m/s");
+    assert_soft_touchdown(&r, "the radio lost");
     assert_replays_same(&run, &["mode.log", "w.log", "x_hat.log"]);
 }

@@ -287,12 +287,7 @@ fn parse_rc(rest: &str) -> Result<crate::core::commander::RcReport, String> {
         )
     };
     if rest == "lost" {
-        return Ok(crate::core::commander::RcReport {
-            lost: true,
-            kill: false,
-            sticks: [0.0, 0.0, 0.0, -1.0],
-            stick_mode: None,
-        });
+        return Ok(crate::core::commander::RcReport::LOST);
     }
     let words: Vec<&str> = rest.split(' ').collect();
     let (kill, sticks, stick_mode) = match words.as_slice() {

@@ -207,6 +207,21 @@ pub struct RcReport {
     pub stick_mode: Option<StickMode>,
 }
 
+impl RcReport {
+    /// No radio heard yet: switches off, sticks centred, the throttle low.
+    pub const NONE: RcReport = RcReport {
+        lost: false,
+        kill: false,
+        sticks: [0.0, 0.0, 0.0, -1.0],
+        stick_mode: None,
+    };
+    /// The receiver in failsafe: its channels are not the pilot's.
+    pub const LOST: RcReport = RcReport {
+        lost: true,
+        ..RcReport::NONE
+    };
+}
+
 /// The throttle stick is low (an arm needs it): in the lowest 5 % of its travel.
 pub const RC_THROTTLE_LOW: f64 = -0.9;
 
@@ -555,12 +570,7 @@ impl Commander {
             rc_seen_us: None,
             rc_lost: false,
             killed_aloft_us: None,
-            rc: RcReport {
-                lost: false,
-                kill: false,
-                sticks: [0.0, 0.0, 0.0, -1.0],
-                stick_mode: None,
-            },
+            rc: RcReport::NONE,
             past_flights: Vec::new(),
             flights: 0,
             climb: ClimbTrace::default(),

@@ -145,12 +145,7 @@ impl RcLink {
         self.last = None;
         self.reported = None;
         self.mode = None;
-        out.push(OperatorInput::Rc(RcReport {
-            lost: true,
-            kill: false,
-            sticks: [0.0, 0.0, 0.0, -1.0],
-            stick_mode: None,
-        }));
+        out.push(OperatorInput::Rc(RcReport::LOST));
     }
 
     /// A frame at `t_us`: the inputs it makes, appended to `out`. True while its kill switch
