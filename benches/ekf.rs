@@ -23,6 +23,7 @@ fn bench_step(c: &mut Criterion) {
         dt_us: 10_000,
         gps: None,
         ground_m: None,
+        at_rest: false,
     };
     // Each iteration starts from the same state, so the filter cannot drift into an
     // unrepresentative (diverged or refused) regime over millions of iterations.

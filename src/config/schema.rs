@@ -278,7 +278,8 @@ pub struct Ekf {
     /// Drag per m/s of airspeed, 1/s (PX4's EKF2_MCOEF): without fixes it holds the
     /// horizontal velocity; 0: off.
     pub drag_per_s: f64,
-    /// Fuse the ground's height and a still body while the vehicle rests on it.
+    /// Fuse the ground's height and a still body while the vehicle rests on it disarmed or
+    /// landed, and a body that does not turn (the gyros' bias) armed on it too.
     pub ground_fusion: bool,
     /// Their noise: height (m²), each body velocity ((m/s)²).
     pub r_ground: [f64; 2],

@@ -238,6 +238,9 @@ pub struct StepInput {
     /// The ground's height (m, the estimate's frame) while the vehicle rests on it: with
     /// `ground_fusion`, the height and a still body are fused as measurements.
     pub ground_m: Option<f64>,
+    /// The vehicle rests on the ground, armed or not: with `ground_fusion` and the gyros'
+    /// bias states, a body that does not turn is fused as a measurement.
+    pub at_rest: bool,
 }
 
 #[cfg(test)]
@@ -250,6 +253,7 @@ impl StepInput {
             dt_us: 10_000,
             gps: None,
             ground_m: None,
+            at_rest: false,
         }
     }
 }
@@ -750,6 +754,9 @@ impl Ekf {
         {
             self.fuse_ground(ground_m);
         }
+        if input.at_rest && self.params.ground_fusion && out.result.is_ok() {
+            self.fuse_still_rates();
+        }
         // The velocity the step flew, for the IMU's angles' noise: its prediction and the
         // IMU's own corrections (a push the accelerometer reads, the drag), not a fix's pull.
         let v_flown_m_s = if input.gps.is_some() {
@@ -1080,6 +1087,12 @@ fn test_ratios<const M: usize>(
 /// 0.25 m/s; a lost one is off by metres).
 const GROUND_GATE_M: f64 = 0.3;
 const GROUND_GATE_M_S: f64 = 0.5;
+/// The rates a body resting on the ground turns at, and its gyros' bias states.
+const STILL_RATES: [usize; 3] = [idx::WQX, idx::WQY, idx::WQZ];
+const STILL_BIAS: [usize; 3] = [idx::BGX, idx::BGY, idx::BGZ];
+/// A resting body's rate, (rad/s)²: 0.01 rad/s covers the ground levelling a landed vehicle
+/// and the idling motors' shake (the gyro's own noise is in the rate states' doubt).
+const R_STILL_RATE: f64 = 1e-4;
 /// The ground's rows: z, then the body velocities.
 const GROUND_OBS: [usize; 4] = [idx::Z, idx::VQX, idx::VQY, idx::VQZ];
 
@@ -1105,6 +1118,27 @@ impl Ekf {
         });
         // A singular S leaves the estimate as it was: the next step tries again.
         self.fuse_masked(&h, &y, &r, &GROUND_OBS);
+    }
+
+    /// A body resting on the ground does not turn: the rate states (what the gyro reads)
+    /// less the bias are zero. Into the bias states only, so a bias that stepped while the
+    /// vehicle waited on the ground is learnt there in a fraction of a second: nothing else
+    /// teaches it without fixes (the IMU's angles read the thrust axis once it flies).
+    fn fuse_still_rates(&mut self) {
+        if !self.gyro_bias_on() || self.gyro_lost {
+            return;
+        }
+        let h = SMatrix::<f64, 3, N_STATES>::from_fn(|i, j| {
+            if j == STILL_RATES[i] {
+                1.0
+            } else if j == STILL_BIAS[i] {
+                -1.0
+            } else {
+                0.0
+            }
+        });
+        let y = SVector::<f64, 3>::from_fn(|i, _| self.x[STILL_BIAS[i]] - self.x[STILL_RATES[i]]);
+        self.fuse_masked(&h, &y, &[R_STILL_RATE; 3], &STILL_BIAS);
     }
 
     /// x += K·y and P = (I − K·H)·P·(I − K·H)ᵀ + K·R·Kᵀ (Joseph form: right for a gain cut
@@ -1355,6 +1389,7 @@ mod tests {
                 dt_us: 20_000,
                 gps: Some(GpsSample::at([1.0, -1.0, 0.0])),
                 ground_m: None,
+                at_rest: false,
             },
         );
         res.unwrap();
@@ -1374,6 +1409,7 @@ mod tests {
                 dt_us: 10_000,
                 gps: None,
                 ground_m: None,
+                at_rest: false,
             },
         );
         assert_eq!(res, Err(EkfError::NonFiniteMeasurement));
@@ -1615,6 +1651,7 @@ mod tests {
                     dt_us: 10_000,
                     gps,
                     ground_m: None,
+                    at_rest: false,
                 };
                 ekf.step(&s, &input).1.unwrap();
             }
@@ -1688,6 +1725,7 @@ mod tests {
             dt_us: 10_000,
             gps: None,
             ground_m: Some(0.0),
+            at_rest: true,
         };
         let mut sample = ImuSample::default();
         sample.acc_m_s2[2] = GRAVITY_M_S2;

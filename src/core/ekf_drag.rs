@@ -181,6 +181,7 @@ mod tests {
             dt_us: 10_000,
             gps: Some(GpsSample::at([0.0; 3])),
             ground_m: None,
+            at_rest: false,
         };
         ekf.step(&sample, &input).1.unwrap();
         input.gps = None;

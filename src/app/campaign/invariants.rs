@@ -233,7 +233,7 @@ fn failsafes_in_time(
 
 /// 6, the GPS's second step: a `gps-loss` recorded in the air is followed by its action
 /// (a landing or a return; nothing for `hold`) within `failsafe.gps_loss_land_s`, unless
-/// the vehicle was disarmed or halted by then.
+/// the vehicle was disarmed or halted by then, or was landing or returning already.
 fn gps_loss_action_in_time(
     simulated_s: f64,
     r: &CommanderReport,
@@ -253,11 +253,13 @@ fn gps_loss_action_in_time(
     }
     let due_s = f.t_s + p.gps_loss_land_s + SLACK_S;
     let armed_then = spans.iter().any(|&(a, until)| a <= f.t_s && until > due_s);
-    let acted = r.modes.iter().any(|m| {
-        m.t_s >= f.t_s
-            && m.t_s <= due_s
-            && matches!(m.mode, "land" | "return" | "disarmed" | "kill")
-    });
+    let acting = |mode: &str| matches!(mode, "land" | "return" | "disarmed" | "kill");
+    // A landing already under way (another failsafe's, say) is the action itself.
+    let in_force = r.modes.iter().rev().find(|m| m.t_s <= f.t_s);
+    let acted = in_force.is_some_and(|m| m.mode == "land" || m.mode == "return")
+        || r.modes
+            .iter()
+            .any(|m| m.t_s >= f.t_s && m.t_s <= due_s && acting(m.mode));
     if armed_then && simulated_s > due_s && !acted {
         broken(
             6,

@@ -1322,13 +1322,25 @@ impl Commander {
     /// left the takeoff's height to the thrust model, and the overshoot grew (0.021 to
     /// 0.054 m on seed 1).
     pub fn ground_contact_m(&self) -> Option<f64> {
-        let landed = self.mode == Mode::Land
-            && self.touchdown_since_us.is_some()
-            && self.ground_push_steps >= GROUND_PUSH_STEPS;
         // Disarmed, the motors are off: it rests where it was started or landed (an estimate
         // far from that, carried about, is left alone by the filter's own gates).
-        let resting = landed || self.mode == Mode::Disarmed;
+        let resting = self.landed() || self.mode == Mode::Disarmed;
         resting.then(|| self.home_m.map_or(0.0, |h| h[2]))
+    }
+
+    /// The vehicle does not turn: it rests on the ground, disarmed, landed or armed (the
+    /// motors idle below any lift). Armed, its height and velocity are not told to the
+    /// filter (the idling shakes it; told still, the filter grew too sure of its velocity
+    /// for the takeoff), but a gyro's bias is learnt there.
+    pub fn at_rest(&self) -> bool {
+        self.landed() || matches!(self.mode, Mode::Disarmed | Mode::Armed)
+    }
+
+    /// Landing, touched down and feeling the ground's push.
+    fn landed(&self) -> bool {
+        self.mode == Mode::Land
+            && self.touchdown_since_us.is_some()
+            && self.ground_push_steps >= GROUND_PUSH_STEPS
     }
 
     pub fn guidance(&self) -> Guidance {
@@ -1426,11 +1438,16 @@ impl Commander {
             }),
         };
         // Without the gyro the attitude is the model's guess, good for a few seconds: the
-        // landing goes down at its full speed and eases in at once, not slowed for the last
-        // metre (a contact at land_m_s is a firm landing; a tumble is a crash).
+        // landing goes down at its full speed and eases in at once; in the last metre at
+        // land_m_s, not slowed further (a contact at land_m_s is a firm landing, a tumble a
+        // crash), nor sped up (a gyro lost there had the vehicle hit the ground at 1.1 m/s).
         let (v, acc_m_s2) = if o.gyro_lost {
             (
-                p.land_m_s.max(GYRO_LOST_LAND_M_S),
+                if height > LAST_METRE_M {
+                    p.land_m_s.max(GYRO_LOST_LAND_M_S)
+                } else {
+                    p.land_m_s
+                },
                 p.climb_acc_m_s2.max(GYRO_LOST_LAND_ACC_M_S2),
             )
         } else if height > LAST_METRE_M + brake_m {

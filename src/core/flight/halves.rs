@@ -87,6 +87,16 @@ pub struct Estimate {
 }
 
 /// The estimator half: front end (settle, calibrate, FIR, conversion) and EKF.
+/// What the commander knows of the ground for a Kalman step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Ground {
+    /// The ground's height while the vehicle rests on it disarmed or landed, m (the
+    /// estimate's frame): its height and a still body are fused.
+    pub height_m: Option<f64>,
+    /// The vehicle rests on the ground, armed or not: a body that does not turn is fused.
+    pub at_rest: bool,
+}
+
 #[derive(Debug, Clone)]
 pub struct EstimatorCore {
     front: ImuFrontEnd,
@@ -187,8 +197,8 @@ impl EstimatorCore {
     }
 
     /// One Kalman step on `sample` at `t_us` with input `u_rad_s`, mass `mass_kg`, an
-    /// optional GPS sample and, while the vehicle rests on it, the ground's height. `None`
-    /// before calibration finished.
+    /// optional GPS sample and what the commander knows of the ground. `None` before
+    /// calibration finished.
     pub fn step(
         &mut self,
         mut sample: ImuSample,
@@ -196,7 +206,7 @@ impl EstimatorCore {
         u_rad_s: Input,
         mass_kg: f64,
         gps: Option<GpsSample>,
-        ground_m: Option<f64>,
+        ground: Ground,
     ) -> Option<Estimate> {
         let ekf = self.ekf.as_mut()?;
         let dt_us = self.prev_step_us.map_or(NOMINAL_PERIOD_US, |p| t_us - p);
@@ -208,7 +218,8 @@ impl EstimatorCore {
                 mass_kg,
                 dt_us,
                 gps,
-                ground_m,
+                ground_m: ground.height_m,
+                at_rest: ground.at_rest,
             },
         );
         sample.euler_rad[2] = report.theta_unwrapped_rad;
@@ -581,6 +592,12 @@ impl ControllerCore {
             .is_some_and(|t| est.t_us - t <= self.gps_hold_timeout_us);
         // The `altitude` mode's tilt is the pilot's: no position or velocity is held against it.
         if est.guidance.tilt_rad.is_some() {
+            return Horizontal::Attitude;
+        }
+        // Without the gyro the attitude is the model's guess: a position or velocity held
+        // on it asks for tilts that the guess does not see flown (a stop from a mission's
+        // speed tumbled the vehicle). Level, the landing asks for no turn at all.
+        if est.gyro_lost {
             return Horizontal::Attitude;
         }
         match (est.guidance.hold_xy && fixes, est.velocity_observed) {

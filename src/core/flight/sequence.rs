@@ -21,7 +21,7 @@
 //! driver's [`Outputs`].
 
 use super::gps_feed::GpsFeed;
-use super::halves::{ControllerCore, Estimate, EstimatorCore};
+use super::halves::{ControllerCore, Estimate, EstimatorCore, Ground};
 use super::imu_watch::ImuWatch;
 use crate::core::commander::{
     self, ArmFacts, Commander, EscRequest, KeyOutcome, Mode, Observation, OperatorInput,
@@ -1115,7 +1115,10 @@ impl EstimatorSide {
             }
         }
         // The commander's word of the previous step: the vehicle rests on the ground.
-        let ground = self.commander.ground_contact_m();
+        let ground = Ground {
+            height_m: self.commander.ground_contact_m(),
+            at_rest: self.commander.at_rest(),
+        };
         let row = self.core.steps() as usize;
         let st = self.clock.times(row, times, self.prev_frame_us);
         let gps = self.gps.for_step(st.t_us);
