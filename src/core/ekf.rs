@@ -1093,6 +1093,9 @@ const STILL_BIAS: [usize; 3] = [idx::BGX, idx::BGY, idx::BGZ];
 /// A resting body's rate, (rad/s)²: 0.01 rad/s covers the ground levelling a landed vehicle
 /// and the idling motors' shake (the gyro's own noise is in the rate states' doubt).
 const R_STILL_RATE: f64 = 1e-4;
+/// A body rate above this, rad/s, is a turn, not a resting body's (a MEMS gyro's bias
+/// step is a few hundredths: the campaign's is 0.05).
+const STILL_GATE_RAD_S: f64 = 0.2;
 /// The ground's rows: z, then the body velocities.
 const GROUND_OBS: [usize; 4] = [idx::Z, idx::VQX, idx::VQY, idx::VQZ];
 
@@ -1126,6 +1129,13 @@ impl Ekf {
     /// teaches it without fixes (the IMU's angles read the thrust axis once it flies).
     fn fuse_still_rates(&mut self) {
         if !self.gyro_bias_on() || self.gyro_lost {
+            return;
+        }
+        // A body turning faster than any bias is not resting (a halt's fall, a vehicle carried
+        // about): its turn is not taught to the bias.
+        let turning = (0..3)
+            .any(|i| (self.x[STILL_RATES[i]] - self.x[STILL_BIAS[i]]).abs() > STILL_GATE_RAD_S);
+        if turning {
             return;
         }
         let h = SMatrix::<f64, 3, N_STATES>::from_fn(|i, j| {

@@ -233,7 +233,7 @@ fn failsafes_in_time(
 
 /// 6, the GPS's second step: a `gps-loss` recorded in the air is followed by its action
 /// (a landing or a return; nothing for `hold`) within `failsafe.gps_loss_land_s`, unless
-/// the vehicle was disarmed or halted by then, or was landing or returning already.
+/// the vehicle was disarmed or halted by then, or was landing already and still is.
 fn gps_loss_action_in_time(
     simulated_s: f64,
     r: &CommanderReport,
@@ -254,9 +254,12 @@ fn gps_loss_action_in_time(
     let due_s = f.t_s + p.gps_loss_land_s + SLACK_S;
     let armed_then = spans.iter().any(|&(a, until)| a <= f.t_s && until > due_s);
     let acting = |mode: &str| matches!(mode, "land" | "return" | "disarmed" | "kill");
-    // A landing already under way (another failsafe's, say) is the action itself.
-    let in_force = r.modes.iter().rev().find(|m| m.t_s <= f.t_s);
-    let acted = in_force.is_some_and(|m| m.mode == "land" || m.mode == "return")
+    // A landing already under way (another failsafe's, say) is the action itself, if it is
+    // still landing (or done) when the action is due.
+    let in_force = |t_s: f64| r.modes.iter().rev().find(|m| m.t_s <= t_s).map(|m| m.mode);
+    let landing_kept = in_force(f.t_s) == Some("land")
+        && matches!(in_force(due_s), Some("land" | "disarmed" | "kill"));
+    let acted = landing_kept
         || r.modes
             .iter()
             .any(|m| m.t_s >= f.t_s && m.t_s <= due_s && acting(m.mode));

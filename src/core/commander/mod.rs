@@ -1333,7 +1333,9 @@ impl Commander {
     /// filter (the idling shakes it; told still, the filter grew too sure of its velocity
     /// for the takeoff), but a gyro's bias is learnt there.
     pub fn at_rest(&self) -> bool {
-        self.landed() || matches!(self.mode, Mode::Disarmed | Mode::Armed)
+        // Disarmed by a kill in the air, it falls (and may tumble) until seen at rest.
+        let falling = self.killed_aloft_us.is_some();
+        self.landed() || (matches!(self.mode, Mode::Disarmed | Mode::Armed) && !falling)
     }
 
     /// Landing, touched down and feeling the ground's push.
@@ -1440,7 +1442,8 @@ impl Commander {
         // Without the gyro the attitude is the model's guess, good for a few seconds: the
         // landing goes down at its full speed and eases in at once; in the last metre at
         // land_m_s, not slowed further (a contact at land_m_s is a firm landing, a tumble a
-        // crash), nor sped up (a gyro lost there had the vehicle hit the ground at 1.1 m/s).
+        // crash), nor sped up to 0.8 m/s (a gyro lost there had the vehicle hit the ground at
+        // 1.1 m/s).
         let (v, acc_m_s2) = if o.gyro_lost {
             (
                 if height > LAST_METRE_M {

@@ -86,7 +86,6 @@ pub struct Estimate {
     pub nis: StepNis,
 }
 
-/// The estimator half: front end (settle, calibrate, FIR, conversion) and EKF.
 /// What the commander knows of the ground for a Kalman step.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Ground {
@@ -97,6 +96,7 @@ pub struct Ground {
     pub at_rest: bool,
 }
 
+/// The estimator half: front end (settle, calibrate, FIR, conversion) and EKF.
 #[derive(Debug, Clone)]
 pub struct EstimatorCore {
     front: ImuFrontEnd,
