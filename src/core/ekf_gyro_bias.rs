@@ -172,6 +172,34 @@ mod tests {
     }
 
     #[test]
+    fn a_body_resting_on_the_ground_teaches_the_bias_within_a_second_and_a_turn_does_not() {
+        let resting = |gyro_x_rad_s: f64, at_rest: bool| {
+            let mut p = params(true);
+            p.ground_fusion = true;
+            let mut ekf = Ekf::new(p, &level());
+            let mut sample = level();
+            sample.gyro_rad_s = [gyro_x_rad_s, 0.0, 0.0];
+            let input = StepInput {
+                at_rest,
+                ..StepInput::hover_10ms()
+            };
+            for _ in 0..100 {
+                ekf.step(&sample, &input).1.unwrap();
+            }
+            ekf.gyro_bias_rad_s()[0]
+        };
+        // A bias step of 0.05 rad/s on the x gyro, the vehicle armed on the ground.
+        let learnt = resting(0.05, true);
+        assert!((learnt - 0.05).abs() < 0.005, "at rest: {learnt}");
+        // In the air the angles teach it only over many seconds.
+        let aloft = resting(0.05, false);
+        assert!(aloft < 0.025, "not at rest: {aloft}");
+        // A body turning at 0.5 rad/s is not resting: its turn is no bias.
+        let turning = resting(0.5, true);
+        assert!(turning.abs() < 0.05, "turning: {turning}");
+    }
+
+    #[test]
     fn a_biased_gyro_is_learnt_from_the_angles_and_the_attitude_held() {
         let mut ekf = Ekf::new(params(true), &level());
         // The body is level and still; the x gyro reads 0.05 rad/s.

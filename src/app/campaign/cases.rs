@@ -18,6 +18,9 @@ pub enum Flight {
     Return,
 }
 
+/// When every flight's script takes off (`takeoff@10`, `start@10`), s.
+pub const TAKEOFF_S: f64 = 10.0;
+
 impl Flight {
     pub fn script(self) -> &'static str {
         match self {
@@ -167,6 +170,18 @@ impl Run {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn every_flight_takes_off_at_takeoff_s() {
+        let at = format!("@{TAKEOFF_S}");
+        for flight in [Flight::Hover, Flight::Mission, Flight::Return] {
+            let script = flight.script();
+            let takeoff = script
+                .split(',')
+                .find(|w| w.starts_with("takeoff") || w.starts_with("start"));
+            assert!(takeoff.is_some_and(|w| w.ends_with(&at)), "{script}");
+        }
+    }
 
     #[test]
     fn every_fault_in_every_phase_alone_and_in_pairs() {

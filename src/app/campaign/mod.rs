@@ -78,7 +78,12 @@ struct Judged {
 fn known(run: &Run, f: &Finding) -> bool {
     use crate::sim::faults::Fault;
     let has = |fault: Fault| run.inject.iter().any(|(f, _)| *f == fault);
-    let gyro = has(Fault::GyroStuck) || (has(Fault::GyroBias) && has(Fault::GpsLoss));
+    // A bias that steps before the takeoff is the ground's to teach: judged in full.
+    let bias_aloft = run
+        .inject
+        .iter()
+        .any(|(f, t_s)| *f == Fault::GyroBias && *t_s >= cases::TAKEOFF_S);
+    let gyro = has(Fault::GyroStuck) || (bias_aloft && has(Fault::GpsLoss));
     gyro && matches!(f.invariant, 3 | 5)
 }
 
@@ -361,8 +366,13 @@ mod tests {
         assert_eq!(gyro.case.faults.0, Fault::GyroStuck);
         assert!(known(&gyro, &f(3)) && known(&gyro, &f(5)) && !known(&gyro, &f(2)));
         assert!(!known(&Run::nth(&all, 0, 1), &f(3)));
-        gyro.inject = vec![(Fault::GpsLoss, 9.0), (Fault::GyroBias, 9.5)];
+        gyro.inject = vec![(Fault::GpsLoss, 9.0), (Fault::GyroBias, 12.5)];
         assert!(known(&gyro, &f(5)));
+        gyro.inject[1].1 = 9.5;
+        assert!(
+            !known(&gyro, &f(5)),
+            "a bias stepped on the ground is judged in full"
+        );
         gyro.inject.pop();
         assert!(!known(&gyro, &f(5)), "a GPS lost alone is judged in full");
     }

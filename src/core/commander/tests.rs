@@ -278,6 +278,18 @@ fn taking_off(p: Params) -> (Commander, Vec<Event>) {
 }
 
 /// Armed, took off to 1 m and holding there, at 10 s.
+#[test]
+fn armed_on_the_ground_the_body_rests_but_only_disarmed_its_height_is_told() {
+    let mut c = Commander::new(params());
+    let mut ev = Vec::new();
+    c.start(0, &mut ev);
+    assert_eq!((c.ground_contact_m(), c.at_rest()), (Some(0.0), true));
+    let (c, _) = armed();
+    assert_eq!((c.ground_contact_m(), c.at_rest()), (None, true));
+    let (c, _) = holding();
+    assert_eq!((c.ground_contact_m(), c.at_rest()), (None, false));
+}
+
 fn holding() -> (Commander, Vec<Event>) {
     let (mut c, mut ev) = armed();
     c.link_beat(LinkSource::Gcs, 10_000);
