@@ -277,7 +277,6 @@ fn taking_off(p: Params) -> (Commander, Vec<Event>) {
     (c, ev)
 }
 
-/// Armed, took off to 1 m and holding there, at 10 s.
 #[test]
 fn armed_on_the_ground_the_body_rests_but_only_disarmed_its_height_is_told() {
     let mut c = Commander::new(params());
@@ -290,6 +289,7 @@ fn armed_on_the_ground_the_body_rests_but_only_disarmed_its_height_is_told() {
     assert_eq!((c.ground_contact_m(), c.at_rest()), (None, false));
 }
 
+/// Armed, took off to 1 m and holding there, at 10 s.
 fn holding() -> (Commander, Vec<Event>) {
     let (mut c, mut ev) = armed();
     c.link_beat(LinkSource::Gcs, 10_000);
