@@ -504,6 +504,15 @@ pub const FLY_TOLERANT: [&str; 3] = [
     "watchdog.deadline_ms=100",
 ];
 
+/// What a `fly` run against the mock bus leaves: its summary, the frames fed, the bus, and
+/// the temporary folder holding its logs.
+pub type FlyRun = (
+    uquad::app::report::FlySummary,
+    u64,
+    MockBus,
+    tempfile::TempDir,
+);
+
 /// Flies the 2012 profile (with a short start-up and [`FLY_TOLERANT`]) while `during` runs,
 /// then cancels as a signal would. Returns the summary, the frames sent, the bus and the log
 /// folder.
@@ -511,12 +520,7 @@ pub async fn fly_for(
     extra: &[&str],
     stall: Option<uquad::tasks::logger::LogStall>,
     during: impl std::future::Future<Output = ()>,
-) -> (
-    uquad::app::report::FlySummary,
-    u64,
-    MockBus,
-    tempfile::TempDir,
-) {
+) -> FlyRun {
     let sets: Vec<&str> = FLY_TOLERANT.iter().chain(extra).copied().collect();
     fly_with(
         &sets,
@@ -538,12 +542,7 @@ pub async fn fly_with<F: std::future::Future<Output = ()>>(
     link: Link,
     plan: FramePlan,
     during: impl FnOnce(MockBus) -> F,
-) -> (
-    uquad::app::report::FlySummary,
-    u64,
-    MockBus,
-    tempfile::TempDir,
-) {
+) -> FlyRun {
     fly_with_rc(extra, opts, link, plan, None, during).await
 }
 
@@ -558,12 +557,7 @@ pub async fn fly_with_rc<F: std::future::Future<Output = ()>>(
     plan: FramePlan,
     rc: Option<RcPort>,
     during: impl FnOnce(MockBus) -> F,
-) -> (
-    uquad::app::report::FlySummary,
-    u64,
-    MockBus,
-    tempfile::TempDir,
-) {
+) -> FlyRun {
     let profile = uquad::config::load(&profile_2012(), &sets(extra)).unwrap();
     let logs = tempfile::tempdir().unwrap();
     let (feeder, slave) = ImuFeeder::start(plan, link);
