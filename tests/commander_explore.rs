@@ -158,6 +158,7 @@ fn observe(c: &Commander, w: &World) -> Observation {
         },
         yaw_cal_rad: 0.0,
         pos_sigma_m: 0.0,
+        bias_unaided_rad_s: 0.0,
         acc_rest_m_s2: 9.81,
     }
 }

@@ -289,6 +289,12 @@ pub struct Ekf {
     /// 0: none (the 2012 flights).
     pub q_gyro_bias: f64,
     pub p0_gyro_bias: f64,
+    /// The IMU's roll and pitch noise while the vehicle rests on the ground, rad²; 0: the
+    /// flight's (`r_imu`), as the 2012 flights.
+    pub r_angles_rest: f64,
+    /// The noise of each axis of the magnetometer's direction where it holds the tilt (no
+    /// fix in the air, or no gyro); 0: never used, as the 2012 flights.
+    pub r_field: f64,
 }
 
 impl Default for Ekf {
@@ -311,6 +317,8 @@ impl Default for Ekf {
             angle_period_s: p.angle_period_s,
             q_gyro_bias: p.gyro_bias_q,
             p0_gyro_bias: p.gyro_bias_p0,
+            r_angles_rest: p.r_angles_rest,
+            r_field: p.r_field,
         }
     }
 }
@@ -336,6 +344,8 @@ impl Ekf {
             angle_period_s: self.angle_period_s,
             gyro_bias_q: self.q_gyro_bias,
             gyro_bias_p0: self.p0_gyro_bias,
+            r_angles_rest: self.r_angles_rest,
+            r_field: self.r_field,
         }
     }
 }

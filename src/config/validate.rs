@@ -1009,6 +1009,9 @@ fn ekf_rules(c: &Config) -> Vec<Check> {
                 "(rad/s)²",
             )
             .note("0: none"),
+            in_range("ekf.r_angles_rest", c.ekf.r_angles_rest, 0.0..=1.0, "rad²")
+                .note("0: r_imu's"),
+            in_range("ekf.r_field", c.ekf.r_field, 0.0..=1.0, "(unit vector)²").note("0: off"),
         ])
         .collect()
 }

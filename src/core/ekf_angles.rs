@@ -68,6 +68,10 @@ impl Ekf {
     pub(crate) fn angle_rows<const M: usize>(&mut self, r: &mut [f64; M]) -> bool {
         let period_s = self.params.angle_period_s;
         self.angles.due = true;
+        if self.at_rest && self.params.r_angles_rest > 0.0 {
+            // Resting, the accelerometer reads the gravity alone: the angles' own noise.
+            r[..2].fill(self.params.r_angles_rest);
+        }
         if period_s <= 0.0 {
             return true;
         }
@@ -176,6 +180,25 @@ mod tests {
             res.unwrap();
             assert!(ekf.x[idx::PSI] > before && rep.nis.attitude.is_some());
         }
+    }
+
+    #[test]
+    fn resting_the_roll_and_pitch_take_their_own_noise_and_the_first_step_has_no_nis() {
+        let (mut ekf, still, input) = filter(0.0);
+        // The estimate began from `still`: its innovation is zero by construction.
+        assert!(ekf.step(&still, &input).0.nis.attitude.is_none());
+        assert!(ekf.step(&still, &input).0.nis.attitude.is_some());
+        ekf.params.r_angles_rest = 1e-6;
+        let mut r = [1e-4; 10];
+        assert!(ekf.angle_rows(&mut r));
+        assert_eq!(r[..3], [1e-4; 3], "in flight: the profile's");
+        ekf.at_rest = true;
+        assert!(ekf.angle_rows(&mut r));
+        assert_eq!(
+            r[..3],
+            [1e-6, 1e-6, 1e-4],
+            "at rest: roll and pitch their own"
+        );
     }
 
     #[test]

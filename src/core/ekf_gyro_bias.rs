@@ -74,6 +74,18 @@ impl Ekf {
         }
     }
 
+    /// How far the roll and pitch bias has been learnt to move since the last fused fix,
+    /// rad/s (0 while fixes come, or without the bias states). Without fixes in the air the
+    /// IMU's angles read the thrust axis, not the vertical: a bias they teach was flown as a
+    /// tilt, about its size times the time taken to learn it, that nothing then shows.
+    pub fn bias_learnt_unaided_rad_s(&self) -> f64 {
+        if !self.gyro_bias_on() || self.steps_without_fix == 0 {
+            return 0.0;
+        }
+        let [x, y] = self.bias_at_fix_rad_s;
+        (self.x[idx::BGX] - x).hypot(self.x[idx::BGY] - y)
+    }
+
     /// The learnt bias, body x y z, rad/s.
     pub fn gyro_bias_rad_s(&self) -> [f64; 3] {
         BIAS.map(|b| self.x[b])
@@ -108,6 +120,21 @@ mod tests {
             acc_m_s2: [0.0, 0.0, GRAVITY_M_S2],
             ..ImuSample::default()
         }
+    }
+
+    #[test]
+    fn the_bias_learnt_without_fixes_is_measured_from_the_last_fused_one() {
+        let mut ekf = Ekf::new(params(true), &level());
+        ekf.bias_at_fix_rad_s = [0.01, -0.02];
+        ekf.x[idx::BGX] = 0.04;
+        ekf.x[idx::BGY] = 0.02;
+        ekf.steps_without_fix = 0;
+        assert_eq!(ekf.bias_learnt_unaided_rad_s(), 0.0, "a fix this step");
+        ekf.steps_without_fix = 300;
+        assert!((ekf.bias_learnt_unaided_rad_s() - 0.05).abs() < 1e-12);
+        let mut off = Ekf::new(params(false), &level());
+        off.steps_without_fix = 300;
+        assert_eq!(off.bias_learnt_unaided_rad_s(), 0.0, "no bias states");
     }
 
     #[test]

@@ -8,6 +8,7 @@ pub mod control;
 pub mod ekf;
 mod ekf_angles;
 pub mod ekf_drag;
+mod ekf_field;
 pub mod ekf_fix;
 mod ekf_gyro_bias;
 pub mod ekf_kernels;

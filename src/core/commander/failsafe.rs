@@ -14,6 +14,14 @@ const FENCE_SIGMAS: f64 = 2.0;
 /// (a single bad reading is left out of its step and ridden through).
 pub const BARO_LOST_S: f64 = 0.5;
 
+/// Without fixes, the gyros' roll and pitch bias learnt to move by more than this ends the
+/// `gps-loss` ride-through at once, rad/s. In the air the IMU's angles read the thrust axis,
+/// not the vertical: a bias they teach was flown meanwhile as a tilt (about its size times
+/// the seconds taken to learn it) that nothing then shows, and the vehicle flies off on it
+/// while the ride-through waits. The filter's own wander without fixes stays under about
+/// 0.01 rad/s over a ride-through; a 0.05 rad/s step passes this limit within 5 s.
+pub const UNAIDED_BIAS_MAX_RAD_S: f64 = 0.015;
+
 /// What a failsafe does.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -184,10 +192,12 @@ impl Commander {
         // A pilot flying `altitude` needs no position: while one is on the sticks its action
         // waits (and is taken the moment no one is).
         let flown = self.mode == Mode::Altitude && self.pilot_on_sticks(t_us);
+        // A tilt flown unseen (a bias learnt without fixes) is not ridden through.
+        let tilt_unseen = est.is_some_and(|o| o.bias_unaided_rad_s > UNAIDED_BIAS_MAX_RAD_S);
         let gps_due = !flown
             && self
                 .gps_lost_us
-                .is_some_and(|s| (t_us - s) as f64 / 1e6 >= p.gps_loss_land_s);
+                .is_some_and(|s| tilt_unseen || (t_us - s) as f64 / 1e6 >= p.gps_loss_land_s);
         let action = p.gps_loss_action;
         self.edge(
             Failsafe::GpsLoss,

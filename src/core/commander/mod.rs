@@ -319,6 +319,9 @@ pub struct Observation {
     /// The estimate's horizontal position standard deviation (the larger axis's), m: how far
     /// a position dead-reckoned without fixes may be off.
     pub pos_sigma_m: f64,
+    /// How far the gyros' roll and pitch bias was learnt to move since the last fused fix,
+    /// rad/s: without fixes, a tilt flown that nothing shows (`core::ekf_gyro_bias`).
+    pub bias_unaided_rad_s: f64,
     /// The accelerometer's size at rest, by the calibration, m/s² (the gravity as this
     /// accelerometer reads it).
     pub acc_rest_m_s2: f64,

@@ -2,6 +2,7 @@
 //! the original's spec, except the link rule (spec 8.2).
 
 use super::blind::{BLIND_BASE_MIN, BLIND_BRAKE_MAX, BLIND_RAMP_PER_S};
+use super::failsafe::UNAIDED_BIAS_MAX_RAD_S;
 use super::*;
 use crate::core::ekf::TestRatios;
 
@@ -88,6 +89,7 @@ fn at(t_us: i64, z_m: f64) -> Observation {
         },
         yaw_cal_rad: 0.25,
         pos_sigma_m: 0.5,
+        bias_unaided_rad_s: 0.0,
         acc_rest_m_s2: GRAVITY_M_S2,
     }
 }
@@ -523,6 +525,38 @@ fn a_lost_gps_holds_attitude_then_lands_after_its_grace_time() {
     let land_at = entered_at(&ev, Mode::Land);
     // Last fix at 12 s, lost 3 s later (at 15 s, whichever step notices), land 10 s later.
     assert_eq!(land_at, Some(25_000_000));
+}
+
+/// Holds from 10 s with the last fix at 12 s while the filter's learnt gyro bias moves from
+/// 16 s at `bias_rate` rad/s per second; when the landing began.
+fn gps_lost_with_a_bias_learnt(bias_rate: f64) -> Option<i64> {
+    let (mut c, mut ev) = holding();
+    let mut t = 10_000_000;
+    while t < 30_000_000 {
+        let mut o = at(t, 1.0);
+        o.gps_fused = t <= 12_000_000 && t % 1_000_000 == 0;
+        o.bias_unaided_rad_s = bias_rate * ((t - 16_000_000) as f64 / 1e6).max(0.0);
+        if t % 1_000_000 == 0 {
+            c.link_beat(LinkSource::Gcs, t);
+        }
+        c.tick(t, &mut ev);
+        c.on_estimate(&o, &mut ev);
+        t += STEP_US;
+    }
+    assert_eq!(failsafes(&ev), [(Failsafe::GpsLoss, Action::Land)]);
+    entered_at(&ev, Mode::Land)
+}
+
+#[test]
+fn a_bias_learnt_without_fixes_ends_the_gps_loss_ride_through_at_once() {
+    // 0.005 rad/s more every second from 16 s passes the 0.015 limit just after 19 s, six
+    // seconds before the grace would end (25 s); a wander under it waits the grace out.
+    assert_eq!(
+        gps_lost_with_a_bias_learnt(0.005),
+        Some(19_010_000),
+        "past {UNAIDED_BIAS_MAX_RAD_S} rad/s"
+    );
+    assert_eq!(gps_lost_with_a_bias_learnt(0.001), Some(25_000_000));
 }
 
 #[test]

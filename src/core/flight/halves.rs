@@ -66,6 +66,9 @@ pub struct Estimate {
     pub gyro_lost: bool,
     /// The horizontal position's standard deviation (the larger axis's), m.
     pub pos_sigma_m: f64,
+    /// How far the gyros' roll and pitch bias was learnt to move since the last fused fix,
+    /// rad/s (`Ekf::bias_learnt_unaided_rad_s`).
+    pub bias_unaided_rad_s: f64,
     /// The accelerometer's size at rest, by the calibration, m/s².
     pub acc_rest_m_s2: f64,
     pub dt_clamped: bool,
@@ -239,6 +242,7 @@ impl EstimatorCore {
             vertical_observed: ekf.vertical_observed(),
             gyro_lost: ekf.gyro_lost,
             pos_sigma_m: ekf.horizontal_sigma_m(),
+            bias_unaided_rad_s: ekf.bias_learnt_unaided_rad_s(),
             acc_rest_m_s2: self.acc_rest_m_s2,
             dt_clamped: report.dt_clamped,
             ekf_error: result.err(),

@@ -1191,6 +1191,7 @@ impl EstimatorSide {
             ratios: est.ratios,
             yaw_cal_rad: est.theta_cal_rad,
             pos_sigma_m: est.pos_sigma_m,
+            bias_unaided_rad_s: est.bias_unaided_rad_s,
             acc_rest_m_s2: est.acc_rest_m_s2,
         };
         self.observed = Some(o);
