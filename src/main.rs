@@ -88,8 +88,8 @@ profile's start-up: calibration (at rest), disarmed, esc-ramp, armed-ground, tak
 landing \
 (\"arm@7,takeoff@10,land@45\"), mission-leg (--mission, \"arm@7,start@10\") and return \
 (\"arm@7,takeoff@10,hold 6 0 1@14,return@24\"); each run draws its strike times within the \
-phase from its seed. The runs take the cases in turn (9 phases x (10 faults + 45 pairs) = 495), \
-so --runs 1000 flies each about twice.\n\n\
+phase from its seed. The runs take the cases in turn (9 phases x (12 faults + 66 pairs) = 702), \
+so --runs 1000 flies each once or twice.\n\n\
 Each run is judged against seven invariants: (1) every ESC's last writes are zero then \
 disable, or it is named unconfirmed; (2) no run ends armed, and the motors never idle on the \
 ground past commander.disarm_ground_s + 1 s; (3) every contact with the ground before a halt at \

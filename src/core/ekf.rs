@@ -463,10 +463,10 @@ pub struct Ekf {
     pub(crate) push_windows: u32,
     /// When the IMU's angles are next fused (`core::ekf_angles`).
     pub(crate) angles: AngleClock,
-    /// The Earth's field direction, unit, in the Earth's frame, and the last reading fused
+    /// The Earth's field as the filter's start read it, and the steps since its last fusion
     /// (`core::ekf_field`).
-    pub(crate) field_earth: Option<[f64; 3]>,
-    pub(crate) field_last: [f64; 3],
+    pub(crate) field: Option<crate::core::ekf_field::Field>,
+    pub(crate) field_steps: u32,
 }
 
 struct Trig {
@@ -723,8 +723,8 @@ impl Ekf {
             drag_samples: 0,
             push_windows: 0,
             angles: AngleClock::default(),
-            field_earth: None,
-            field_last: [0.0; 3],
+            field: None,
+            field_steps: 0,
         };
         ekf.anchor_field(null_sample.magn);
         ekf
@@ -771,12 +771,6 @@ impl Ekf {
         let v_predicted_m_s = watch.then(|| self.earth_velocity_xy_m_s());
         let az_pred = total_thrust_n(u) / input.mass_kg + self.x[idx::BAZ];
         let out = self.correct(sample, theta_m, az_pred, input.gps);
-        // A fix's velocity alone (its position left out) observes the velocity as well: the
-        // drag's hold is not needed.
-        if input.gps.is_some() && (!out.gated.gps || out.fix_velocity_fused) {
-            self.steps_without_fix = 0;
-            self.bias_at_fix_rad_s = [self.x[idx::BGX], self.x[idx::BGY]];
-        }
         if let Some(ground_m) = input.ground_m.filter(|_| self.params.ground_fusion)
             && out.result.is_ok()
         {
@@ -784,6 +778,11 @@ impl Ekf {
         }
         if input.at_rest && self.params.ground_fusion && out.result.is_ok() {
             self.fuse_still_rates();
+        }
+        // A fix's velocity alone (its position left out) observes the velocity as well: the
+        // drag's hold is not needed.
+        if input.gps.is_some() && (!out.gated.gps || out.fix_velocity_fused) {
+            self.fix_fused_now();
         }
         // The velocity the step flew, for the IMU's angles' noise: its prediction and the
         // IMU's own corrections (a push the accelerometer reads, the drag), not a fix's pull.
@@ -793,12 +792,7 @@ impl Ekf {
             watch.then(|| self.earth_velocity_xy_m_s())
         };
         self.tick_angles(dt_s, v_before_m_s.zip(v_flown_m_s));
-        let mut nis = out.nis;
-        if self.start_angles_rad.take() == Some(sample.euler_rad) {
-            // The estimate began from this very sample's angles: their innovation is zero by
-            // construction, no measure of the filter's consistency.
-            nis.attitude = None;
-        }
+        let nis = self.without_start_nis(out.nis, sample);
         let report = StepReport {
             dt_used_us,
             dt_clamped,
@@ -810,6 +804,23 @@ impl Ekf {
             fix_velocity_ratio: out.fix_velocity_ratio,
         };
         (report, out.result)
+    }
+
+    /// A fix was fused this step: the drag's hold and the bias learnt without fixes count
+    /// from here (the bias as the whole step left it).
+    fn fix_fused_now(&mut self) {
+        self.steps_without_fix = 0;
+        self.bias_at_fix_rad_s = [self.x[idx::BGX], self.x[idx::BGY]];
+    }
+
+    /// The step's NIS, less the attitude's on the first step if it measures the sample the
+    /// estimate began from: that innovation is zero by construction, no measure of the
+    /// filter's consistency.
+    fn without_start_nis(&mut self, mut nis: StepNis, sample: &ImuSample) -> StepNis {
+        if self.start_angles_rad.take() == Some(sample.euler_rad) {
+            nis.attitude = None;
+        }
+        nis
     }
 
     /// The prediction: x⁻ = f(x, u, T), P⁻ = F·P·Fᵀ + Q with F at the previous estimate.
@@ -873,7 +884,7 @@ impl Ekf {
         let (a, w, e) = (sample.acc_m_s2, sample.gyro_rad_s, sample.euler_rad);
         let was_lost = self.gyro_lost;
         self.gyro_lost = !w.iter().all(|v| v.is_finite());
-        if self.gyro_lost && !was_lost && self.field_earth.is_some() && self.params.r_field > 0.0 {
+        if self.gyro_lost && !was_lost && self.field_holds_tilt() {
             self.rates_in_doubt();
         }
         // Without the gyro its rows read the predicted rates (no innovation) at a noise that
@@ -954,9 +965,16 @@ impl Ekf {
             r[1] = R_ANGLES_PUSHED_RAD2;
         }
         self.angle_rows(&mut r);
-        let out = self.update::<IMU_ROWS>(&z, &IMU_OBS, &IMU_GROUPS, az_pred, &r);
-        if out.result.is_ok() {
-            self.fuse_field(sample.magn);
+        if self.field_holds_tilt() && !self.gyro_lost {
+            // In the air without fixes the IMU's roll and pitch read the thrust axis: the
+            // field's rows hold the tilt. Its yaw stays: the field cannot see a turn about
+            // itself, and that yaw pins it (left out too, the hover without a receiver rolled
+            // off along it: 45-138 m from the start on seeds 1-3, 24-42 m with it).
+            r[..2].fill(R_ANGLES_PUSHED_RAD2);
+        }
+        let mut out = self.update::<IMU_ROWS>(&z, &IMU_OBS, &IMU_GROUPS, az_pred, &r);
+        if out.result.is_ok() && !self.fuse_field(sample.magn) {
+            out.gated.attitude = true;
         }
         if self.drag_active() && out.result.is_ok() {
             self.fuse_drag(sample.acc_m_s2);

@@ -68,7 +68,7 @@ impl Ekf {
     pub(crate) fn angle_rows<const M: usize>(&mut self, r: &mut [f64; M]) -> bool {
         let period_s = self.params.angle_period_s;
         self.angles.due = true;
-        if self.at_rest && self.params.r_angles_rest > 0.0 {
+        if self.at_rest && self.params.r_angles_rest > 0.0 && !self.pushed_now() {
             // Resting, the accelerometer reads the gravity alone: the angles' own noise.
             r[..2].fill(self.params.r_angles_rest);
         }

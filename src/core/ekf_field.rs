@@ -7,25 +7,57 @@
 //! lost, nothing does, and a tilt learnt late (a gyro's bias stepping) is flown off for good.
 //! The Earth's field read in the body's axes turns with the body whatever it accelerates: its
 //! direction is a reference for every rotation but the one about the field itself. PX4's EKF2
-//! and ArduPilot's EKF3 fuse the three axes the same way (EKF2_MAG_TYPE 3-axis). Used only
-//! where nothing else holds the tilt, so the motors' currents that bend a real field cannot
-//! move an attitude the fixes already hold. Not in the original's spec (its filter, spec 3,
-//! uses the magnetometer through the IMU's yaw only).
+//! and ArduPilot's EKF3 fuse the magnetometer's three axes too (they also estimate the field
+//! and the body's own magnetism as states; here the field is taken once, at the start). Used
+//! only where nothing else holds the tilt, so the motors' currents that bend a real field
+//! cannot move an attitude the fixes already hold; and each reading is gated, on its
+//! direction (`ekf.gate_sigma`) and on its strength against the start's (a field bent by
+//! iron or currents reads stronger or weaker), and counted with the attitude's left out. Not
+//! in the original's spec (its filter, spec 3, uses the magnetometer through the IMU's yaw
+//! only).
 //!
-//! The field's direction in the Earth's frame is taken once, at the filter's start (at
-//! rest, from the attitude the IMU's angles gave it).
+//! The field's direction in the Earth's frame is taken once, at the filter's start (at rest,
+//! from the attitude the IMU's angles gave it). The reading comes through the IMU's FIR and
+//! the board holds it for five frames: it is fused once every [`FIELD_EVERY_STEPS`], so one
+//! reading is not counted as five.
 
 use crate::core::ekf::{Ekf, N_STATES, idx};
+use crate::core::ekf_drag::DRAG_AFTER_STEPS;
 use crate::core::math::rotation_portable;
 use nalgebra::{SMatrix, SVector};
 
 /// The angle step of the field rows' numerical Jacobian, rad.
 const JACOBIAN_STEP_RAD: f64 = 1e-6;
 
-/// The field's direction, unit; `None` for a vector without a length (a dead magnetometer).
-fn unit(v: [f64; 3]) -> Option<[f64; 3]> {
+/// Steps between the field's fusions: the magnetometer's hold (five 10 ms frames).
+pub(crate) const FIELD_EVERY_STEPS: u32 = 5;
+
+/// A reading whose strength differs from the start's by more than this share is a field bent
+/// by iron or the motors' currents, not the Earth's: left out.
+const FIELD_STRENGTH_TOLERANCE: f64 = 0.2;
+
+/// The states the field corrects: the attitude, the rates and the gyros' bias it reads, and
+/// the horizontal velocity a tilt has been flying. Not the height, the vertical or the drag's
+/// states: a field's error must not move what it does not observe.
+const KEEP: [usize; 11] = [
+    idx::PSI,
+    idx::PHI,
+    idx::THETA,
+    idx::WQX,
+    idx::WQY,
+    idx::WQZ,
+    idx::BGX,
+    idx::BGY,
+    idx::BGZ,
+    idx::VQX,
+    idx::VQY,
+];
+
+/// A vector's length and direction; `None` without a finite, non-zero length (a dead
+/// magnetometer).
+fn length_and_unit(v: [f64; 3]) -> Option<(f64, [f64; 3])> {
     let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-    (n.is_finite() && n > 0.0).then(|| v.map(|c| c / n))
+    (n.is_finite() && n > 0.0).then(|| (n, v.map(|c| c / n)))
 }
 
 /// The Earth's field direction `m_earth` read in the body's axes at roll, pitch, yaw.
@@ -35,56 +67,85 @@ fn in_body(m_earth: &[f64; 3], att: [f64; 3]) -> [f64; 3] {
     std::array::from_fn(|c| (0..3).map(|row| r[row][c] * m_earth[row]).sum())
 }
 
+/// The field's rows at an attitude: the predicted direction and its Jacobian.
+fn rows(m_earth: &[f64; 3], att: [f64; 3]) -> ([f64; 3], SMatrix<f64, 3, N_STATES>) {
+    let predicted = in_body(m_earth, att);
+    let mut h = SMatrix::<f64, 3, N_STATES>::zeros();
+    for (k, state) in [idx::PSI, idx::PHI, idx::THETA].into_iter().enumerate() {
+        let mut moved = att;
+        moved[k] += JACOBIAN_STEP_RAD;
+        let m = in_body(m_earth, moved);
+        for row in 0..3 {
+            h[(row, state)] = (m[row] - predicted[row]) / JACOBIAN_STEP_RAD;
+        }
+    }
+    (predicted, h)
+}
+
+/// The field at the filter's start: its direction in the Earth's frame and its strength.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Field {
+    pub(crate) earth: [f64; 3],
+    pub(crate) strength: f64,
+}
+
 impl Ekf {
-    /// Takes the field's direction in the Earth's frame from a sample read at the estimate's
-    /// attitude (the filter's start).
+    /// Takes the field's direction in the Earth's frame, and its strength, from a sample read
+    /// at the estimate's attitude (the filter's start); none from a dead magnetometer.
     pub(crate) fn anchor_field(&mut self, magn: [f64; 3]) {
         let att = [self.x[idx::PSI], self.x[idx::PHI], self.x[idx::THETA]];
-        self.field_earth = unit(magn).map(|m| {
+        self.field = length_and_unit(magn).map(|(strength, m)| {
             let r = rotation_portable(att[0], att[1], att[2]);
-            std::array::from_fn(|row| (0..3).map(|c| r[row][c] * m[c]).sum())
+            let earth = std::array::from_fn(|row| (0..3).map(|c| r[row][c] * m[c]).sum());
+            Field { earth, strength }
         });
     }
 
     /// The field holds the attitude this step: on in the profile, and nothing else holds the
-    /// tilt (no fix in the air, or no gyro).
+    /// tilt (no fix for a while in the air, or no gyro).
     pub(crate) fn field_holds_tilt(&self) -> bool {
-        self.params.r_field > 0.0
-            && self.field_earth.is_some()
-            && (self.gyro_lost || self.drag_active())
+        let unaided = self.flying && self.steps_without_fix >= DRAG_AFTER_STEPS;
+        self.params.r_field > 0.0 && self.field.is_some() && (self.gyro_lost || unaided)
     }
 
-    /// Fuses a new reading of the field (the magnetometer holds each for several frames):
-    /// its direction against the estimate's attitude, into every state.
-    pub(crate) fn fuse_field(&mut self, magn: [f64; 3]) {
-        if !self.field_holds_tilt() || magn == self.field_last {
-            return;
+    /// Fuses the field's reading once every [`FIELD_EVERY_STEPS`] while it holds the tilt:
+    /// its direction against the estimate's attitude. `false`: the reading was left out (a
+    /// strength not the start's, or a direction outside the gate).
+    pub(crate) fn fuse_field(&mut self, magn: [f64; 3]) -> bool {
+        if !self.field_holds_tilt() {
+            self.field_steps = 0;
+            return true;
         }
-        self.field_last = magn;
-        let (Some(m_earth), Some(measured)) = (self.field_earth, unit(magn)) else {
-            return;
+        self.field_steps += 1;
+        if self.field_steps < FIELD_EVERY_STEPS {
+            return true;
+        }
+        self.field_steps = 0;
+        let (Some(field), Some((strength, measured))) = (self.field, length_and_unit(magn)) else {
+            return false;
         };
-        let att = [self.x[idx::PSI], self.x[idx::PHI], self.x[idx::THETA]];
-        let predicted = in_body(&m_earth, att);
-        let mut h = SMatrix::<f64, 3, N_STATES>::zeros();
-        for (k, state) in [idx::PSI, idx::PHI, idx::THETA].into_iter().enumerate() {
-            let mut moved = att;
-            moved[k] += JACOBIAN_STEP_RAD;
-            let m = in_body(&m_earth, moved);
-            for row in 0..3 {
-                h[(row, state)] = (m[row] - predicted[row]) / JACOBIAN_STEP_RAD;
-            }
+        if (strength / field.strength - 1.0).abs() > FIELD_STRENGTH_TOLERANCE {
+            return false;
         }
+        let att = [self.x[idx::PSI], self.x[idx::PHI], self.x[idx::THETA]];
+        let (predicted, h) = rows(&field.earth, att);
         let y = SVector::<f64, 3>::from_fn(|i, _| measured[i] - predicted[i]);
-        let r = [self.params.r_field; 3];
-        let all: [usize; N_STATES] = std::array::from_fn(|i| i);
-        self.fuse_masked(&h, &y, &r, &all);
+        let r = self.params.r_field;
+        // The gate, row by row as the IMU's rows are judged.
+        let s = h * self.p * h.transpose();
+        let gate_sq = self.params.gate_sigma * self.params.gate_sigma;
+        // Not a number is outside too.
+        let inside = |i: usize| y[i] * y[i] <= gate_sq * (s[(i, i)] + r);
+        if !(0..3).all(inside) {
+            return false;
+        }
+        self.fuse_masked(&h, &y, &[r; 3], &KEEP)
     }
 }
 
 #[cfg(test)]
 mod tests {
-    use super::{in_body, unit};
+    use super::{in_body, length_and_unit};
     use crate::core::ekf::{Ekf, EkfParams, GpsFusion, StepInput, idx};
     use crate::core::imu::calib::ImuSample;
     use crate::core::model::GRAVITY_M_S2;
@@ -124,9 +185,9 @@ mod tests {
         ekf.x[idx::PHI] = -0.1;
         ekf.x[idx::THETA] = 1.3;
         ekf.anchor_field(FIELD);
-        let m_earth = ekf.field_earth.expect("a field with a length");
+        let m_earth = ekf.field.expect("a field with a length").earth;
         let back = in_body(&m_earth, [0.2, -0.1, 1.3]);
-        let want = unit(FIELD).expect("a field with a length");
+        let (_, want) = length_and_unit(FIELD).expect("a field with a length");
         for i in 0..3 {
             assert!(
                 (back[i] - want[i]).abs() < 1e-12,
@@ -134,24 +195,21 @@ mod tests {
             );
         }
         ekf.anchor_field([0.0; 3]);
-        assert!(
-            ekf.field_earth.is_none(),
-            "a dead magnetometer anchors nothing"
-        );
+        assert!(ekf.field.is_none(), "a dead magnetometer anchors nothing");
     }
 
-    /// Flies 10 s at hover thrust without a fix, the body pitched 0.1 rad (about an axis
-    /// across the field: a turn about the field itself is not seen) while the accelerometer
-    /// reads its thrust axis (the IMU's angles say level); the estimate's pitch.
+    /// Flies 10 s at hover thrust without a fix while the body pitches over to 0.1 rad, about
+    /// an axis across the field (a turn about the field itself is not seen), slowly as a
+    /// gyro's bias would tilt it, the gyros reading nothing and the accelerometer its thrust
+    /// axis (the IMU's angles say level); the estimate's pitch.
     fn pitched_without_fixes(r_field: f64) -> f64 {
         let (mut ekf, level) = level_filter(r_field);
-        let m_earth = ekf.field_earth.expect("a field with a length");
-        let pitched = in_body(&m_earth, [0.0, 0.1, 0.0]);
+        let field = ekf.field.expect("a field with a length");
         let input = StepInput::hover_10ms();
         for step in 0..1000 {
-            // A new reading each step, as a real one's noise makes it.
+            let pitch_rad = 1e-4 * f64::from(step);
             let sample = ImuSample {
-                magn: pitched.map(|c| c * (1.0 + 1e-9 * f64::from(step % 2))),
+                magn: in_body(&field.earth, [0.0, pitch_rad, 0.0]).map(|c| c * field.strength),
                 ..level
             };
             ekf.step(&sample, &input).1.expect("a finite step");
@@ -173,6 +231,29 @@ mod tests {
             unused_rad.abs() < 0.01,
             "pitch {unused_rad} with the field off"
         );
+    }
+
+    /// Flies 4 s at hover thrust without a fix, the field reading `magn` times the start's
+    /// strength `scale` at `pitch_rad`; the steps whose attitude was left out.
+    fn left_out(scale: f64, pitch_rad: f64) -> usize {
+        let (mut ekf, level) = level_filter(1e-4);
+        let field = ekf.field.expect("a field with a length");
+        let magn = in_body(&field.earth, [0.0, pitch_rad, 0.0]).map(|c| c * field.strength * scale);
+        let input = StepInput::hover_10ms();
+        (0..400)
+            .filter(|_| {
+                let sample = ImuSample { magn, ..level };
+                ekf.step(&sample, &input).0.gated.attitude
+            })
+            .count()
+    }
+
+    #[test]
+    fn a_field_bent_in_strength_or_turned_past_the_gate_is_left_out_and_counted() {
+        // The field's turn comes after 1.5 s without fixes, then a reading every 5 steps.
+        assert_eq!(left_out(1.0, 0.0), 0);
+        assert!(left_out(1.5, 0.0) >= 45, "a field half as strong again");
+        assert!(left_out(1.0, 0.5) >= 45, "a field turned 0.5 rad at once");
     }
 
     #[test]

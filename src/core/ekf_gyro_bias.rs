@@ -75,9 +75,9 @@ impl Ekf {
     }
 
     /// How far the roll and pitch bias has been learnt to move since the last fused fix,
-    /// rad/s (0 while fixes come, or without the bias states). Without fixes in the air the
-    /// IMU's angles read the thrust axis, not the vertical: a bias they teach was flown as a
-    /// tilt, about its size times the time taken to learn it, that nothing then shows.
+    /// rad/s (0 on a fix's step, or without the bias states). Without fixes in the air the
+    /// IMU's angles read the thrust axis, not the vertical: a bias learnt then was flown as a
+    /// tilt, about its size times the time taken to learn it, before anything showed it.
     pub fn bias_learnt_unaided_rad_s(&self) -> f64 {
         if !self.gyro_bias_on() || self.steps_without_fix == 0 {
             return 0.0;

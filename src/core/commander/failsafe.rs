@@ -15,11 +15,13 @@ const FENCE_SIGMAS: f64 = 2.0;
 pub const BARO_LOST_S: f64 = 0.5;
 
 /// Without fixes, the gyros' roll and pitch bias learnt to move by more than this ends the
-/// `gps-loss` ride-through at once, rad/s. In the air the IMU's angles read the thrust axis,
-/// not the vertical: a bias they teach was flown meanwhile as a tilt (about its size times
-/// the seconds taken to learn it) that nothing then shows, and the vehicle flies off on it
-/// while the ride-through waits. The filter's own wander without fixes stays under about
-/// 0.01 rad/s over a ride-through; a 0.05 rad/s step passes this limit within 5 s.
+/// `gps-loss` ride-through at once, rad/s. A gyro changing while nothing holds the position
+/// was flown meanwhile as a tilt (about the bias's size times the seconds taken to learn
+/// it): on the IMU's angles alone (`ekf.r_field` 0) nothing then shows that tilt and the
+/// vehicle flies off on it while the ride-through waits; with the magnetometer's field the
+/// tilt is corrected, but a sensor is changing under a blind position, and the vehicle lands
+/// rather than ride on. The filter's own wander without fixes stayed under 0.01 rad/s over a
+/// ride-through in the simulator; a 0.05 rad/s step passes the limit within 5 s.
 pub const UNAIDED_BIAS_MAX_RAD_S: f64 = 0.015;
 
 /// What a failsafe does.
