@@ -882,11 +882,7 @@ impl Ekf {
         gps: Option<GpsSample>,
     ) -> UpdateOutcome {
         let (a, w, e) = (sample.acc_m_s2, sample.gyro_rad_s, sample.euler_rad);
-        let was_lost = self.gyro_lost;
-        self.gyro_lost = !w.iter().all(|v| v.is_finite());
-        if self.gyro_lost && !was_lost && self.field_holds_tilt() {
-            self.rates_in_doubt();
-        }
+        self.note_gyro(&w);
         // Without the gyro its rows read the predicted rates (no innovation) at a noise that
         // gives them no weight: the update keeps its shape and the other rows fuse.
         let w = if self.gyro_lost {
@@ -985,6 +981,16 @@ impl Ekf {
             }
         }
         out
+    }
+
+    /// Whether the gyro's rates came this step (a stuck gyro sends none,
+    /// `core::imu::health`); the step it is lost puts the rates in doubt.
+    fn note_gyro(&mut self, w_rad_s: &[f64; 3]) {
+        let was_lost = self.gyro_lost;
+        self.gyro_lost = !w_rad_s.iter().all(|v| v.is_finite());
+        if self.gyro_lost && !was_lost && self.field_holds_tilt() {
+            self.rates_in_doubt();
+        }
     }
 
     /// The gyro has just been found stuck: the rates it read over the frames that took
