@@ -56,6 +56,11 @@ pub struct FlySummary {
     /// Frame arrival → ESC write and its stages, µs (all 0 in lock-step runs).
     pub latency: LatencyFigures,
     pub deadline_misses: u64,
+    /// Gaps between the watchdog's checks beyond 5 ms: the host stalled every flight thread.
+    pub host_stalls: u64,
+    /// The longest gap between the watchdog's checks (every 0.5 ms when healthy), µs; 0 in
+    /// lock-step runs.
+    pub watchdog_gap_max_us: u64,
     /// The watchdog's halt, if it tripped.
     pub halt: Option<Halt>,
     /// Why the run ended with an error, if it did (motors were stopped first).
@@ -113,6 +118,10 @@ pub struct FlyReport {
     /// Where the latency goes: decode → estimate, estimate → command, command → write.
     pub latency_stages_us: StageFigures,
     pub deadline_misses: u64,
+    /// Gaps over 5 ms between the watchdog's checks: stalls of the host itself (they are left
+    /// out of the IMU's silence; see the watchdog in docs).
+    pub host_stalls: u64,
+    pub watchdog_gap_max_ms: f64,
     pub log_drops: u64,
     pub watchdog_trips: u64,
     pub halt: Option<HaltReport>,
@@ -239,6 +248,8 @@ impl FlySummary {
             latency_us: self.latency_percentiles(),
             latency_stages_us: self.latency.stages,
             deadline_misses: self.deadline_misses,
+            host_stalls: self.host_stalls,
+            watchdog_gap_max_ms: self.watchdog_gap_max_us as f64 / 1000.0,
             log_drops: self.log_drops_total(),
             watchdog_trips: u64::from(self.halt.is_some()),
             halt: self.halt.map(|h| HaltReport {
@@ -363,6 +374,15 @@ impl FlySummary {
                 }
             ),
             None => "no trip".to_string(),
+        };
+        let watchdog = if self.host_stalls > 0 {
+            format!(
+                "{watchdog}; host stalls over 5 ms: {}, the longest {:.1} ms",
+                self.host_stalls,
+                self.watchdog_gap_max_us as f64 / 1000.0
+            )
+        } else {
+            watchdog
         };
         format!(
             "run {}\n  frames {} (discarded bytes {}, rejected frames {}, dropped {}), Kalman steps {}, GPS samples fused {}\n  \

@@ -186,6 +186,10 @@ impl WatchdogParams {
 /// Frames remembered without a command: far more than arrive within a deadline.
 const UNCOMMANDED_CAP: usize = 64;
 
+/// Host stalls remembered: far more than fit in an IMU timeout. Forgetting the oldest only
+/// makes the watchdog stricter.
+const UNOBSERVED_CAP: usize = 16;
+
 /// The policy's state.
 #[derive(Debug, Clone)]
 pub struct Watchdog {
@@ -204,6 +208,9 @@ pub struct Watchdog {
     /// Consecutive refused measurement updates.
     refused_updates: u32,
     deadline_misses: u64,
+    /// Spans the watchdog itself did not run (the host stalled it), oldest first: time in
+    /// them is neither the IMU's silence nor the control path's delay.
+    unobserved: std::collections::VecDeque<(i64, i64)>,
     trip: Option<Trip>,
 }
 
@@ -219,6 +226,7 @@ impl Watchdog {
             sanity_counter: 0,
             refused_updates: 0,
             deadline_misses: 0,
+            unobserved: std::collections::VecDeque::with_capacity(UNOBSERVED_CAP),
             trip: None,
         }
     }
@@ -261,7 +269,7 @@ impl Watchdog {
         while self.uncommanded_us.front().is_some_and(|&f| f <= frame_us) {
             self.uncommanded_us.pop_front();
         }
-        if written_us - frame_us > self.params.deadline_us {
+        if self.observed_us(frame_us, written_us) > self.params.deadline_us {
             self.deadline_misses += 1;
             return self.decide(TripReason::Deadline, frame_us, written_us);
         }
@@ -379,14 +387,46 @@ impl Watchdog {
         }
     }
 
+    /// Where the IMU's silence counts from while the motors may spin: the newest frame, or the
+    /// enable at the earliest (the frame that asked for the ESC start may be older than the
+    /// enable by the writer's wake-up).
+    fn silence_since_us(&self) -> Option<i64> {
+        let on_us = self.motors_on_us?;
+        Some(self.last_frame_us.map_or(on_us, |l| l.max(on_us)))
+    }
+
+    /// The watchdog itself did not run from `from_us` to `to_us`: the host stalled it, and
+    /// every flight thread with it. Frames sent meanwhile wait in the port's buffer, and a
+    /// command computed before the stall is written after it: that span is neither the IMU's
+    /// silence nor the control path's delay, and neither rule counts it. The time before and
+    /// after it still counts, so a host that stalls for good still trips.
+    pub fn on_unobserved(&mut self, from_us: i64, to_us: i64) {
+        if to_us <= from_us {
+            return;
+        }
+        if self.unobserved.len() == UNOBSERVED_CAP {
+            self.unobserved.pop_front();
+        }
+        self.unobserved.push_back((from_us, to_us));
+    }
+
+    /// The time from `from_us` to `to_us` the watchdog observed: the whole of it, less the
+    /// host's stalls within it.
+    fn observed_us(&self, from_us: i64, to_us: i64) -> i64 {
+        let stalled_us: i64 = self
+            .unobserved
+            .iter()
+            .map(|&(a, b)| (b.min(to_us) - a.max(from_us)).max(0))
+            .sum();
+        to_us - from_us - stalled_us
+    }
+
     /// Time passes: no frame for the IMU timeout since the ESCs were enabled, or a frame left
     /// without command past the deadline while flying.
     pub fn tick(&mut self, now_us: i64) -> Option<Trip> {
-        let on_us = self.motors_on_us?;
-        // Silence counts from the enable at the earliest: the frame that asked for the ESC
-        // start may be older than the enable by the writer's wake-up.
-        let last = self.last_frame_us.unwrap_or(on_us);
-        if now_us - last.max(on_us) > self.params.imu_timeout_us {
+        let since_us = self.silence_since_us()?;
+        if self.observed_us(since_us, now_us) > self.params.imu_timeout_us {
+            let last = self.last_frame_us.unwrap_or(since_us);
             return self.decide(TripReason::ImuTimeout, last, now_us);
         }
         if !self.flying {
@@ -394,7 +434,7 @@ impl Watchdog {
         }
         // The oldest frame still without a command, past the deadline.
         if let Some(&oldest) = self.uncommanded_us.front()
-            && now_us - oldest > self.params.deadline_us
+            && self.observed_us(oldest, now_us) > self.params.deadline_us
         {
             self.deadline_misses += 1;
             return self.decide(TripReason::Deadline, oldest, now_us);
@@ -484,6 +524,56 @@ mod tests {
         assert_eq!((trip.reason, trip.event_us), (TripReason::ImuTimeout, 0));
     }
 
+    #[test]
+    fn the_watchdogs_own_stall_is_neither_the_imus_silence_nor_a_late_command() {
+        // Enabled at 0, the last frame at 0, then the host stalls the watchdog (and the reader)
+        // from 2 ms to 102 ms: 100 ms of which are not judged; 2 ms before and 10 ms after are.
+        let mut w = wd();
+        w.on_event(Event::MotorsEnabled(0), 0);
+        w.on_frame(0);
+        w.on_command(0, 500);
+        w.on_unobserved(2_000, 102_000);
+        assert_eq!(w.tick(102_000), None, "the buffered frames come next");
+        assert_eq!(w.tick(112_000), None, "2 + 10 ms observed");
+        let trip = w.tick(112_001).unwrap();
+        assert_eq!((trip.reason, trip.event_us), (TripReason::ImuTimeout, 0));
+
+        // A frame after the stall starts the silence afresh: the old span is forgotten.
+        let mut w = wd();
+        w.on_event(Event::MotorsEnabled(0), 0);
+        w.on_frame(0);
+        w.on_unobserved(2_000, 102_000);
+        w.on_frame(103_000);
+        assert_eq!(w.tick(115_000), None);
+        assert_eq!(w.tick(115_001).unwrap().reason, TripReason::ImuTimeout);
+
+        // A span that began before the last frame counts only after it; none counts while the
+        // motors are off.
+        let mut w = wd();
+        w.on_unobserved(0, 1_000_000);
+        w.on_event(Event::MotorsEnabled(1_000_000), 1_000_000);
+        w.on_frame(1_000_000);
+        w.on_unobserved(990_000, 1_005_000);
+        assert_eq!(w.tick(1_017_000), None);
+        assert_eq!(w.tick(1_017_001).unwrap().reason, TripReason::ImuTimeout);
+
+        // The deadline likewise: a command written after a stall is judged without it, and a
+        // frame left uncommanded across one trips 10 ms of observed time after it.
+        let mut w = wd();
+        w.on_command(0, 100);
+        w.on_frame(10_000);
+        w.on_unobserved(11_000, 150_000);
+        assert_eq!(w.on_command(10_000, 152_000), None);
+        w.on_frame(160_000);
+        w.on_unobserved(162_000, 300_000);
+        assert_eq!(w.tick(308_000), None);
+        let trip = w.tick(308_001).unwrap();
+        assert_eq!(
+            (trip.reason, trip.event_us),
+            (TripReason::Deadline, 160_000)
+        );
+        assert_eq!(w.deadline_misses(), 1);
+    }
     #[test]
     fn missed_acks_trip() {
         let mut w = wd();

@@ -23,6 +23,11 @@ pub struct WatchdogStatus {
     pub deadline_misses: AtomicU64,
     /// When the watchdog last checked, µs since start: its own heartbeat.
     pub last_check_us: std::sync::atomic::AtomicI64,
+    /// Gaps between two checks longer than [`OWN_STALL`]: the host stalled the watchdog's
+    /// thread (the flight's highest priority), and every thread with it.
+    pub host_stalls: AtomicU64,
+    /// The longest gap between two checks, µs.
+    pub longest_gap_us: AtomicU64,
     pub halt: Mutex<Option<Halt>>,
     stop: AtomicBool,
 }
@@ -39,6 +44,12 @@ impl WatchdogStatus {
 }
 
 const TICK: Duration = Duration::from_micros(500);
+
+/// A gap between two checks beyond this is the host's stall, not a late wake-up: its excess is
+/// left out of the IMU's silence and the control path's delay (see
+/// [`Watchdog::on_unobserved`]). Ten ticks: each check still counts this much, so a host that
+/// stalls for good still trips.
+pub const OWN_STALL: Duration = Duration::from_millis(5);
 
 /// The way to the motors: the ESC writer's inbox and status, the ESCs' addresses, and how
 /// long the writer may retry a stop.
@@ -98,7 +109,9 @@ fn check(
     // The time first, then the events: every frame that arrived before `now` is in this
     // batch, so a preemption here cannot look like a silent IMU.
     let now_us = beats.us(Instant::now());
-    status.last_check_us.store(now_us, Ordering::Relaxed);
+    let previous_us = status.last_check_us.swap(now_us, Ordering::Relaxed);
+    // Before the events: a command held up by the same stall is judged without it.
+    note_own_gap(wd, status, previous_us, now_us);
     beats.take_into(batch);
     let mut trip = None;
     for &e in batch.iter() {
@@ -109,6 +122,25 @@ fn check(
         .deadline_misses
         .store(wd.deadline_misses(), Ordering::Relaxed);
     trip
+}
+
+/// The gap since the previous check: counted when the host stalled this thread, and its
+/// excess over [`OWN_STALL`] left out of what the policy judges. The reader was stalled with
+/// it, so frames sent meanwhile are still in the port's buffer; they arrive within the next
+/// checks.
+fn note_own_gap(wd: &mut Watchdog, status: &WatchdogStatus, previous_us: i64, now_us: i64) {
+    let gap_us = now_us - previous_us;
+    if previous_us <= 0 || gap_us <= 0 {
+        return;
+    }
+    status
+        .longest_gap_us
+        .fetch_max(gap_us as u64, Ordering::Relaxed);
+    let stall_us = OWN_STALL.as_micros() as i64;
+    if gap_us > stall_us {
+        status.host_stalls.fetch_add(1, Ordering::Relaxed);
+        wd.on_unobserved(previous_us + stall_us, now_us);
+    }
 }
 
 /// A writer that has not settled its stop this long after its retry time is taken as hung.

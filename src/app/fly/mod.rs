@@ -517,6 +517,8 @@ fn summarise(h: &RunHandles, r: control::Reports, error: Option<String>) -> FlyS
         log_records: Default::default(),
         latency: h.esc_status.latency.figures(),
         deadline_misses: load(&h.wd_status.deadline_misses),
+        host_stalls: load(&h.wd_status.host_stalls),
+        watchdog_gap_max_us: load(&h.wd_status.longest_gap_us),
         halt: h.wd_status.halt(),
         error,
         commander: r.estimator.commander,

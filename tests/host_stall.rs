@@ -1,0 +1,66 @@
+//! A stall of the whole host is not a fault of the IMU or of the control path: `uquad sim
+//! --realtime` stopped by SIGSTOP for 300 ms (every thread at once, as a virtual machine's
+//! pause or a kernel's hiccup stops them), once with the motors idling and once hovering,
+//! flies on; the report counts the stalls and the longest gap between the watchdog's checks.
+//!
+//! The stall is made here, not waited for: the test does not depend on this machine's timing.
+//! The watchdog's rules over such a stall are unit-tested in `core::watchdog`.
+
+mod common;
+use common::*;
+use std::time::{Duration, Instant};
+
+/// How long the process is held stopped, ms: three IMU timeouts of the tests' settings.
+const STOP_MS: u64 = 300;
+
+/// Polls `run`'s stderr until it holds `line` (at most 60 s).
+fn wait_for(run: &Uquad, line: &str) {
+    let t0 = Instant::now();
+    while !run.stderr().contains(line) {
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "never saw {line:?}:\n{}",
+            run.stderr()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Stops the whole process for [`STOP_MS`], then lets it go on.
+fn stall(run: &Uquad) {
+    let pid = run.child.id() as i32;
+    // SAFETY: kill with a child's pid and a signal number.
+    assert_eq!(unsafe { libc::kill(pid, libc::SIGSTOP) }, 0);
+    std::thread::sleep(Duration::from_millis(STOP_MS));
+    // SAFETY: as above.
+    assert_eq!(unsafe { libc::kill(pid, libc::SIGCONT) }, 0);
+}
+
+#[test]
+fn a_stopped_host_is_counted_and_neither_a_silent_imu_nor_a_missed_deadline() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut run = Uquad::spawn(&mut realtime_sim(&["--duration", "16"], dir.path()));
+    // The motors idling after their ramp: a silent IMU would halt them.
+    wait_for(&run, "ESC start-up ramp done");
+    stall(&run);
+    // Hovering: every frame is owed a command within the deadline.
+    wait_for(&run, "mode hold");
+    std::thread::sleep(Duration::from_millis(500));
+    stall(&run);
+    let status = run.child.wait().unwrap();
+    let err = run.stderr();
+    assert!(status.success(), "{status}: {err}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("report.json")).unwrap())
+            .unwrap();
+    assert!(report["halt"].is_null(), "{err}");
+    assert_eq!(report["deadline_misses"], 0, "{err}");
+    assert!(report["host_stalls"].as_u64().unwrap() >= 2, "{err}");
+    let gap_ms = report["watchdog_gap_max_ms"].as_f64().unwrap();
+    assert!(gap_ms >= (STOP_MS - 20) as f64, "{gap_ms} ms: {err}");
+    assert!(err.contains("host stalls over 5 ms: "), "{err}");
+    // The flight went on after both stalls: still holding at the end, no failsafe.
+    assert!(report["failsafes"].as_array().unwrap().is_empty(), "{err}");
+    let modes = report["modes"].as_array().unwrap();
+    assert_eq!(modes.last().unwrap()["mode"], "hold", "{err}");
+}
