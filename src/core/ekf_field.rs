@@ -101,6 +101,12 @@ impl Ekf {
         });
     }
 
+    /// The profile asks for the field (`ekf.r_field` above 0) but the start's reading had none
+    /// (a dead or unplugged magnetometer): the field will never hold the tilt in this run.
+    pub fn field_unread(&self) -> bool {
+        self.params.r_field > 0.0 && self.field.is_none()
+    }
+
     /// The field holds the attitude this step: on in the profile, and nothing else holds the
     /// tilt (no fix for a while in the air, or no gyro).
     pub(crate) fn field_holds_tilt(&self) -> bool {
@@ -176,6 +182,29 @@ mod tests {
             ..ImuSample::default()
         };
         (Ekf::new(p, &level), level)
+    }
+
+    #[test]
+    fn a_start_without_a_field_is_said_only_when_the_profile_asks_for_one() {
+        let (with, level) = level_filter(1e-4);
+        assert!(!with.field_unread());
+        let dead = ImuSample {
+            magn: [0.0; 3],
+            ..level
+        };
+        let p = with.params.clone();
+        assert!(Ekf::new(p.clone(), &dead).field_unread());
+        let nan = ImuSample {
+            magn: [f64::NAN; 3],
+            ..level
+        };
+        assert!(Ekf::new(p, &nan).field_unread());
+        let (off, _) = level_filter(0.0);
+        let off = Ekf::new(off.params.clone(), &dead);
+        assert!(
+            !off.field_unread(),
+            "a profile without the field does not miss it"
+        );
     }
 
     #[test]

@@ -916,6 +916,13 @@ impl EstimatorSide {
             "IMU calibration completed: acc {:?} m/s2, gyro offset {gyro_null:?} rad/s, euler {:?} rad, temp {} C",
             n.acc_m_s2, n.euler_rad, n.temp_c
         )));
+        if self.core.ekf().is_some_and(Ekf::field_unread) {
+            out.record(FlightRecord::Note(format!(
+                "magnetometer read no field at the calibration ({:?}): the field will not hold \
+                 the tilt without fixes or a gyro (ekf.r_field)",
+                n.magn
+            )));
+        }
         if let Some(why) = commander::calibration_problem(&n.acc_m_s2, &gyro_null) {
             if self.at_rest {
                 // Disarmed, nothing spins: taken again (the vehicle may have been moved).
