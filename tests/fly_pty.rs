@@ -179,9 +179,20 @@ async fn a_stalled_logger_loses_no_control_step() {
     let run_dir = &summary.run_dir;
     let steps = summary.steps;
     assert!(steps > 100, "{steps}");
-    // Every control step happened and was commanded and logged on the other streams.
-    assert_eq!(summary.dropped_frames, 0);
-    assert_eq!(summary.late_feedback, 0);
+    // Every control step happened and was commanded and logged on the other streams. A
+    // control path that waited on the stalled logger would drop most of its 500 ms (the
+    // frames' queue holds 8); only a stall of the whole host, which the watchdog counts, may
+    // drop or delay one or two.
+    let text = summary.text();
+    for (what, n) in [
+        ("dropped", summary.dropped_frames),
+        ("late", summary.late_feedback),
+    ] {
+        assert!(
+            n == 0 || (summary.host_stalls > 0 && n * 100 <= steps),
+            "{n} {what} of {steps} steps: {text}"
+        );
+    }
     assert_eq!(read_table(&run_dir.join("w.log")).len() as u64, steps);
     assert_eq!(
         read_table(&run_dir.join("kalman_in.log")).len() as u64,
