@@ -1,7 +1,9 @@
 //! A stall of the whole host is not a fault of the IMU or of the control path: `uquad sim
 //! --realtime` stopped by SIGSTOP for 300 ms (every thread at once, as a virtual machine's
 //! pause or a kernel's hiccup stops them), once with the motors idling and once hovering,
-//! flies on; the report counts the stalls and the longest gap between the watchdog's checks.
+//! flies on: no halt and no stale-command stop, the motors running to the run's end under
+//! the commander (which may land on a failsafe it names: frames were lost in the pause); the
+//! report counts the stalls and the longest gap between the watchdog's checks.
 //!
 //! The stall is made here, not waited for: the test does not depend on this machine's timing.
 //! The watchdog's rules over such a stall are unit-tested in `core::watchdog`.
@@ -27,7 +29,12 @@ fn wait_for(run: &Uquad, line: &str) {
 }
 
 /// Stops the whole process for [`STOP_MS`], then lets it go on.
-fn stall(run: &Uquad) {
+fn stall(run: &mut Uquad) {
+    assert!(
+        run.child.try_wait().unwrap().is_none(),
+        "the run ended before the stall:\n{}",
+        run.stderr()
+    );
     let pid = run.child.id() as i32;
     // SAFETY: kill with a child's pid and a signal number.
     assert_eq!(unsafe { libc::kill(pid, libc::SIGSTOP) }, 0);
@@ -39,14 +46,16 @@ fn stall(run: &Uquad) {
 #[test]
 fn a_stopped_host_is_counted_and_neither_a_silent_imu_nor_a_missed_deadline() {
     let dir = tempfile::tempdir().unwrap();
-    let mut run = Uquad::spawn(&mut realtime_sim(&["--duration", "16"], dir.path()));
+    let mut run =
+        Uquad::spawn(realtime_sim(&["--duration", "16"], dir.path()).env("RUST_LOG", "info"));
     // The motors idling after their ramp: a silent IMU would halt them.
     wait_for(&run, "ESC start-up ramp done");
-    stall(&run);
-    // Hovering: every frame is owed a command within the deadline.
+    stall(&mut run);
+    // Hovering: every frame is owed a command within the deadline, and the ESC writer
+    // stops a command older than esc.command_timeout_ms.
     wait_for(&run, "mode hold");
     std::thread::sleep(Duration::from_millis(500));
-    stall(&run);
+    stall(&mut run);
     let status = run.child.wait().unwrap();
     let err = run.stderr();
     assert!(status.success(), "{status}: {err}");
@@ -54,13 +63,21 @@ fn a_stopped_host_is_counted_and_neither_a_silent_imu_nor_a_missed_deadline() {
         serde_json::from_str(&std::fs::read_to_string(dir.path().join("report.json")).unwrap())
             .unwrap();
     assert!(report["halt"].is_null(), "{err}");
+    // The motors ran to the end: the ESCs were stopped by the run's end, not as stale.
+    assert_eq!(report["esc"]["stop_reason"], "shutdown", "{err}");
     assert_eq!(report["deadline_misses"], 0, "{err}");
     assert!(report["host_stalls"].as_u64().unwrap() >= 2, "{err}");
     let gap_ms = report["watchdog_gap_max_ms"].as_f64().unwrap();
     assert!(gap_ms >= (STOP_MS - 20) as f64, "{gap_ms} ms: {err}");
     assert!(err.contains("host stalls over 5 ms: "), "{err}");
-    // The flight went on after both stalls: still holding at the end, no failsafe.
-    assert!(report["failsafes"].as_array().unwrap().is_empty(), "{err}");
+    // The flight went on after both stalls, in the commander's hands: still holding, or
+    // landing on a failsafe it named (frames were lost in the pause, and the estimate may
+    // have to say it is unsure), never killed.
     let modes = report["modes"].as_array().unwrap();
-    assert_eq!(modes.last().unwrap()["mode"], "hold", "{err}");
+    let last = modes.last().unwrap()["mode"].as_str().unwrap();
+    let failsafes = report["failsafes"].as_array().unwrap();
+    assert!(
+        last == "hold" || (last == "land" && !failsafes.is_empty()),
+        "{last}: {err}"
+    );
 }

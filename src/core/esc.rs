@@ -497,6 +497,16 @@ impl EscDriver {
         self.next_resend_us = now_us + self.resend_us;
     }
 
+    /// The writer did not run for `span_us`: the host stalled it, and every flight thread
+    /// with it (`tasks::host_stall`). The command's age leaves that span out, as the
+    /// watchdog's rules do: the control path resumes with the frames that waited meanwhile,
+    /// and a stop now would drop a vehicle that has flown through the pause.
+    pub fn excuse_stall(&mut self, span_us: i64) {
+        if let Some(frame_us) = self.command_frame_us.as_mut() {
+            *frame_us += span_us.max(0);
+        }
+    }
+
     /// Does what is due at `now_us`: ramp steps, the periodic re-send, the stale-command stop,
     /// the retries of an unconfirmed stop.
     pub fn poll(&mut self, now_us: i64, out: &mut Vec<(CycleKind, Cycle)>) {
@@ -783,6 +793,13 @@ mod tests {
         d.command(&[300.0; 4], t + 5_000, t + 5_300, &mut out);
         assert_eq!(out[0].0, CycleKind::Command);
         assert_eq!(out[0].1[0].2, i2c_from_rad_s(300.0) + 15);
+        // A host's stall of 100 ms is not the command's age: it still runs 24 ms after it.
+        let mut stalled = d.clone();
+        stalled.excuse_stall(100_000);
+        stalled.poll(t + 5_000 + 124_000, &mut out);
+        assert_eq!(stalled.phase(), EscPhase::Running);
+        stalled.poll(t + 5_000 + 125_001, &mut out);
+        assert_eq!(stalled.stop_reason(), Some(StopReason::StaleCommand));
         // Stale after 25 ms without a newer command: zero, then disable.
         out.clear();
         d.poll(t + 5_000 + 25_001, &mut out);

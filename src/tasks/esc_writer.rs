@@ -25,6 +25,7 @@ use crate::core::esc::{
 use crate::core::motor::MotorMap;
 use crate::hw::esc_bus::EscBus;
 use crate::tasks::heartbeats::{Event, Heartbeats};
+use crate::tasks::host_stall::StallWatch;
 use crate::tasks::latency::{LatencyLog, Stamps};
 use crate::tasks::{Cpu, ESC_WRITER_PRIORITY};
 use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU64, Ordering};
@@ -467,6 +468,7 @@ fn run(mut w: Writer, mailbox: &EscMailbox) {
     let mut driver = EscDriver::new(w.params.map, w.params.timing);
     let mut cycles = Vec::with_capacity(8);
     w.status.set_phase(EscPhase::Disabled);
+    let (mut stalls, fifo) = (StallWatch::default(), crate::tasks::fifo());
     loop {
         let deadline = driver
             .next_wake_us()
@@ -479,7 +481,14 @@ fn run(mut w: Writer, mailbox: &EscMailbox) {
             on_the_ground || driver.restartable(),
             may_spin && phase == EscPhase::Running,
         );
-        let now_us = w.beats.us(Instant::now());
+        let now = Instant::now();
+        let now_us = w.beats.us(now);
+        if let Some(due) = deadline.filter(|_| phase == EscPhase::Running) {
+            let late_us = now.saturating_duration_since(due).as_micros() as i64;
+            if let Some((from_us, to_us)) = stalls.excused(late_us, now_us, fifo) {
+                driver.excuse_stall(to_us - from_us);
+            }
+        }
         let mut stamps = None;
         match wake {
             Wake::Shutdown => {

@@ -6,6 +6,7 @@ pub mod estimator;
 pub mod gcs;
 pub mod gps_client;
 pub mod heartbeats;
+pub mod host_stall;
 pub mod imu_reader;
 pub mod latency;
 pub mod logger;
@@ -140,6 +141,13 @@ pub fn spawn_thread<T: Send + 'static>(
 
 thread_local! {
     static PINNED: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+    static FIFO: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Whether the calling flight thread runs at its SCHED_FIFO priority (a realtime run, and the
+/// kernel agreed): only then does its own late wake-up mean the host stalled.
+pub fn fifo() -> bool {
+    FIFO.get()
 }
 
 /// Whether the calling flight thread was placed on its CPU (see [`Cpu`]): a realtime run on a
@@ -185,7 +193,8 @@ fn pin(cpu: Cpu) -> Result<bool, String> {
 
 /// Asks for SCHED_FIFO at `priority` for the calling thread; warns when not permitted.
 fn raise_priority(thread: &str, priority: i32) {
-    if let Err(e) = set_fifo(priority) {
-        tracing::warn!(thread, "{e}; running at normal priority");
+    match set_fifo(priority) {
+        Ok(()) => FIFO.set(true),
+        Err(e) => tracing::warn!(thread, "{e}; running at normal priority"),
     }
 }

@@ -12,6 +12,7 @@ use crate::core::watchdog::Halt;
 use crate::core::watchdog::{Event, Trip, Watchdog, WatchdogParams};
 use crate::tasks::esc_writer::{EscMailbox, EscStatus};
 use crate::tasks::heartbeats::Heartbeats;
+use crate::tasks::host_stall::StallWatch;
 use crate::tasks::{Cpu, WATCHDOG_PRIORITY};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -23,8 +24,8 @@ pub struct WatchdogStatus {
     pub deadline_misses: AtomicU64,
     /// When the watchdog last checked, µs since start: its own heartbeat.
     pub last_check_us: std::sync::atomic::AtomicI64,
-    /// Gaps between two checks longer than [`OWN_STALL`]: the host stalled the watchdog's
-    /// thread (the flight's highest priority), and every thread with it.
+    /// Gaps between two checks more than 5 ms late (`tasks::host_stall`): the host stalled
+    /// the watchdog's thread (the flight's highest priority), and every thread with it.
     pub host_stalls: AtomicU64,
     /// The longest gap between two checks, µs.
     pub longest_gap_us: AtomicU64,
@@ -44,12 +45,6 @@ impl WatchdogStatus {
 }
 
 const TICK: Duration = Duration::from_micros(500);
-
-/// A gap between two checks beyond this is the host's stall, not a late wake-up: its excess is
-/// left out of the IMU's silence and the control path's delay (see
-/// [`Watchdog::on_unobserved`]). Ten ticks: each check still counts this much, so a host that
-/// stalls for good still trips.
-pub const OWN_STALL: Duration = Duration::from_millis(5);
 
 /// The way to the motors: the ESC writer's inbox and status, the ESCs' addresses, and how
 /// long the writer may retry a stop.
@@ -83,9 +78,15 @@ pub fn spawn(
             };
             let mut wd = Watchdog::new(params);
             let mut batch = Vec::with_capacity(256);
+            let mut gaps = StallWatch::default();
+            let fifo = crate::tasks::fifo();
             while !status.stop.load(Ordering::SeqCst) && !cancel.is_cancelled() {
                 std::thread::sleep(TICK);
-                if let Some(trip) = check(&mut wd, &beats, &status, &mut batch) {
+                let mut own = OwnGap {
+                    watch: &mut gaps,
+                    fifo,
+                };
+                if let Some(trip) = check(&mut wd, &beats, &status, &mut own, &mut batch) {
                     let halt = halt_motors(trip, &path, &beats);
                     if let Ok(mut h) = status.halt.lock() {
                         *h = Some(halt);
@@ -104,6 +105,7 @@ fn check(
     wd: &mut Watchdog,
     beats: &Heartbeats,
     status: &WatchdogStatus,
+    own: &mut OwnGap,
     batch: &mut Vec<Event>,
 ) -> Option<Trip> {
     // The time first, then the events: every frame that arrived before `now` is in this
@@ -111,7 +113,7 @@ fn check(
     let now_us = beats.us(Instant::now());
     let previous_us = status.last_check_us.swap(now_us, Ordering::Relaxed);
     // Before the events: a command held up by the same stall is judged without it.
-    note_own_gap(wd, status, previous_us, now_us);
+    own.note(wd, status, previous_us, now_us);
     beats.take_into(batch);
     let mut trip = None;
     for &e in batch.iter() {
@@ -124,22 +126,32 @@ fn check(
     trip
 }
 
-/// The gap since the previous check: counted when the host stalled this thread, and its
-/// excess over [`OWN_STALL`] left out of what the policy judges. The reader was stalled with
-/// it, so frames sent meanwhile are still in the port's buffer; they arrive within the next
-/// checks.
-fn note_own_gap(wd: &mut Watchdog, status: &WatchdogStatus, previous_us: i64, now_us: i64) {
-    let gap_us = now_us - previous_us;
-    if previous_us <= 0 || gap_us <= 0 {
-        return;
-    }
-    status
-        .longest_gap_us
-        .fetch_max(gap_us as u64, Ordering::Relaxed);
-    let stall_us = OWN_STALL.as_micros() as i64;
-    if gap_us > stall_us {
-        status.host_stalls.fetch_add(1, Ordering::Relaxed);
-        wd.on_unobserved(previous_us + stall_us, now_us);
+/// This thread's own wake-ups, and whether it holds its FIFO priority.
+struct OwnGap<'a> {
+    watch: &'a mut StallWatch,
+    fifo: bool,
+}
+
+impl OwnGap<'_> {
+    /// The gap since the previous check: counted when the host stalled this thread, and an
+    /// isolated stall left out of what the policy judges (see `tasks::host_stall`). The
+    /// reader was stalled with it, so frames sent meanwhile are still in the port's buffer;
+    /// they arrive within the next checks.
+    fn note(&mut self, wd: &mut Watchdog, status: &WatchdogStatus, previous_us: i64, now_us: i64) {
+        let gap_us = now_us - previous_us;
+        if previous_us <= 0 || gap_us <= 0 {
+            return;
+        }
+        status
+            .longest_gap_us
+            .fetch_max(gap_us as u64, Ordering::Relaxed);
+        let late_us = gap_us - TICK.as_micros() as i64;
+        if StallWatch::is_stall(late_us) {
+            status.host_stalls.fetch_add(1, Ordering::Relaxed);
+        }
+        if let Some((from_us, to_us)) = self.watch.excused(late_us, now_us, self.fifo) {
+            wd.on_unobserved(from_us, to_us);
+        }
     }
 }
 
