@@ -1,9 +1,10 @@
 //! A stall of the whole host is not a fault of the IMU or of the control path: `uquad sim
-//! --realtime` stopped by SIGSTOP for 300 ms (every thread at once, as a virtual machine's
+//! --realtime` stopped by SIGSTOP for 200 ms (every thread at once, as a virtual machine's
 //! pause or a kernel's hiccup stops them), once with the motors idling and once hovering,
-//! flies on: no halt and no stale-command stop, the motors running to the run's end under
-//! the commander (which may land on a failsafe it names: frames were lost in the pause); the
-//! report counts the stalls and the longest gap between the watchdog's checks.
+//! flies on: no halt and no stale-command stop, the motors running under the commander
+//! (which may land on a failsafe it names: frames were lost in the pause); the report counts
+//! the stalls and the longest gap between the watchdog's checks. The stops are seconds
+//! apart: the time excused is budgeted (250 ms, refilled at 250 ms a second).
 //!
 //! The stall is made here, not waited for: the test does not depend on this machine's timing.
 //! The watchdog's rules over such a stall are unit-tested in `core::watchdog`.
@@ -12,8 +13,9 @@ mod common;
 use common::*;
 use std::time::{Duration, Instant};
 
-/// How long the process is held stopped, ms: three IMU timeouts of the tests' settings.
-const STOP_MS: u64 = 300;
+/// How long the process is held stopped, ms: twice the tests' IMU timeout and deadline, above
+/// their ESC command timeout (150 ms), within the excused budget (250 ms).
+const STOP_MS: u64 = 200;
 
 /// Polls `run`'s stderr until it holds `line` (at most 60 s).
 fn wait_for(run: &Uquad, line: &str) {
@@ -63,8 +65,10 @@ fn a_stopped_host_is_counted_and_neither_a_silent_imu_nor_a_missed_deadline() {
         serde_json::from_str(&std::fs::read_to_string(dir.path().join("report.json")).unwrap())
             .unwrap();
     assert!(report["halt"].is_null(), "{err}");
-    // The motors ran to the end: the ESCs were stopped by the run's end, not as stale.
-    assert_eq!(report["esc"]["stop_reason"], "shutdown", "{err}");
+    // The motors ran on: the ESCs were stopped by the run's end or the commander's disarm
+    // after a landing, never as a stale command.
+    let stop = report["esc"]["stop_reason"].as_str().unwrap();
+    assert!(stop == "shutdown" || stop == "disarmed", "{stop}: {err}");
     assert_eq!(report["deadline_misses"], 0, "{err}");
     assert!(report["host_stalls"].as_u64().unwrap() >= 2, "{err}");
     let gap_ms = report["watchdog_gap_max_ms"].as_f64().unwrap();
@@ -77,7 +81,7 @@ fn a_stopped_host_is_counted_and_neither_a_silent_imu_nor_a_missed_deadline() {
     let last = modes.last().unwrap()["mode"].as_str().unwrap();
     let failsafes = report["failsafes"].as_array().unwrap();
     assert!(
-        last == "hold" || (last == "land" && !failsafes.is_empty()),
+        last == "hold" || (["land", "disarmed"].contains(&last) && !failsafes.is_empty()),
         "{last}: {err}"
     );
 }

@@ -217,6 +217,8 @@ pub struct EscDriver {
     next_resend_us: i64,
     /// Arrival of the frame of the newest flight command.
     command_frame_us: Option<i64>,
+    /// The writer's last excused stall (`excuse_stall`): not part of a command's age.
+    excused_us: Option<(i64, i64)>,
     stop_reason: Option<StopReason>,
     retry: Option<StopRetry>,
     outcome: Option<StopOutcome>,
@@ -245,6 +247,7 @@ impl EscDriver {
             values: [I2C_IDLE; 4],
             next_resend_us: 0,
             command_frame_us: None,
+            excused_us: None,
             stop_reason: None,
             next_probe_us: 0,
             probe_acked: None,
@@ -497,14 +500,22 @@ impl EscDriver {
         self.next_resend_us = now_us + self.resend_us;
     }
 
-    /// The writer did not run for `span_us`: the host stalled it, and every flight thread
-    /// with it (`tasks::host_stall`). The command's age leaves that span out, as the
-    /// watchdog's rules do: the control path resumes with the frames that waited meanwhile,
-    /// and a stop now would drop a vehicle that has flown through the pause.
-    pub fn excuse_stall(&mut self, span_us: i64) {
-        if let Some(frame_us) = self.command_frame_us.as_mut() {
-            *frame_us += span_us.max(0);
-        }
+    /// The writer did not run from `from_us` to `to_us`: the host stalled it, and every
+    /// flight thread with it (`tasks::host_stall`). A command's age leaves that span out, as
+    /// the watchdog's rules do, whether its frame came before the stall or its command was
+    /// taken after it: the control path resumes with the frames that waited meanwhile, and a
+    /// stop now would drop a vehicle that has flown through the pause.
+    pub fn excuse_stall(&mut self, from_us: i64, to_us: i64) {
+        self.excused_us = Some((from_us, to_us));
+    }
+
+    /// How long the command for the frame at `frame_us` has been standing at `now_us`, less
+    /// an excused stall within that time.
+    fn command_age_us(&self, frame_us: i64, now_us: i64) -> i64 {
+        let excused_us = self
+            .excused_us
+            .map_or(0, |(a, b)| (b.min(now_us) - a.max(frame_us)).max(0));
+        now_us - frame_us - excused_us
     }
 
     /// Does what is due at `now_us`: ramp steps, the periodic re-send, the stale-command stop,
@@ -535,7 +546,7 @@ impl EscDriver {
             }
             EscPhase::Running => {
                 if let Some(f) = self.command_frame_us
-                    && now_us - f > self.command_timeout_us
+                    && self.command_age_us(f, now_us) > self.command_timeout_us
                 {
                     return self.stop(StopReason::StaleCommand, now_us, out);
                 }
@@ -795,7 +806,7 @@ mod tests {
         assert_eq!(out[0].1[0].2, i2c_from_rad_s(300.0) + 15);
         // A host's stall of 100 ms is not the command's age: it still runs 24 ms after it.
         let mut stalled = d.clone();
-        stalled.excuse_stall(100_000);
+        stalled.excuse_stall(t + 6_000, t + 106_000);
         stalled.poll(t + 5_000 + 124_000, &mut out);
         assert_eq!(stalled.phase(), EscPhase::Running);
         stalled.poll(t + 5_000 + 125_001, &mut out);

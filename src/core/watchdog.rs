@@ -186,8 +186,8 @@ impl WatchdogParams {
 /// Frames remembered without a command: far more than arrive within a deadline.
 const UNCOMMANDED_CAP: usize = 64;
 
-/// Host stalls remembered: isolated ones only are reported, each after a normal check, so far
-/// more than fit in a limit. Forgetting the oldest only makes the watchdog stricter.
+/// Host stalls remembered: each reported one is over 5 ms, so more than fit in a limit.
+/// Forgetting the oldest only makes the watchdog stricter.
 const UNOBSERVED_CAP: usize = 16;
 
 /// The policy's state.
@@ -400,7 +400,7 @@ impl Watchdog {
     /// command computed before the stall is written after it: that span is neither the IMU's
     /// silence nor the control path's delay, and neither rule counts it. The time before and
     /// after it still counts. Which stalls are reported here is the caller's rule
-    /// (`tasks::host_stall`: isolated ones, on a thread at its FIFO priority).
+    /// (`tasks::host_stall`: within a budget).
     pub fn on_unobserved(&mut self, from_us: i64, to_us: i64) {
         // Spans never overlap: time is left out once.
         let from_us = from_us.max(self.unobserved.back().map_or(i64::MIN, |s| s.1));

@@ -141,13 +141,6 @@ pub fn spawn_thread<T: Send + 'static>(
 
 thread_local! {
     static PINNED: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
-    static FIFO: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
-}
-
-/// Whether the calling flight thread runs at its SCHED_FIFO priority (a realtime run, and the
-/// kernel agreed): only then does its own late wake-up mean the host stalled.
-pub fn fifo() -> bool {
-    FIFO.get()
 }
 
 /// Whether the calling flight thread was placed on its CPU (see [`Cpu`]): a realtime run on a
@@ -193,8 +186,7 @@ fn pin(cpu: Cpu) -> Result<bool, String> {
 
 /// Asks for SCHED_FIFO at `priority` for the calling thread; warns when not permitted.
 fn raise_priority(thread: &str, priority: i32) {
-    match set_fifo(priority) {
-        Ok(()) => FIFO.set(true),
-        Err(e) => tracing::warn!(thread, "{e}; running at normal priority"),
+    if let Err(e) = set_fifo(priority) {
+        tracing::warn!(thread, "{e}; running at normal priority");
     }
 }

@@ -79,14 +79,9 @@ pub fn spawn(
             let mut wd = Watchdog::new(params);
             let mut batch = Vec::with_capacity(256);
             let mut gaps = StallWatch::default();
-            let fifo = crate::tasks::fifo();
             while !status.stop.load(Ordering::SeqCst) && !cancel.is_cancelled() {
                 std::thread::sleep(TICK);
-                let mut own = OwnGap {
-                    watch: &mut gaps,
-                    fifo,
-                };
-                if let Some(trip) = check(&mut wd, &beats, &status, &mut own, &mut batch) {
+                if let Some(trip) = check(&mut wd, &beats, &status, &mut gaps, &mut batch) {
                     let halt = halt_motors(trip, &path, &beats);
                     if let Ok(mut h) = status.halt.lock() {
                         *h = Some(halt);
@@ -105,7 +100,7 @@ fn check(
     wd: &mut Watchdog,
     beats: &Heartbeats,
     status: &WatchdogStatus,
-    own: &mut OwnGap,
+    own: &mut StallWatch,
     batch: &mut Vec<Event>,
 ) -> Option<Trip> {
     // The time first, then the events: every frame that arrived before `now` is in this
@@ -113,7 +108,7 @@ fn check(
     let now_us = beats.us(Instant::now());
     let previous_us = status.last_check_us.swap(now_us, Ordering::Relaxed);
     // Before the events: a command held up by the same stall is judged without it.
-    own.note(wd, status, previous_us, now_us);
+    note_own_gap(own, wd, status, previous_us, now_us);
     beats.take_into(batch);
     let mut trip = None;
     for &e in batch.iter() {
@@ -126,32 +121,30 @@ fn check(
     trip
 }
 
-/// This thread's own wake-ups, and whether it holds its FIFO priority.
-struct OwnGap<'a> {
-    watch: &'a mut StallWatch,
-    fifo: bool,
-}
-
-impl OwnGap<'_> {
-    /// The gap since the previous check: counted when the host stalled this thread, and an
-    /// isolated stall left out of what the policy judges (see `tasks::host_stall`). The
-    /// reader was stalled with it, so frames sent meanwhile are still in the port's buffer;
-    /// they arrive within the next checks.
-    fn note(&mut self, wd: &mut Watchdog, status: &WatchdogStatus, previous_us: i64, now_us: i64) {
-        let gap_us = now_us - previous_us;
-        if previous_us <= 0 || gap_us <= 0 {
-            return;
-        }
-        status
-            .longest_gap_us
-            .fetch_max(gap_us as u64, Ordering::Relaxed);
-        let late_us = gap_us - TICK.as_micros() as i64;
-        if StallWatch::is_stall(late_us) {
-            status.host_stalls.fetch_add(1, Ordering::Relaxed);
-        }
-        if let Some((from_us, to_us)) = self.watch.excused(late_us, now_us, self.fifo) {
-            wd.on_unobserved(from_us, to_us);
-        }
+/// The gap since the previous check: counted when the host stalled this thread, and an
+/// excused stall left out of what the policy judges (`tasks::host_stall`). The reader was
+/// stalled with it, so frames sent meanwhile are still in the port's buffer; they arrive
+/// within the next checks.
+fn note_own_gap(
+    own: &mut StallWatch,
+    wd: &mut Watchdog,
+    status: &WatchdogStatus,
+    previous_us: i64,
+    now_us: i64,
+) {
+    let gap_us = now_us - previous_us;
+    if previous_us <= 0 || gap_us <= 0 {
+        return;
+    }
+    status
+        .longest_gap_us
+        .fetch_max(gap_us as u64, Ordering::Relaxed);
+    let late_us = gap_us - TICK.as_micros() as i64;
+    if StallWatch::is_stall(late_us) {
+        status.host_stalls.fetch_add(1, Ordering::Relaxed);
+    }
+    if let Some((from_us, to_us)) = own.excused(late_us, now_us) {
+        wd.on_unobserved(from_us, to_us);
     }
 }
 
