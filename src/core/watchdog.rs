@@ -186,9 +186,10 @@ impl WatchdogParams {
 /// Frames remembered without a command: far more than arrive within a deadline.
 const UNCOMMANDED_CAP: usize = 64;
 
-/// Host stalls remembered: each reported one is over 5 ms, so more than fit in a limit.
-/// Forgetting the oldest only makes the watchdog stricter.
-const UNOBSERVED_CAP: usize = 16;
+/// Host stalls remembered: each reported one follows at least 1.5 ms of observed time, so at
+/// most about 70 fit in the longest limit (100 ms). Forgetting the oldest only makes the
+/// watchdog stricter.
+const UNOBSERVED_CAP: usize = 72;
 
 /// The policy's state.
 #[derive(Debug, Clone)]

@@ -469,15 +469,13 @@ fn run(mut w: Writer, mailbox: &EscMailbox) {
     let mut cycles = Vec::with_capacity(8);
     w.status.set_phase(EscPhase::Disabled);
     let mut stalls = StallWatch::default();
+    let mut previous = Instant::now();
     loop {
         let deadline = driver
             .next_wake_us()
             .map(|us| w.beats.start() + Duration::from_micros(us.max(0) as u64));
         let phase = driver.phase();
         let on_the_ground = matches!(phase, EscPhase::Disabled | EscPhase::Testing);
-        // Lateness counts from the wait's start at the earliest: time spent in our own work
-        // (a slow bus) is not a stall of the host.
-        let asked = Instant::now();
         let wake = wait(
             mailbox,
             deadline,
@@ -486,12 +484,15 @@ fn run(mut w: Writer, mailbox: &EscMailbox) {
         );
         let now = Instant::now();
         let now_us = w.beats.us(now);
+        // Late against the previous wake-up too: a stall during the last bus work counts (a
+        // slow bus counts as well, within the same budget that bounds every excuse).
         if let Some(due) = deadline.filter(|_| phase == EscPhase::Running) {
-            let late_us = now.saturating_duration_since(due.max(asked)).as_micros() as i64;
+            let late_us = now.saturating_duration_since(due.max(previous)).as_micros() as i64;
             if let Some((from_us, to_us)) = stalls.excused(late_us, now_us) {
                 driver.excuse_stall(from_us, to_us);
             }
         }
+        previous = now;
         let mut stamps = None;
         match wake {
             Wake::Shutdown => {

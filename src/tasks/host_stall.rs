@@ -1,15 +1,16 @@
 //! A flight thread's own late wake-up, read as the host's stall.
 //!
-//! The watchdog (the flight's highest priority) and the ESC writer wake every 0.5 and 2 ms:
-//! when one of them wakes more than [`OWN_STALL_US`] after it was due, the host most likely
-//! stalled every flight thread with it (a virtual machine's pause, a kernel's hiccup). The
-//! IMU's frames sent meanwhile wait in the port's buffer and the control path resumes with
-//! them, so judging that time as a silent IMU, a late command or a stale one would halt a
-//! vehicle that has already flown through the pause. A late wake-up may also be load, or a
-//! hung path's: so the time excused is budgeted, [`BUDGET_US`] at once and refilled at that
-//! much a second. Whatever pattern of stalls the host shows, over any time T at most
-//! `BUDGET_US` (1 + T / 1 s) is left out: with the default 12 ms IMU timeout a rule trips
-//! within 0.35 s of a host that stalls without end, and at once on a healthy one.
+//! The watchdog (the flight's highest priority, a check every 0.5 ms) and the ESC writer
+//! (every `esc.resend_ms`, and at each command): when one of them wakes more than
+//! [`OWN_STALL_US`] after it was due, the host most likely stalled every flight thread with it
+//! (a virtual machine's pause, a kernel's hiccup). The IMU's frames sent meanwhile wait in the
+//! port's buffer and the control path resumes with them, so judging that time as a silent
+//! IMU, a late command or a stale one would halt a vehicle that has already flown through the
+//! pause. A late wake-up may also be load, a slow bus or a hung path's: so the time excused
+//! is budgeted, [`BUDGET_US`] of credit refilled at that much a second (a single pause of up
+//! to about 330 ms is excused whole, as the credit refills while it lasts). Over any time T at
+//! most `BUDGET_US` (1 + T / 1 s) is left out: with the default 12 ms IMU timeout a rule trips
+//! within about 0.35 s of a host that stalls without end, and at once on a healthy one.
 
 /// A wake-up later than this is the host's stall, not jitter, µs.
 pub const OWN_STALL_US: i64 = 5_000;
@@ -18,8 +19,8 @@ pub const OWN_STALL_US: i64 = 5_000;
 /// their margin over a pause that began just before a frame was due.
 pub const COUNTED_US: i64 = 1_000;
 
-/// The time that may be excused at once, and its refill per second, µs. A stall longer than
-/// what is left is judged whole.
+/// The credit of excusable time, and its refill per second, µs. A stall longer than what is
+/// left (refilled over the stall itself) is judged whole.
 pub const BUDGET_US: i64 = 250_000;
 
 /// One thread's budget of excusable time.
@@ -76,8 +77,11 @@ mod tests {
         // 51 ms left: a short stall is excused, a long one judged whole.
         assert_eq!(w.excused(20_000, 320_000), Some((301_000, 320_000)));
         assert_eq!(w.excused(100_000, 420_000), None);
-        // Refilled at 250 ms a second: 0.4 s later, 132 ms.
-        assert_eq!(w.excused(130_000, 820_000), Some((691_000, 820_000)));
+        // 62 ms left after that refusal, refilled at 250 ms a second: 0.3 s later, 137 ms. A
+        // span of the credit passes, one a microsecond over it is judged whole.
+        let mut edge = w;
+        assert_eq!(edge.excused(138_000, 720_000), Some((583_000, 720_000)));
+        assert_eq!(w.excused(138_001, 720_000), None);
         // Stalls without end: at most the budget plus its refill is ever excused.
         let (mut w, mut excused_us) = (StallWatch::default(), 0);
         let mut t_us = 0;
