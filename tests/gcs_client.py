@@ -999,6 +999,21 @@ def joystick_for(s, x, z, seconds, until=None):
     return s.last.get("LOCAL_POSITION_NED")
 
 
+def joystick_on_vehicle_clock(s, x, z, seconds):
+    """joystick_for, timed on the vehicle's clock (LOCAL_POSITION_NED's time_boot_ms): a busy
+    machine that slows the simulation does not shorten what the vehicle flies. At most LONG
+    seconds of the client's clock."""
+    first, t0 = None, time.time()
+    while time.time() - t0 < LONG:
+        p = joystick_for(s, x, z, 0.1)
+        if p is None:
+            continue
+        first = first or p
+        if (p.time_boot_ms - first.time_boot_ms) / 1000.0 >= seconds:
+            return p
+    fail(f"the vehicle's clock did not reach {seconds} s: {s.texts}")
+
+
 def joystick(s):
     """A ground station's joystick: Position chosen on the ground (QGroundControl's SET_MODE
     POSCTL), armed, the throttle raised takes off into Position; the pitch stick forward for
@@ -1017,9 +1032,10 @@ def joystick(s):
     moved = math.hypot(flown.x - start.x, flown.y - start.y)
     set_mode_as_qgc(s, HOLD, "hold in the air")
     s.wait_text("mode hold: command hold")
-    # Settled in its hold (the stop from the stick's speed over) before the stick moves.
-    before = joystick_for(s, 0, 500, 4.0)
-    after = joystick_for(s, 1000, 500, 3.0)
+    # Settled in its hold (the stop from the stick's speed over) before the stick moves; both
+    # on the vehicle's clock (8 and 6 s: what 4 and 3 s of this clock fly at twice its pace).
+    before = joystick_on_vehicle_clock(s, 0, 500, 8.0)
+    after = joystick_on_vehicle_clock(s, 1000, 500, 6.0)
     held = math.hypot(after.x - before.x, after.y - before.y)
     land(s)
     return {"moved_m": round(moved, 2), "held_moved_m": round(held, 2)}
