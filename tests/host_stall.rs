@@ -34,6 +34,21 @@ fn wait_for(run: &Uquad, line: &str) {
 /// One realtime run at a time: two would share this machine's two CPUs.
 static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
+/// A realtime run of `duration_s` flying from the start (one at a time), its folder and
+/// process.
+fn start(duration_s: &str) -> (std::sync::MutexGuard<'static, ()>, tempfile::TempDir, Uquad) {
+    let one = ONE_AT_A_TIME.lock().unwrap_or_else(|p| p.into_inner());
+    let dir = tempfile::tempdir().unwrap();
+    let run =
+        Uquad::spawn(realtime_sim(&["--duration", duration_s], dir.path()).env("RUST_LOG", "info"));
+    (one, dir, run)
+}
+
+/// The run's report.
+fn report(dir: &tempfile::TempDir) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(dir.path().join("report.json")).unwrap()).unwrap()
+}
+
 /// Stops the whole process for [`STOP_MS`], then lets it go on.
 fn stall(run: &mut Uquad) {
     stall_for(run, STOP_MS);
@@ -56,10 +71,7 @@ fn stall_for(run: &mut Uquad, stop_ms: u64) {
 
 #[test]
 fn a_stopped_host_is_counted_and_neither_a_silent_imu_nor_a_missed_deadline() {
-    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|p| p.into_inner());
-    let dir = tempfile::tempdir().unwrap();
-    let mut run =
-        Uquad::spawn(realtime_sim(&["--duration", "16"], dir.path()).env("RUST_LOG", "info"));
+    let (_one, dir, mut run) = start("16");
     // The motors idling after their ramp: a silent IMU would halt them.
     wait_for(&run, "ESC start-up ramp done");
     stall(&mut run);
@@ -71,9 +83,7 @@ fn a_stopped_host_is_counted_and_neither_a_silent_imu_nor_a_missed_deadline() {
     let status = run.child.wait().unwrap();
     let err = run.stderr();
     assert!(status.success(), "{status}: {err}");
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.path().join("report.json")).unwrap())
-            .unwrap();
+    let report = report(&dir);
     assert!(report["halt"].is_null(), "{err}");
     // The motors ran on: the ESCs were stopped by the run's end or the commander's disarm
     // after a landing, never as a stale command.
@@ -101,17 +111,12 @@ fn a_pause_beyond_the_budget_stops_the_motors() {
     // 700 ms stopped while hovering: more than the budget excuses (about 330 ms at once), so
     // the IMU's silence or the command's age is judged on the wall clock and the motors stop
     // (whichever of the watchdog and the ESC writer wakes first names it).
-    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|p| p.into_inner());
-    let dir = tempfile::tempdir().unwrap();
-    let mut run =
-        Uquad::spawn(realtime_sim(&["--duration", "14"], dir.path()).env("RUST_LOG", "info"));
+    let (_one, dir, mut run) = start("14");
     wait_for(&run, "mode hold");
     stall_for(&mut run, 700);
     run.child.wait().unwrap();
     let err = run.stderr();
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.path().join("report.json")).unwrap())
-            .unwrap();
+    let report = report(&dir);
     let stop = report["esc"]["stop_reason"].as_str().unwrap();
     assert!(
         ["imu-timeout", "deadline", "stale motor command"].contains(&stop),
