@@ -107,6 +107,46 @@ fn a_sim_run_replays_to_identical_bytes() {
     assert_ne!(x(&report), x(&other));
 }
 
+#[test]
+fn the_receivers_bias_as_states_leaves_no_gps_innovation_under_its_bounds_and_replays() {
+    // The fixes' innovations of a filter with the bias whole in its fixes' noise sit under
+    // the NIS's lower bound (seed 13: a fifth of them); with the bias as two states
+    // (ekf.gps_bias_m) and the fixes' own noise in r_gps, they are where the filter says.
+    let nis = |r: &serde_json::Value, k: &str| {
+        r["ekf_consistency"]["nis"]["gps"][k]
+            .as_f64()
+            .unwrap_or_else(|| panic!("{k}: {r}"))
+    };
+    let (without, _l1) = sim(&["--seed", "13"]);
+    let (with, _l2) = sim(&[
+        "--seed",
+        "13",
+        "--set",
+        "ekf.gps_bias_m=2.0",
+        "--set",
+        "ekf.r_gps=[3e-5,3e-5,3e-5,0.25,0.25,0.032,1e-4,1e-4,1e-3,0.49,0.49,1e12]",
+        "--set",
+        "ekf.q=[1e-6,1e-6,1e-4,1e-7,1e-7,2e-11,1e-5,1e-5,1e-5,0.01,0.01,0.1,1e-2,1e-2,1e-5]",
+    ]);
+    assert!(
+        nis(&with, "in_95") > nis(&without, "in_95") + 0.05,
+        "with {with}\nwithout {without}"
+    );
+    assert!(
+        nis(&with, "below_95") < 0.5 * nis(&without, "below_95"),
+        "with {with}\nwithout {without}"
+    );
+    assert_eq!(
+        report_modes(&with).last().map(String::as_str),
+        Some("disarmed")
+    );
+    // The run's own profile carries the states: its replay rebuilds the same estimate.
+    let run = Path::new(with["run_dir"].as_str().unwrap()).to_path_buf();
+    let out = replay_run(&run);
+    let x = |dir: &Path| std::fs::read(dir.join("x_hat.log")).unwrap();
+    assert_eq!(x(&run), x(out.path()));
+}
+
 /// truth.log has a line per Kalman step, at the estimate's times, and the report's `est_error`
 /// is the estimate (x_hat.log) against it; `ekf_consistency` has every figure.
 fn assert_truth_matches_the_report(run: &Path, report: &serde_json::Value) {

@@ -102,6 +102,8 @@ pub const PARAMETERS: &[(&str, &str)] = &[
     ("EKF_ANGLE_PER_S", "ekf.angle_period_s"),
     ("EKF_Q_GYRO_BIAS", "ekf.q_gyro_bias"),
     ("EKF_P0_GYRO_BIA", "ekf.p0_gyro_bias"),
+    ("EKF_GPS_BIAS_M", "ekf.gps_bias_m"),
+    ("EKF_GPS_BIAS_TAU", "ekf.gps_bias_tau_s"),
     ("EKF_R_ANG_REST", "ekf.r_angles_rest"),
     ("EKF_R_FIELD", "ekf.r_field"),
     ("CMD_CLIMB_M_S", "commander.climb_m_s"),

@@ -289,6 +289,10 @@ pub struct Ekf {
     /// 0: none (the 2012 flights).
     pub q_gyro_bias: f64,
     pub p0_gyro_bias: f64,
+    /// The receiver's horizontal bias states, with "position-velocity": the bias's standard
+    /// deviation per axis (m; 0: none, the 2012 flights) and its correlation time (s).
+    pub gps_bias_m: f64,
+    pub gps_bias_tau_s: f64,
     /// The IMU's roll and pitch noise while the vehicle rests on the ground, rad²; 0: the
     /// flight's (`r_imu`), as the 2012 flights.
     pub r_angles_rest: f64,
@@ -317,6 +321,8 @@ impl Default for Ekf {
             angle_period_s: p.angle_period_s,
             q_gyro_bias: p.gyro_bias_q,
             p0_gyro_bias: p.gyro_bias_p0,
+            gps_bias_m: p.gps_bias_m,
+            gps_bias_tau_s: p.gps_bias_tau_s,
             r_angles_rest: p.r_angles_rest,
             r_field: p.r_field,
         }
@@ -344,6 +350,8 @@ impl Ekf {
             angle_period_s: self.angle_period_s,
             gyro_bias_q: self.q_gyro_bias,
             gyro_bias_p0: self.p0_gyro_bias,
+            gps_bias_m: self.gps_bias_m,
+            gps_bias_tau_s: self.gps_bias_tau_s,
             r_angles_rest: self.r_angles_rest,
             r_field: self.r_field,
         }

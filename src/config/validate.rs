@@ -1009,6 +1009,20 @@ fn ekf_rules(c: &Config) -> Vec<Check> {
                 "(rad/s)²",
             )
             .note("0: none"),
+            in_range("ekf.gps_bias_m", c.ekf.gps_bias_m, 0.0..=100.0, "m")
+                .note("0: none")
+                .and(
+                    c.ekf.gps_bias_m == 0.0
+                        || c.ekf.gps_fusion == crate::core::ekf::GpsFusion::PositionVelocity,
+                    "0 unless ekf.gps_fusion = \"position-velocity\" (the joint fusion has no \
+                     bias states)",
+                ),
+            in_range(
+                "ekf.gps_bias_tau_s",
+                c.ekf.gps_bias_tau_s,
+                1.0..=3600.0,
+                "s",
+            ),
             in_range("ekf.r_angles_rest", c.ekf.r_angles_rest, 0.0..=1.0, "rad²")
                 .note("0: r_imu's"),
             in_range("ekf.r_field", c.ekf.r_field, 0.0..=1.0, "(unit vector)²").note("0: off"),

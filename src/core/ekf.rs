@@ -49,6 +49,10 @@ pub mod idx {
     pub const BGX: usize = 15;
     pub const BGY: usize = 16;
     pub const BGZ: usize = 17;
+    /// The GPS receiver's horizontal bias, north and west, m (the filter's only:
+    /// `core::ekf_gps_bias`).
+    pub const BPX: usize = 18;
+    pub const BPY: usize = 19;
 }
 
 /// Rows of the IMU-only update: ψ, φ, θ, ax, ay, az, ωx, ωy, ωz, baro altitude.
@@ -135,6 +139,11 @@ pub struct EkfParams {
     /// initial variance, (rad/s)² each; both 0: no bias (the states stay 0).
     pub gyro_bias_q: f64,
     pub gyro_bias_p0: f64,
+    /// The receiver's horizontal bias states (`core::ekf_gps_bias`, with
+    /// [`GpsFusion::PositionVelocity`]): the bias's standard deviation per axis, m, and its
+    /// correlation time, s (first-order Gauss-Markov); a deviation of 0: no bias states.
+    pub gps_bias_m: f64,
+    pub gps_bias_tau_s: f64,
     /// The IMU's roll and pitch noise while the vehicle rests on the ground, rad²
     /// (`core::ekf_angles`); 0: the flight's, as the 2012 flights.
     pub r_angles_rest: f64,
@@ -187,6 +196,8 @@ impl EkfParams {
             angle_period_s: 0.0,
             gyro_bias_q: 0.0,
             gyro_bias_p0: 0.0,
+            gps_bias_m: 0.0,
+            gps_bias_tau_s: 60.0,
             r_angles_rest: 0.0,
             r_field: 0.0,
         }
@@ -704,8 +715,10 @@ impl Ekf {
         x[idx::BAY] = null_sample.acc_m_s2[1];
         x[idx::BAZ] = null_sample.acc_m_s2[2] - GRAVITY_M_S2;
         let p0 = params.p0_diag;
-        let p = StateMatrix::from_diagonal(&FilterState::from_fn(|i, _| {
-            p0.get(i).copied().unwrap_or(params.gyro_bias_p0)
+        // The receiver's bias has no variance until the first fix places it (`ekf_gps_bias`).
+        let p = StateMatrix::from_diagonal(&FilterState::from_fn(|i, _| match i {
+            idx::BGX..=idx::BGZ => params.gyro_bias_p0,
+            _ => p0.get(i).copied().unwrap_or(0.0),
         }));
         let mut ekf = Ekf {
             params,
@@ -837,6 +850,7 @@ impl Ekf {
             self.p[(i, i)] += self.params.q_diag[i];
         }
         self.bias_process_noise();
+        self.receiver_bias_decay(t_s);
         if self.drag_modelled() {
             // bax, bay are then the drag, tied to the velocity: not a bias free to wander
             // (also on a step the thrust dips: a wide P would let the next window's drag jump

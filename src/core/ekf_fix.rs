@@ -31,8 +31,9 @@ use nalgebra::{SMatrix, SVector};
 /// the altitude the horizontal). The velocity rows reach the tilt and the gyros' bias it grew
 /// from, the position rows do not (a receiver's metre-level bias read as tilt would be
 /// flown); nor the accelerometer's states (their rows set them every step).
-const HORIZONTAL: [usize; 4] = [idx::X, idx::Y, idx::VQX, idx::VQY];
-const HORIZONTAL_SPEED: [usize; 9] = [
+/// Both reach the receiver's bias states (zero gain without them: their covariance is zero).
+const HORIZONTAL: [usize; 6] = [idx::X, idx::Y, idx::VQX, idx::VQY, idx::BPX, idx::BPY];
+const HORIZONTAL_SPEED: [usize; 11] = [
     idx::X,
     idx::Y,
     idx::VQX,
@@ -42,6 +43,8 @@ const HORIZONTAL_SPEED: [usize; 9] = [
     idx::BGX,
     idx::BGY,
     idx::BGZ,
+    idx::BPX,
+    idx::BPY,
 ];
 const VERTICAL: [usize; 2] = [idx::Z, idx::VQZ];
 /// Rows: x, y, z, north, west and up velocity (the last only while the barometer is lost).
@@ -229,7 +232,8 @@ impl Ekf {
         (h, y, pht, s)
     }
 
-    /// H: the position rows read x, y, z; the velocity rows (north, west, up) the body velocity
+    /// H: the position rows read x, y, z (x and y plus the receiver's bias when it is a state,
+    /// `core::ekf_gps_bias`); the velocity rows (north, west, up) the body velocity
     /// turned by the estimated attitude (its partials in the angles, a velocity's metres a
     /// second times a tilt's error, are left out: the tilt is reached through its covariance
     /// with the velocity, which the model's g·sin(tilt) builds). Rows not used are zero.
@@ -238,6 +242,9 @@ impl Ekf {
         for i in 0..3 {
             if used[i] {
                 h[(i, i)] = 1.0;
+                if let Some(b) = self.fix_bias_column(i) {
+                    h[(i, b)] = 1.0;
+                }
             }
         }
         let r = rotation_portable(self.x[idx::PSI], self.x[idx::PHI], self.x[idx::THETA]);
@@ -269,7 +276,7 @@ impl Ekf {
     }
 
     /// The first fix: the horizontal position is the fix's, its covariance the fix's noise,
-    /// uncorrelated with the rest.
+    /// uncorrelated with the rest (the receiver's bias, when a state, splits it).
     fn place(&mut self, xy: &[f64; 2], r: &[f64]) {
         for (i, (&v, &ri)) in xy.iter().zip(r).enumerate() {
             self.x[i] = v;
@@ -277,6 +284,7 @@ impl Ekf {
             self.p.column_mut(i).fill(0.0);
             self.p[(i, i)] = ri;
         }
+        self.place_receiver_bias();
     }
 }
 

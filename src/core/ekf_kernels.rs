@@ -6,16 +6,17 @@
 
 use nalgebra::{SMatrix, SVector};
 
-/// The filter's state count (spec 3.1's fifteen, then the gyros' bias) and its covariance's
-/// type; `ekf` re-exports both.
-pub const N_STATES: usize = 18;
+/// The filter's state count (spec 3.1's fifteen, then the gyros' bias, then the receiver's
+/// horizontal bias) and its covariance's type; `ekf` re-exports both.
+pub const N_STATES: usize = 20;
 pub type StateMatrix = SMatrix<f64, N_STATES, N_STATES>;
 
 /// The columns of the non-zero entries of D = F − I in each row: the structure of the
 /// Jacobian of spec 3.4 (both models), then the gyros' bias (columns 15–17), which enters
-/// wherever the body rates do (`ekf_gyro_bias`). Position (x, y, z) drives no state, and the
-/// yaw rate, the accelerometer's states and the biases (rows 11–17) have no state-dependent
-/// terms. A test checks that the filter's Jacobian writes nothing outside it.
+/// wherever the body rates do (`ekf_gyro_bias`), then the receiver's bias (rows and columns
+/// 18–19), which nothing drives (its decay is applied apart, `ekf_gps_bias`). Position
+/// (x, y, z) drives no state, and the yaw rate, the accelerometer's states and the biases
+/// (rows 11–19) have no state-dependent terms. A test checks that the filter's Jacobian writes nothing outside it.
 pub const D_COLS: [&[usize]; N_STATES] = [
     &[3, 4, 5, 6, 7, 8],
     &[3, 4, 5, 6, 7, 8],
@@ -28,6 +29,8 @@ pub const D_COLS: [&[usize]; N_STATES] = [
     &[3, 4, 6, 7, 9, 10, 14, 15, 16],
     &[10, 11, 16, 17],
     &[9, 11, 15, 17],
+    &[],
+    &[],
     &[],
     &[],
     &[],
@@ -70,7 +73,7 @@ fn column_of_times_ft<const I: usize, const FROM: usize>(
 /// Runs `$body` once for each state index as a constant `$i` (one copy of the code per row).
 macro_rules! for_each_state {
     ($i:ident => $body:block) => {
-        for_each_state!(@ $i $body; 0 1 2 3 4 5 6 7 8 9 10 11 12 13 14 15 16 17)
+        for_each_state!(@ $i $body; 0 1 2 3 4 5 6 7 8 9 10 11 12 13 14 15 16 17 18 19)
     };
     (@ $i:ident $body:block; $($n:literal)*) => {{
         $({

@@ -10,6 +10,7 @@ mod ekf_angles;
 pub mod ekf_drag;
 mod ekf_field;
 pub mod ekf_fix;
+mod ekf_gps_bias;
 mod ekf_gyro_bias;
 pub mod ekf_kernels;
 pub mod esc;

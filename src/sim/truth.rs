@@ -9,9 +9,11 @@
 //! quantiles (0.95 of the steps for a perfectly consistent filter).
 //!
 //! The receiver's wandering bias is not observable by the filter (nothing but the fixes sees
-//! the horizontal position): the position NEES is taken against the true position plus the
-//! receiver's current bias — what the fixes let the filter know — and only once a fix has
-//! placed the position. `est_error` is against the truth alone: it holds the bias.
+//! the horizontal position): the position NEES is taken in the frame the fixes are in — the
+//! true position plus the receiver's current bias, against the estimate's position plus its
+//! own bias states when it has them (`core::ekf_gps_bias`), with that sum's covariance — and
+//! only once a fix has placed the position. `est_error` is against the truth alone: it holds
+//! the bias.
 
 use crate::core::ekf::{Ekf, Nis, idx};
 use crate::core::flight::Estimate;
@@ -184,7 +186,11 @@ pub struct TruthTrace {
 
 /// eᵀ·P⁻¹·e over the three states from `first`; NaN when the block is not invertible.
 fn nees3(ekf: &Ekf, first: usize, e: [f64; 3]) -> f64 {
-    let p = ekf.p.fixed_view::<3, 3>(first, first).into_owned();
+    nees_of(ekf.p.fixed_view::<3, 3>(first, first).into_owned(), e)
+}
+
+/// eᵀ·P⁻¹·e; NaN when `p` is not invertible.
+fn nees_of(p: nalgebra::Matrix3<f64>, e: [f64; 3]) -> f64 {
     let e = nalgebra::Vector3::from(e);
     match p.cholesky() {
         Some(c) => e.dot(&c.solve(&e)),
@@ -219,8 +225,10 @@ impl TruthTrace {
         self.att_sq += norm_sq(att);
         self.n += 1;
         if ekf.fix_seen && receiver_bias_m.is_some() {
-            let known = [pos[0] - bias_m[0], pos[1] - bias_m[1], pos[2]];
-            self.nees[0].add(nees3(ekf, idx::X, known), 3);
+            let [bx, by] = ekf.receiver_bias_m();
+            let known = [pos[0] + bx - bias_m[0], pos[1] + by - bias_m[1], pos[2]];
+            let p = ekf.fix_frame_position_covariance();
+            self.nees[0].add(nees_of(p, known), 3);
         }
         self.nees[1].add(nees3(ekf, idx::VQX, vel), 3);
         self.nees[2].add(nees3(ekf, idx::PSI, att), 3);
