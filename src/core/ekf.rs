@@ -743,10 +743,21 @@ impl Ekf {
         ekf
     }
 
-    /// The horizontal position's standard deviation, the larger axis's, m.
+    /// The horizontal position's standard deviation, the larger axis's, m: with the receiver's
+    /// bias states (`core::ekf_gps_bias`) it holds the bias's doubt, which no fix takes away,
+    /// and grows, without fixes, only as the position's own does (the fence's margin).
     pub fn horizontal_sigma_m(&self) -> f64 {
         self.p[(idx::X, idx::X)]
             .max(self.p[(idx::Y, idx::Y)])
+            .max(0.0)
+            .sqrt()
+    }
+
+    /// The same in the frame the fixes are in (the bias states' doubt left out): how well the
+    /// fixes have placed the position, what a pre-arm check asks.
+    pub fn fix_frame_sigma_m(&self) -> f64 {
+        self.fix_frame_variance_m2(0)
+            .max(self.fix_frame_variance_m2(1))
             .max(0.0)
             .sqrt()
     }

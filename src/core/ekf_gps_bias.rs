@@ -23,7 +23,7 @@
 //! the fix's noise plus σ²; the bias takes 0, with σ²; their covariance is −σ², so that their
 //! sum is known to the fix's noise.
 
-use crate::core::ekf::{Ekf, N_STATES, idx};
+use crate::core::ekf::{Ekf, GpsFusion, N_STATES, idx};
 use nalgebra::{Matrix3, SMatrix};
 
 /// The bias states, north and west, with the position states whose fixes they offset.
@@ -31,9 +31,10 @@ const BIAS: [usize; 2] = [idx::BPX, idx::BPY];
 const POSITION: [usize; 2] = [idx::X, idx::Y];
 
 impl Ekf {
-    /// The bias states take part: the profile gave the bias a deviation.
+    /// The bias states take part: the profile gave the bias a deviation, and fuses fixes into
+    /// position and velocity (the joint fusion has no bias column).
     pub(crate) fn gps_bias_on(&self) -> bool {
-        self.params.gps_bias_m > 0.0
+        self.params.gps_bias_m > 0.0 && self.params.gps_fusion == GpsFusion::PositionVelocity
     }
 
     /// The bias over a step of `dt_s`: P's bias rows and columns scale by exp(−dt/τ) (F's
@@ -84,6 +85,18 @@ impl Ekf {
     /// The learnt bias, north and west, m (0 without the states).
     pub fn receiver_bias_m(&self) -> [f64; 2] {
         BIAS.map(|b| self.x[b])
+    }
+
+    /// The variance of the horizontal position the fixes read, north or west (`axis` 0 or 1),
+    /// m²: the position's own when the bias is no state. What "converged" means to a pre-arm
+    /// check: with the states on, the position's own variance also holds the bias's σ², which
+    /// no fix can take away.
+    pub fn fix_frame_variance_m2(&self, axis: usize) -> f64 {
+        let pos = POSITION[axis.min(1)];
+        match self.fix_bias_column(axis.min(1)) {
+            Some(b) => self.p[(pos, pos)] + 2.0 * self.p[(pos, b)] + self.p[(b, b)],
+            None => self.p[(pos, pos)],
+        }
     }
 
     /// The covariance of the position the fixes read (x and y plus the receiver's bias, and z),
@@ -162,6 +175,10 @@ mod tests {
         let sum = ekf.fix_frame_position_covariance();
         assert!((sum[(0, 0)] - 0.49).abs() < 1e-9, "{}", sum[(0, 0)]);
         assert!((sum[(1, 1)] - 0.49).abs() < 1e-9, "{}", sum[(1, 1)]);
+        // A pre-arm check asks how well the fixes placed the position; the fence, how far it
+        // may be from the truth.
+        assert!((ekf.fix_frame_sigma_m() - 0.7).abs() < 1e-6);
+        assert!((ekf.horizontal_sigma_m() - 4.49f64.sqrt()).abs() < 1e-6);
     }
 
     #[test]

@@ -1015,7 +1015,7 @@ impl EstimatorSide {
             gyro_lost: ekf.gyro_lost,
             tilt_sigma_rad: sigma(idx::PSI).max(sigma(idx::PHI)),
             velocity_sigma_m_s: sigma(idx::VQX).max(sigma(idx::VQY)).max(sigma(idx::VQZ)),
-            position_sigma_m: fixes.then(|| ekf.horizontal_sigma_m()),
+            position_sigma_m: fixes.then(|| ekf.fix_frame_sigma_m()),
             fix_fused: ekf.fix_seen,
             ratios: TestRatios {
                 gps: self.last_fix_ratio,
