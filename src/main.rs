@@ -16,7 +16,7 @@ use uquad::sim::faults::{Fault, parse_injection};
     name = "uquad",
     version,
     about = "Flight software for the uQuad quadcopter",
-    long_about = "Flight software for the uQuad quadcopter: IMU measurement path, the original's 15-state EKF (gyro-bias states added), \
+    long_about = "Flight software for the uQuad quadcopter: IMU measurement path, the original's 15-state EKF (gyro-bias and receiver-bias states added), \
 hover controller and motor drivers, with a replay mode that reruns a recorded flight.\n\n\
 Logging goes to stderr; set RUST_LOG (e.g. RUST_LOG=debug) to change its level.",
     after_help = "Examples:\n  \

@@ -290,8 +290,9 @@ pub struct Ekf {
     pub q_gyro_bias: f64,
     pub p0_gyro_bias: f64,
     /// The receiver's horizontal bias states, with "position-velocity": the bias's standard
-    /// deviation per axis (m; 0: none, the 2012 flights) and its correlation time (s).
+    /// deviation σ per axis, m (0: none, the 2012 flights).
     pub gps_bias_m: f64,
+    /// The bias's correlation time, s.
     pub gps_bias_tau_s: f64,
     /// The IMU's roll and pitch noise while the vehicle rests on the ground, rad²; 0: the
     /// flight's (`r_imu`), as the 2012 flights.

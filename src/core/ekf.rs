@@ -1,5 +1,6 @@
-//! The 15-state extended Kalman filter of the original, with the three gyro-bias states the
-//! default profile adds (`core::ekf_gyro_bias`; the 2012 profile has them off).
+//! The 15-state extended Kalman filter of the original, with the three gyro-bias states and
+//! the two receiver-bias states the default profile adds (`core::ekf_gyro_bias`,
+//! `core::ekf_gps_bias`; the 2012 profile has them off).
 //!
 //! Spec section 3 with ERRATA 2–4: states (3.1), process model (3.3), Jacobian (3.4, without
 //! the `F[3][12] = T` term the flown program did not have), observation models (3.5), noise
@@ -23,7 +24,8 @@ pub use crate::core::ekf_kernels::{N_STATES, StateMatrix};
 pub const N_MODEL: usize = 15;
 pub type State = SVector<f64, N_MODEL>;
 pub type ModelMatrix = SMatrix<f64, N_MODEL, N_MODEL>;
-/// The filter's states: the model's, then the gyros' bias (`core::ekf_gyro_bias`).
+/// The filter's states: the model's, then the gyros' bias (`core::ekf_gyro_bias`), then the
+/// receiver's horizontal bias (`core::ekf_gps_bias`).
 pub type FilterState = SVector<f64, N_STATES>;
 /// Motor speeds m0..m3, rad/s.
 pub type Input = [f64; 4];
@@ -744,8 +746,9 @@ impl Ekf {
     }
 
     /// The horizontal position's standard deviation, the larger axis's, m: with the receiver's
-    /// bias states (`core::ekf_gps_bias`) it holds the bias's doubt, which no fix takes away,
-    /// and grows, without fixes, only as the position's own does (the fence's margin).
+    /// bias states (`core::ekf_gps_bias`) it holds the bias's doubt, which the fixes take away only
+    /// over several of its correlation times, and grows, without fixes, as the position's own
+    /// does (the fence's margin).
     pub fn horizontal_sigma_m(&self) -> f64 {
         self.p[(idx::X, idx::X)]
             .max(self.p[(idx::Y, idx::Y)])

@@ -16,7 +16,9 @@
 //! gates): a position outside its gate with a velocity inside is a multipath glitch, and the
 //! velocity alone is fused; a velocity outside its gate is the estimate's own error, fused at
 //! the gate's edge unless it is wild; the vertical velocity row is gated on its own. The
-//! velocity rows reach the gyros' bias states too.
+//! velocity rows reach the gyros' bias states too. With `ekf.gps_bias_m` the position rows
+//! read x, y plus the receiver's bias, and both the position and the velocity rows reach the
+//! bias states (`core::ekf_gps_bias`).
 
 use crate::core::ekf::{
     Ekf, EkfError, GPS_ROWS, GatedGroups, N_STATES, StateMatrix, StepNis, TestRatios,
@@ -31,7 +33,8 @@ use nalgebra::{SMatrix, SVector};
 /// the altitude the horizontal). The velocity rows reach the tilt and the gyros' bias it grew
 /// from, the position rows do not (a receiver's metre-level bias read as tilt would be
 /// flown); nor the accelerometer's states (their rows set them every step).
-/// Both reach the receiver's bias states (zero gain without them: their covariance is zero).
+/// `HORIZONTAL` and `HORIZONTAL_SPEED` both reach the receiver's bias states (zero gain
+/// without them: their covariance is zero).
 const HORIZONTAL: [usize; 6] = [idx::X, idx::Y, idx::VQX, idx::VQY, idx::BPX, idx::BPY];
 const HORIZONTAL_SPEED: [usize; 11] = [
     idx::X,

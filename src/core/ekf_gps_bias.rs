@@ -4,8 +4,8 @@
 //!
 //! A receiver's position error is mostly not new at each fix: a u-blox NEO-M8N's metres
 //! wander over about a minute (the atmosphere, the satellites' geometry), and only a few
-//! tenths of a metre are the fix's own noise. Not in the original's spec (3.1 fuses a fix as
-//! white noise on the position): without a state for it the bias has two places, both wrong.
+//! tenths of a metre are the fix's own noise. Not in the original's spec (3.5–3.7 fuse a fix
+//! as white noise on the position): without a state for it the bias has two places, both wrong.
 //! In the fixes' noise the filter doubts every fix by the whole bias, while the estimate sits
 //! on it: the innovations are smaller than the filter says. In the position's process noise
 //! each fix's own noise moves the position, and the vehicle flies it.
@@ -14,9 +14,10 @@
 //! Gauss-Markov process: over a step it decays by exp(−dt/τ), and its variance is topped up
 //! by σ²·(1 − exp(−2·dt/τ)), so that it holds σ² when nothing observes it. The position moves
 //! only as the velocity says, which the fixes' Doppler velocity and the IMU hold. Nothing but
-//! the fixes sees the bias, so the filter cannot tell a bias from a position error beyond what
-//! its prior (0, σ²) and the time it is correlated over say: the position's covariance keeps
-//! that doubt (about σ), which is the truth of a single receiver.
+//! the fixes sees the bias, so the filter tells a bias from a position error only by what
+//! its prior (0, σ²) and the time it is correlated over say: over a flight shorter than τ
+//! the position's covariance keeps that doubt (about σ), shrinking over several τ as the
+//! fixes' long average places the position - the truth of a single receiver.
 //!
 //! The first fix places the position and the bias together. The fix reads their sum to its
 //! own noise, and the bias's prior splits it: the position takes the fix, with a variance of
@@ -89,11 +90,13 @@ impl Ekf {
 
     /// The variance of the horizontal position the fixes read, north or west (`axis` 0 or 1),
     /// m²: the position's own when the bias is no state. What "converged" means to a pre-arm
-    /// check: with the states on, the position's own variance also holds the bias's σ², which
-    /// no fix can take away.
+    /// check: with the states on, the position's own variance also holds the bias's doubt, which
+    /// the fixes take away only over several correlation times.
     pub fn fix_frame_variance_m2(&self, axis: usize) -> f64 {
-        let pos = POSITION[axis.min(1)];
-        match self.fix_bias_column(axis.min(1)) {
+        debug_assert!(axis < 2, "axis {axis}");
+        let axis = axis.min(1);
+        let pos = POSITION[axis];
+        match self.fix_bias_column(axis) {
             Some(b) => self.p[(pos, pos)] + 2.0 * self.p[(pos, b)] + self.p[(b, b)],
             None => self.p[(pos, pos)],
         }
@@ -101,7 +104,7 @@ impl Ekf {
 
     /// The covariance of the position the fixes read (x and y plus the receiver's bias, and z),
     /// m²: what the fixes let the filter know of the position.
-    pub fn fix_frame_position_covariance(&self) -> Matrix3<f64> {
+    pub fn fix_frame_position_covariance_m2(&self) -> Matrix3<f64> {
         let mut t = SMatrix::<f64, 3, N_STATES>::zeros();
         for (row, pos) in [idx::X, idx::Y, idx::Z].into_iter().enumerate() {
             t[(row, pos)] = 1.0;
@@ -172,7 +175,7 @@ mod tests {
         assert_eq!(ekf.receiver_bias_m(), [0.0, 0.0]);
         assert!((ekf.p[(idx::X, idx::X)] - (0.49 + 4.0)).abs() < 1e-9);
         assert_eq!(ekf.p[(idx::BPX, idx::BPX)], 4.0);
-        let sum = ekf.fix_frame_position_covariance();
+        let sum = ekf.fix_frame_position_covariance_m2();
         assert!((sum[(0, 0)] - 0.49).abs() < 1e-9, "{}", sum[(0, 0)]);
         assert!((sum[(1, 1)] - 0.49).abs() < 1e-9, "{}", sum[(1, 1)]);
         // A pre-arm check asks how well the fixes placed the position; the fence, how far it

@@ -16,7 +16,8 @@ pub type StateMatrix = SMatrix<f64, N_STATES, N_STATES>;
 /// wherever the body rates do (`ekf_gyro_bias`), then the receiver's bias (rows and columns
 /// 18–19), which nothing drives (its decay is applied apart, `ekf_gps_bias`). Position
 /// (x, y, z) drives no state, and the yaw rate, the accelerometer's states and the biases
-/// (rows 11–19) have no state-dependent terms. A test checks that the filter's Jacobian writes nothing outside it.
+/// (rows 11–19) have no state-dependent terms. A test checks that the filter's Jacobian
+/// writes nothing outside it.
 pub const D_COLS: [&[usize]; N_STATES] = [
     &[3, 4, 5, 6, 7, 8],
     &[3, 4, 5, 6, 7, 8],

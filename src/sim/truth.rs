@@ -8,8 +8,8 @@
 //! dimension; a step is inside when its value lies between the law's 2.5 % and 97.5 %
 //! quantiles (0.95 of the steps for a perfectly consistent filter).
 //!
-//! The receiver's wandering bias is not observable by the filter (nothing but the fixes sees
-//! the horizontal position): the position NEES is taken in the frame the fixes are in — the
+//! The receiver's wandering bias is observable by the filter only through its fading (nothing
+//! but the fixes sees the horizontal position; its states, `core::ekf_gps_bias`): the position NEES is taken in the frame the fixes are in — the
 //! true position plus the receiver's current bias, against the estimate's position plus its
 //! own bias states when it has them (`core::ekf_gps_bias`), with that sum's covariance — and
 //! only once a fix has placed the position. `est_error` is against the truth alone: it holds
@@ -227,7 +227,7 @@ impl TruthTrace {
         if ekf.fix_seen && receiver_bias_m.is_some() {
             let [bx, by] = ekf.receiver_bias_m();
             let known = [pos[0] + bx - bias_m[0], pos[1] + by - bias_m[1], pos[2]];
-            let p = ekf.fix_frame_position_covariance();
+            let p = ekf.fix_frame_position_covariance_m2();
             self.nees[0].add(nees_of(p, known), 3);
         }
         self.nees[1].add(nees3(ekf, idx::VQX, vel), 3);

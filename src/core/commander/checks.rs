@@ -35,7 +35,8 @@ pub struct EstimatorHealth {
     pub tilt_sigma_rad: f64,
     /// The largest of the body velocities', m/s.
     pub velocity_sigma_m_s: f64,
-    /// The horizontal position's, m, where fixes are expected (`None`: no receiver).
+    /// The horizontal position's in the frame the fixes are in (the receiver's bias doubt left
+    /// out: `Ekf::fix_frame_sigma_m`), m, where fixes are expected (`None`: no receiver).
     pub position_sigma_m: Option<f64>,
     /// A fix has been fused (where fixes are expected).
     pub fix_fused: bool,
@@ -44,7 +45,8 @@ pub struct EstimatorHealth {
 }
 
 /// The `estimator` check's limits: a tilt known to 3 degrees, a velocity to 0.5 m/s and a
-/// position to 3 m (a few fixes fused: one NEO-M8N fix alone is 2 m). PX4 asks for its
+/// position to 3 m in the fixes' frame (a few fixes fused with the bias whole in a fix's
+/// noise, 2 m for one NEO-M8N fix; the first fix with the receiver's bias states, 1.2 m). PX4 asks for its
 /// EKF2's test ratios under its gates and its velocity and position accuracy likewise
 /// (COM_ARM_EKF_*); a filter that has not converged flies its start-up transient.
 pub const ARM_TILT_SIGMA_MAX_RAD: f64 = 0.05;

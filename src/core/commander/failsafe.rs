@@ -346,7 +346,9 @@ impl Commander {
     /// Outside the fence: the estimate, dead-reckoned while no fix comes; once the fixes are
     /// lost (none for `gps_timeout_s`) grown by [`FENCE_SIGMAS`] times what its uncertainty
     /// has grown since the last one (between fixes it grows and shrinks at their pace, and
-    /// the fence is judged on the estimate).
+    /// the fence is judged on the estimate). The growth is the variance's, √(σ² − σ²_fix): a
+    /// doubt the last fix left, such as the receiver's bias (`core::ekf_gps_bias`), adds to
+    /// it, and must not shrink the margin the dead reckoning needs.
     fn outside_fence(&self, o: &Observation) -> bool {
         let Some(h) = self.home_m else {
             return false;
@@ -355,7 +357,8 @@ impl Commander {
             .last_fix_us
             .is_some_and(|t| (o.t_us - t) as f64 / 1e6 > self.p.gps_timeout_s);
         let grown_m = if lost {
-            FENCE_SIGMAS * (o.pos_sigma_m - self.sigma_at_fix_m).max(0.0)
+            let grown_m2 = o.pos_sigma_m.powi(2) - self.sigma_at_fix_m.powi(2);
+            FENCE_SIGMAS * grown_m2.max(0.0).sqrt()
         } else {
             0.0
         };

@@ -317,7 +317,8 @@ pub struct Observation {
     /// The yaw measured at calibration (the hover's heading), rad.
     pub yaw_cal_rad: f64,
     /// The estimate's horizontal position standard deviation (the larger axis's), m: how far
-    /// a position dead-reckoned without fixes may be off.
+    /// a position dead-reckoned without fixes may be off (with the receiver's bias states it
+    /// holds the bias's doubt too, about 2 m with fixes).
     pub pos_sigma_m: f64,
     /// How far the gyros' roll and pitch bias was learnt to move since the last fused fix,
     /// rad/s: without fixes, a tilt flown that nothing shows (`core::ekf_gyro_bias`).

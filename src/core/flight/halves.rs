@@ -64,7 +64,8 @@ pub struct Estimate {
     pub vertical_observed: bool,
     /// The gyro is lost (stuck): the filter's rates are the model's.
     pub gyro_lost: bool,
-    /// The horizontal position's standard deviation (the larger axis's), m.
+    /// The horizontal position's standard deviation (the larger axis's), m; with the
+    /// receiver's bias states it holds the bias's doubt too (`Ekf::horizontal_sigma_m`).
     pub pos_sigma_m: f64,
     /// How far the gyros' roll and pitch bias was learnt to move since the last fused fix,
     /// rad/s (`Ekf::bias_learnt_unaided_rad_s`).
