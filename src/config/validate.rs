@@ -1009,14 +1009,9 @@ fn ekf_rules(c: &Config) -> Vec<Check> {
                 "(rad/s)²",
             )
             .note("0: none"),
-            in_range("ekf.gps_bias_m", c.ekf.gps_bias_m, 0.0..=100.0, "m")
-                .note("0: none")
-                .and(
-                    c.ekf.gps_bias_m == 0.0
-                        || c.ekf.gps_fusion == crate::core::ekf::GpsFusion::PositionVelocity,
-                    "0 unless ekf.gps_fusion = \"position-velocity\" (the joint fusion has no \
-                     bias states)",
-                ),
+            // Unused by the joint fusion, as ekf.r_gps_vel is: a profile switched to it keeps
+            // its value for when it is switched back.
+            in_range("ekf.gps_bias_m", c.ekf.gps_bias_m, 0.0..=100.0, "m").note("0: none"),
             in_range(
                 "ekf.gps_bias_tau_s",
                 c.ekf.gps_bias_tau_s,
