@@ -146,7 +146,7 @@ fn an_armed_vehicle_that_does_not_take_off_disarms() {
 fn a_stuck_gyro_at_the_takeoff_is_seen_and_lands() {
     // Before: rolled over at the ground for 190 s, mode takeoff, motors running, exit 0. Then
     // the crash halt at 25 s, or the fixes' velocity contradicting the estimate seconds later.
-    // Now the gyro's repeated counts mark it lost within 0.1 s and `estimator` lands at once.
+    // Now the gyro's repeated counts mark it lost within 0.05 s and `estimator` lands at once.
     let (r, stderr, _logs) = sim(&[
         "--mission",
         "config/missions/square.toml",

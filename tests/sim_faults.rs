@@ -194,7 +194,7 @@ fn a_stuck_gyro_is_seen_within_a_tenth_of_a_second_and_lands() {
     let run = std::path::Path::new(r["run_dir"].as_str().unwrap());
     let err = std::fs::read_to_string(run.join("err.log")).unwrap();
     assert!(
-        err.contains("gyro stuck: its counts repeated for 10 frames"),
+        err.contains("gyro stuck: its counts repeated for 5 frames"),
         "{err}"
     );
     assert_escs_end_zero_then_disable(&r);

@@ -587,6 +587,16 @@ impl HoverPlanner {
         self.sp.w_rad_s = [self.limits().w_hover_rad_s; 4];
     }
 
+    /// The motor set point for a vertical acceleration of `az_m_s2` beyond holding the
+    /// weight: the profile's climb and braking flown forward, not left to the integrators
+    /// (the original's set point, a hover, is kept bit for bit at 0).
+    pub fn accelerate_up(&mut self, az_m_s2: f64) {
+        if az_m_s2 != 0.0 {
+            let mass_kg = self.mass_kg * (1.0 + az_m_s2 / GRAVITY_M_S2);
+            self.sp.w_rad_s = [w_hover_rad_s(mass_kg.max(0.0)).min(self.w_max_rad_s); 4];
+        }
+    }
+
     /// Applies a manual command within the bounds.
     pub fn apply(&mut self, cmd: ManualCommand) -> ManualOutcome {
         let b = self.bounds;
@@ -829,6 +839,37 @@ mod tests {
         sp.x[2] = 10.0;
         let w = c.step(&State::zeros(), &sp, 0.01);
         assert_eq!(w[0], 4.0);
+    }
+
+    #[test]
+    fn a_climbs_acceleration_is_flown_as_thrust_and_none_keeps_the_hover() {
+        let bounds = ManualBounds {
+            max_tilt_rad: 0.1,
+            max_yaw_offset_rad: 0.5,
+            z_min_m: 0.5,
+            z_max_m: 1.9,
+            mass_min_kg: 1.5,
+            mass_max_kg: 1.6,
+        };
+        let mut p = HoverPlanner::new(1.0, 0.0, [0.0, 0.0], 1.55, 368.0, bounds);
+        p.update_setpoint();
+        let hover = p.sp.w_rad_s;
+        p.accelerate_up(0.0);
+        assert_eq!(p.sp.w_rad_s, hover, "bit for bit");
+        for az_m_s2 in [0.2, -0.2] {
+            p.update_setpoint();
+            p.accelerate_up(az_m_s2);
+            let thrust_n: f64 =
+                p.sp.w_rad_s
+                    .iter()
+                    .map(|&w| crate::core::model::thrust_n(w))
+                    .sum();
+            let want_n = 1.55 * (GRAVITY_M_S2 + az_m_s2);
+            assert!(
+                (thrust_n - want_n).abs() < 1e-9,
+                "{thrust_n} against {want_n}"
+            );
+        }
     }
 
     #[test]

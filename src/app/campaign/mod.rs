@@ -69,7 +69,7 @@ struct Judged {
     fall_m_s: Option<f64>,
 }
 
-/// A known exception: a stuck gyro (seen within 0.1 s; the landing then flies on the
+/// A known exception: a stuck gyro (seen within 0.05 s; the landing then flies on the
 /// torques' model and the magnetometer's field, which cannot see a turn about the field
 /// itself, nor a motor's lost thrust the model does not know) breaking the touchdown speed
 /// (3) or the fence (5). A gyro's bias stepping after the fixes were lost is no longer one:

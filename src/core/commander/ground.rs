@@ -7,6 +7,7 @@
 //! after `commander.takeoff_timeout_s`, is a crash: the motors halt (PX4's FD_FAIL and
 //! ArduPilot's crash check).
 
+use super::profile::Profile;
 use super::{Commander, EscRequest, Event, Failsafe, Mode, Observation};
 use crate::core::model::GRAVITY_M_S2;
 
@@ -111,8 +112,7 @@ impl Commander {
             );
             self.begin_land(Some(o), o.t_us, &why, out);
             // The landing begins where the vehicle is: on the ground.
-            self.profile.z_m = o.pos_m[2];
-            self.profile.vz_m_s = 0.0;
+            self.profile = Profile::at(o.pos_m[2], 0.0, 0.0);
         }
     }
 

@@ -4,6 +4,7 @@
 //! run, and the mission's figures (when it started and ended, its planned duration). Not in
 //! the original's spec, whose path planner (5.1) only hovered.
 
+use super::profile::Profile;
 use super::{Commander, Event, Mode, Observation, Refusal};
 use crate::core::mission::{Item, MissionPlan, MissionRun, Next};
 use crate::core::path::PathPoint;
@@ -222,8 +223,7 @@ impl Commander {
                 ..
             } => {
                 self.target_m = point.pos_m;
-                self.profile.z_m = point.pos_m[2];
-                self.profile.vz_m_s = point.vel_m_s[2];
+                self.profile = Profile::at(point.pos_m[2], point.vel_m_s[2], point.acc_m_s2[2]);
                 self.yaw_rad = Some(point.yaw_rad);
                 self.path = Some((point, segment, gains));
             }

@@ -334,9 +334,10 @@ pub struct Guidance {
     pub mode: Mode,
     /// The control law runs (takeoff, hold, land); otherwise the motors idle (armed) or stop.
     pub fly: bool,
-    /// The set point: position, m, and vertical speed, m/s.
+    /// The set point: position, m, vertical speed, m/s, and vertical acceleration, m/s².
     pub pos_m: [f64; 3],
     pub vz_m_s: f64,
+    pub az_m_s2: f64,
     /// Hold the horizontal position (false: attitude only, as without GPS).
     pub hold_xy: bool,
     /// The height above the takeoff point the vehicle is sent to, m.
@@ -366,6 +367,7 @@ impl Guidance {
         fly: false,
         pos_m: [0.0; 3],
         vz_m_s: 0.0,
+        az_m_s2: 0.0,
         hold_xy: false,
         height_m: 0.0,
         home_m: None,
@@ -541,10 +543,7 @@ impl Commander {
             home_m: None,
             target_m: [0.0, 0.0, p.hover_z_m],
             hold_xy: true,
-            profile: Profile {
-                z_m: 0.0,
-                vz_m_s: 0.0,
-            },
+            profile: Profile::at(0.0, 0.0, 0.0),
             last_t_us: None,
             link_seen_us: None,
             last_fix_us: None,
@@ -1217,10 +1216,7 @@ impl Commander {
         let ground = if home { [0.0, 0.0, 0.0] } else { o.pos_m };
         self.home_m = Some(ground);
         self.target_m = [ground[0], ground[1], ground[2] + alt_m];
-        self.profile = Profile {
-            z_m: if home { self.target_m[2] } else { ground[2] },
-            vz_m_s: 0.0,
-        };
+        self.profile = Profile::at(if home { self.target_m[2] } else { ground[2] }, 0.0, 0.0);
         self.climb.begin(ground[2], alt_m);
         self.takeoff_steps = 0;
         self.takeoff_us = Some(t_us);
@@ -1356,6 +1352,7 @@ impl Commander {
             fly: self.mode.airborne(),
             pos_m: [self.target_m[0], self.target_m[1], p.z_m],
             vz_m_s: p.vz_m_s,
+            az_m_s2: p.az_m_s2,
             // `altitude` holds no position, whatever the fixes.
             hold_xy: self.hold_xy && self.mode != Mode::Altitude,
             height_m: self.target_m[2] - self.home_m.map_or(0.0, |h| h[2]),

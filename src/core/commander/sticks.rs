@@ -4,6 +4,7 @@
 //! a climb rate and a yaw rate, with no position needed. The sticks are the radio's while it
 //! is heard, else a ground station's joystick (MANUAL_CONTROL) while it sends, else centred.
 
+use super::profile::Profile;
 use super::{Commander, Event, Mode, Observation};
 use crate::core::mission::GainKey;
 use crate::core::path::Segment;
@@ -217,8 +218,7 @@ impl Commander {
     fn guide_by_sticks(&mut self, position: bool) {
         let p = self.stick;
         self.target_m = p.pos_m;
-        self.profile.z_m = p.pos_m[2];
-        self.profile.vz_m_s = p.vel_m_s[2];
+        self.profile = Profile::at(p.pos_m[2], p.vel_m_s[2], p.acc_m_s2[2]);
         self.yaw_rad = Some(p.yaw_rad);
         self.path = position.then_some((
             p,

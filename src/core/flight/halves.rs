@@ -572,6 +572,7 @@ impl ControllerCore {
         planner.sp.x[2] = g.pos_m[2];
         planner.sp.x[crate::core::ekf::idx::VQZ] = g.vz_m_s;
         planner.update_setpoint();
+        planner.accelerate_up(g.az_m_s2);
         (planner.sp, planner.mass_kg())
     }
 

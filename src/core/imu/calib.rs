@@ -273,13 +273,18 @@ impl Calibration {
 #[serde(rename_all = "kebab-case")]
 pub enum NullPressure {
     /// Integer division truncating toward zero, as the original's C did (its logs depend on
-    /// it): the reference up to 1 Pa low, so the altitude reads up to 0.08 m (0.04 m on
-    /// average) below the truth all flight.
+    /// it): the reference up to 1 Pa low (0.5 on average), against flight pressures the FIR
+    /// truncates 0.45 Pa low on average, so the altitude is off by the difference (up to
+    /// 0.08 m either way; 0.004 m high on average).
     #[default]
     Truncated,
-    /// The exact mean. The accelerometer, gyro and magnetometer nulls stay truncated either
-    /// way: the frames they are compared with in flight are truncated too (the firmware's
-    /// halving and the FIR filter), and a null without that bias would read as one.
+    /// The exact mean, and the flight's pressures read from the FIR's sum before its
+    /// truncation: both sides as they are. (Its truncation alone takes 0.45 Pa off on average,
+    /// and the truncated reference's 0.5 Pa nearly cancelled it: an exact reference against
+    /// truncated flight pressures read the altitude 0.04 m high.) The accelerometer, gyro and
+    /// magnetometer nulls stay truncated either way: the frames they are compared with in
+    /// flight are truncated too (the firmware's halving and the FIR filter), and a null without
+    /// that bias would read as one.
     Exact,
 }
 

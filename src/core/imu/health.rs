@@ -3,15 +3,19 @@
 //! the original's spec (it trusted every frame that decoded).
 //!
 //! The rule is PX4's `DataValidator` stale check: a reading that repeats exactly, sample
-//! after sample, is not a sensor's. The ITG-3200's noise is several counts per axis (the 2012
-//! flight and the simulator never repeat all three axes on two frames in a row, one axis on
-//! at most six), so [`STUCK_FRAMES`] identical frames cannot be a still vehicle.
+//! after sample, is not a sensor's. The ITG-3200's noise is several counts per axis: the 2012
+//! flight never repeats all three axes on two frames in a row (1631 frames), the simulator
+//! about once in 1000 frames and never on three, so [`STUCK_FRAMES`] identical frames cannot
+//! be a still vehicle (a run of five by chance: about one frame in 10¹²).
 
 use super::frame::RawFrame;
 
 /// Consecutive frames whose three gyro counts are identical that mark the gyro stuck:
-/// 0.1 s at 100 Hz.
-pub const STUCK_FRAMES: u32 = 10;
+/// 0.05 s at 100 Hz. Every frame before it is seen is flown against the stuck rate: with ten
+/// (0.1 s) a square mission's controller had turned the vehicle at up to 1.3 rad/s unseen by
+/// then, and the landing on the model's attitude touched down above 1 m/s in 3 of 60 (none
+/// with five; `docs/src/flying.md`, Known limits).
+pub const STUCK_FRAMES: u32 = 5;
 
 /// Watches the raw gyro counts. Once stuck, the gyro stays lost until the watch is started
 /// again (a new calibration): a sensor that froze once is not trusted again mid-flight (the

@@ -4,7 +4,9 @@
 //! Spec section 8.3 steps 3–6 and 2.4. Time enters only as the frame stamps the caller passes
 //! (µs, monotonic), so the same sequence gives the same result in flight, simulation and replay.
 
-use super::calib::{Calibration, ImuSample, NullAccumulator, NullEstimate, NullPressure};
+use super::calib::{
+    Calibration, ImuSample, NullAccumulator, NullEstimate, NullPressure, altitude_m,
+};
 use super::filter::Fir;
 use super::frame::RawFrame;
 
@@ -169,6 +171,19 @@ impl ImuFrontEnd {
         }
     }
 
+    /// The FIR's frame in SI units. With the exact reference the altitude is read from the
+    /// FIR's pressure before its truncation too: truncating the flight's side alone would read
+    /// the altitude 0.04 m high on average, against the reference's exact mean.
+    fn convert(&self, filtered: &RawFrame, null: &NullEstimate) -> ImuSample {
+        let mut sample = self.calib.convert(filtered, &null.reference);
+        if self.params.null_pressure == NullPressure::Exact
+            && let Some(p_pa) = self.fir.pressure_pa()
+        {
+            sample.alt_m = altitude_m(p_pa, null.reference.p0_pa);
+        }
+        sample
+    }
+
     /// Feeds one frame stamped at `stamp_us` (when its last byte was decoded).
     pub fn on_frame(&mut self, frame: &RawFrame, stamp_us: i64) -> FrontEndEvent {
         let interval_us = self.last_stamp_us.map(|last| stamp_us - last);
@@ -243,9 +258,7 @@ impl ImuFrontEnd {
             }
             Phase::Running(null) => {
                 let event = match self.fir.output() {
-                    Some(filtered) => {
-                        FrontEndEvent::Sample(self.calib.convert(&filtered, &null.reference))
-                    }
+                    Some(filtered) => FrontEndEvent::Sample(self.convert(&filtered, &null)),
                     // Only when calib_frames < 6: the window is not full yet.
                     None => FrontEndEvent::Calibrating {
                         frames: self.params.calib_frames,
@@ -321,6 +334,38 @@ mod tests {
         };
         // 0.2 of the new frame's extra 100 counts at 0.01 rad/s per count.
         assert!((s.gyro_rad_s[0] - 0.2).abs() < 1e-12, "{s:?}");
+    }
+
+    /// The altitude the front end reads, calibrated and then flown on frames whose pressures
+    /// alternate by 1 Pa (their mean half a pascal between), with `pressure`.
+    fn altitude_on_alternating_pressures(pressure: NullPressure) -> f64 {
+        let p = StartupParams {
+            null_pressure: pressure,
+            ..params()
+        };
+        let mut fe = ImuFrontEnd::new(p, calib(), false);
+        let at = |i: i64| RawFrame {
+            pres_pa: 101_000 + (i % 2) as u32,
+            ..frame(5)
+        };
+        let mut last = FrontEndEvent::Settling { good: 0 };
+        for i in 0..20 {
+            last = fe.on_frame(&at(i), i * 10_000);
+        }
+        let FrontEndEvent::Sample(s) = last else {
+            panic!("{last:?}")
+        };
+        s.alt_m
+    }
+
+    #[test]
+    fn the_exact_reference_reads_the_filtered_pressure_untruncated() {
+        // The window sums to 101000.5 Pa, the reference's exact mean: no altitude at all.
+        let exact = altitude_on_alternating_pressures(NullPressure::Exact);
+        assert!(exact.abs() < 1e-9, "{exact}");
+        // The original's: the reference truncated to 101000 and the window's sum too.
+        let truncated = altitude_on_alternating_pressures(NullPressure::Truncated);
+        assert!(truncated.abs() < 1e-9, "{truncated}");
     }
 
     #[test]
