@@ -169,9 +169,9 @@ fn garbage_on_the_imu_wire_halts_as_a_silent_imu() {
 }
 
 #[test]
-fn a_stuck_gyro_is_seen_within_a_tenth_of_a_second_and_lands() {
+fn a_stuck_gyro_is_seen_within_five_frames_and_lands() {
     // The gyro repeats its reading from 30 s. Its counts never repeat on a live sensor
-    // (core::imu::health): ten identical frames mark it lost, its rows leave the filter, the
+    // (core::imu::health): five identical frames mark it lost, its rows leave the filter, the
     // `estimator` failsafe lands at once, at the landing's full speed (the attitude is then
     // the model's guess, good for seconds).
     let (r, _logs) = sim_report(&["--duration", "40", "--inject", "gyro-stuck@30"]);
@@ -183,11 +183,11 @@ fn a_stuck_gyro_is_seen_within_a_tenth_of_a_second_and_lands() {
         "{r}"
     );
     let seen_s = fs["t_s"].as_f64().unwrap();
-    assert!((30.09..=30.2).contains(&seen_s), "seen at {seen_s} s: {r}");
+    assert!((30.04..=30.1).contains(&seen_s), "seen at {seen_s} s: {r}");
     let modes = r["modes"].as_array().unwrap();
     assert_eq!(modes.last().unwrap()["why"], "touchdown", "{r}");
-    // Down within 1.5 s, its attitude the model's: a firm contact (seeds 1-10: 0.02-1.51 m/s,
-    // this seed's first leg the hardest, nine of ten under 0.14), never a fall.
+    // Down within 2.5 s, its attitude the model's: a firm contact at the landing's own speed
+    // (seeds 1-10: at most 0.55 m/s, four of ten under 0.01), never a fall.
     for c in r["safety"]["contacts"].as_array().unwrap() {
         assert!(c["v_m_s"].as_f64().unwrap() <= 2.0, "{r}");
     }

@@ -591,7 +591,7 @@ impl HoverPlanner {
     /// weight: the profile's climb and braking flown forward, not left to the integrators
     /// (the original's set point, a hover, is kept bit for bit at 0).
     pub fn accelerate_up(&mut self, az_m_s2: f64) {
-        if az_m_s2 != 0.0 {
+        if az_m_s2 != 0.0 && az_m_s2.is_finite() {
             let mass_kg = self.mass_kg * (1.0 + az_m_s2 / GRAVITY_M_S2);
             self.sp.w_rad_s = [w_hover_rad_s(mass_kg.max(0.0)).min(self.w_max_rad_s); 4];
         }

@@ -130,7 +130,7 @@ mod tests {
         p.gate_fusion = true;
         p.r_gps_diag[9] = 0.49;
         p.r_gps_diag[10] = 0.49;
-        // The default profile's process noise: the 2012 flights' (100 on the position and the
+        // Process noise on the default profile's scale: the 2012 flights' (100 on the position and the
         // velocity, 1 on the accelerometer's states) would let the position go wherever a
         // fix says.
         p.q_diag = [

@@ -216,22 +216,49 @@ fn takeoff_spools_up_then_climbs_limited_and_holds_at_the_target() {
     assert_eq!((g.pos_m[2], g.vz_m_s), (0.0, 0.0));
     let mut prev = g;
     let mut t = 1_010_000;
+    let (mut sped_up, mut braked) = (false, false);
     while c.mode() == Mode::Takeoff {
         let g = follow(&mut c, t, t, &mut ev);
         assert!(g.vz_m_s <= 0.5 + 1e-9, "climb speed {}", g.vz_m_s);
         let acc = (g.vz_m_s - prev.vz_m_s).abs() / 0.01;
         assert!(acc <= 0.5 + 1e-6, "acceleration {acc} at {t}");
+        // The acceleration to fly is the speed's change.
+        let dv = (g.vz_m_s - prev.vz_m_s) / 0.01;
+        assert!(
+            (g.az_m_s2 - dv).abs() < 1e-6,
+            "{} against {dv} at {t}",
+            g.az_m_s2
+        );
+        (sped_up, braked) = (sped_up || g.az_m_s2 > 0.0, braked || g.az_m_s2 < 0.0);
         assert!(g.pos_m[2] <= 2.0, "the set point never passes the target");
         prev = g;
         t += STEP_US;
         assert!(t < 20_000_000, "never reached hold");
     }
     assert_eq!(c.mode(), Mode::Hold);
+    assert!(sped_up && braked);
     // 2 m at 0.5 m/s with 1 s to reach the speed and 1 s to stop: 5 s after the spool-up.
     assert!((5_900_000..6_200_000).contains(&t), "hold at {t}");
+    // At rest on the target: no acceleration. A landing eases in at its own.
+    for _ in 0..200 {
+        follow(&mut c, t, t, &mut ev);
+        t += STEP_US;
+    }
+    assert_eq!(follow(&mut c, t, t, &mut ev).az_m_s2, 0.0);
+    c.command(Command::Land, t, Ok(()), Some(&at(t, 2.0)), &mut ev);
+    assert_eq!(c.mode(), Mode::Land);
+    t += STEP_US;
+    let g = follow(&mut c, t, t, &mut ev);
+    assert!(g.az_m_s2 < 0.0 && g.az_m_s2 >= -0.5 - 1e-9, "{}", g.az_m_s2);
     assert_eq!(
         modes(&ev),
-        [Mode::Disarmed, Mode::Armed, Mode::Takeoff, Mode::Hold]
+        [
+            Mode::Disarmed,
+            Mode::Armed,
+            Mode::Takeoff,
+            Mode::Hold,
+            Mode::Land
+        ]
     );
 }
 
@@ -716,6 +743,17 @@ fn a_lost_gyro_lands_where_the_estimator_failsafe_would_hold_and_refuses_a_takeo
     c.on_estimate(&stuck_at(t), &mut ev);
     assert_eq!(failsafes(&ev), [(Failsafe::Estimator, Action::Land)]);
     assert_eq!(c.mode(), Mode::Land);
+    // Its set point, from the ground the takeoff had not yet left, eases down to a floor
+    // below it and brakes there (at 2 m/s² without the gyro): none of that is flown as
+    // thrust with the vehicle on the ground.
+    let mut braked = false;
+    for k in 3..800 {
+        let (g, _) = c.on_estimate(&stuck_at(k * STEP_US), &mut ev);
+        assert!(g.pos_m[2] <= 0.0, "step {k}: {}", g.pos_m[2]);
+        assert_eq!(g.az_m_s2, 0.0, "step {k}");
+        braked |= g.vz_m_s.abs() < 0.4 && k > 100;
+    }
+    assert!(braked, "the set point reached its floor");
 }
 
 fn stuck_at(t_us: i64) -> Observation {

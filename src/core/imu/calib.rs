@@ -275,7 +275,7 @@ pub enum NullPressure {
     /// Integer division truncating toward zero, as the original's C did (its logs depend on
     /// it): the reference up to 1 Pa low (0.5 on average), against flight pressures the FIR
     /// truncates 0.45 Pa low on average, so the altitude is off by the difference (up to
-    /// 0.08 m either way; 0.004 m high on average).
+    /// 0.08 m either way; 0.004 m low on average).
     #[default]
     Truncated,
     /// The exact mean, and the flight's pressures read from the FIR's sum before its

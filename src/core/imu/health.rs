@@ -5,8 +5,11 @@
 //! The rule is PX4's `DataValidator` stale check: a reading that repeats exactly, sample
 //! after sample, is not a sensor's. The ITG-3200's noise is several counts per axis: the 2012
 //! flight never repeats all three axes on two frames in a row (1631 frames), the simulator
-//! about once in 1000 frames and never on three, so [`STUCK_FRAMES`] identical frames cannot
-//! be a still vehicle (a run of five by chance: about one frame in 10¹²).
+//! about once in 1000 frames and never on three, so [`STUCK_FRAMES`] identical frames are not
+//! a still vehicle (a run of five by chance, were frames independent at the simulator's rate:
+//! about one frame in 10¹²). A quiet sensor at rest flagged by chance refuses the arm (the
+//! `estimator` check) until a new calibration watches it again; no real sensor's still noise
+//! has been measured for it.
 
 use super::frame::RawFrame;
 
