@@ -841,16 +841,21 @@ mod tests {
         assert_eq!(w[0], 4.0);
     }
 
-    #[test]
-    fn a_climbs_acceleration_is_flown_as_thrust_and_none_keeps_the_hover() {
-        let bounds = ManualBounds {
+    /// The manual keys' bounds the planner tests fly with.
+    fn manual_bounds() -> ManualBounds {
+        ManualBounds {
             max_tilt_rad: 0.1,
             max_yaw_offset_rad: 0.5,
             z_min_m: 0.5,
             z_max_m: 1.9,
             mass_min_kg: 1.5,
             mass_max_kg: 1.6,
-        };
+        }
+    }
+
+    #[test]
+    fn a_climbs_acceleration_is_flown_as_thrust_and_none_keeps_the_hover() {
+        let bounds = manual_bounds();
         let mut p = HoverPlanner::new(1.0, 0.0, [0.0, 0.0], 1.55, 368.0, bounds);
         p.update_setpoint();
         let hover = p.sp.w_rad_s;
@@ -874,14 +879,7 @@ mod tests {
 
     #[test]
     fn manual_commands_move_within_bounds() {
-        let bounds = ManualBounds {
-            max_tilt_rad: 0.1,
-            max_yaw_offset_rad: 0.5,
-            z_min_m: 0.5,
-            z_max_m: 1.9,
-            mass_min_kg: 1.5,
-            mass_max_kg: 1.6,
-        };
+        let bounds = manual_bounds();
         let mut p = HoverPlanner::new(1.5, 2.0, [0.0, 0.0], 1.55, 368.0, bounds);
         assert_eq!(
             p.apply(ManualCommand::from_key(b'j').unwrap()),
