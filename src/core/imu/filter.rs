@@ -42,26 +42,26 @@ impl Fir {
     /// The filtered frame (fields truncated toward zero), or `None` until six frames arrived.
     /// `T_us` is the newest frame's.
     pub fn output(&self) -> Option<RawFrame> {
+        self.filtered().map(|(frame, _)| frame)
+    }
+
+    /// [`Fir::output`], with the filtered pressure as the sum gives it, before the
+    /// truncation, Pa: truncating takes 0.45 Pa off on average (the sum's tenths), which
+    /// reads as 0.04 m of altitude.
+    pub fn filtered(&self) -> Option<(RawFrame, f64)> {
         let sum = self.sums()?;
         // A float's `as` cast truncates toward zero (and saturates), as the original's
         // assignment did.
         let axis = |k: usize| -> [i16; 3] { std::array::from_fn(|j| sum[k + j] as i16) };
-        Some(RawFrame {
+        let frame = RawFrame {
             t_us: self.ring[self.newest()].t_us,
             acc: axis(0),
             gyro: axis(3),
             magn: axis(6),
             temp_dc: sum[9] as i16,
             pres_pa: sum[PRESSURE] as u32,
-        })
-    }
-}
-
-impl Fir {
-    /// The filtered pressure as the sum gives it, before the truncation: Pa. Truncating
-    /// takes 0.45 Pa off on average (the sum's tenths), which reads as 0.04 m of altitude.
-    pub fn pressure_pa(&self) -> Option<f64> {
-        Some(self.sums()?[PRESSURE])
+        };
+        Some((frame, sum[PRESSURE]))
     }
 
     fn newest(&self) -> usize {
@@ -128,9 +128,10 @@ mod tests {
             });
         }
         // Newest first: 0.2·(100001 + 100000 + 100001 + 100000) + 0.1·(100001 + 100000).
-        let exact = fir.pressure_pa().expect("a full window");
+        let (frame, exact) = fir.filtered().expect("a full window");
         assert!((exact - 100_000.5).abs() < 1e-6, "{exact}");
-        assert_eq!(fir.output().map(|f| f.pres_pa), Some(100_000));
+        assert_eq!(frame.pres_pa, 100_000);
+        assert_eq!(fir.output(), Some(frame));
     }
 
     #[test]

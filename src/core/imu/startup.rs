@@ -172,13 +172,11 @@ impl ImuFrontEnd {
     }
 
     /// The FIR's frame in SI units. With the exact reference the altitude is read from the
-    /// FIR's pressure before its truncation too: truncating the flight's side alone would read
-    /// the altitude 0.04 m high on average, against the reference's exact mean.
-    fn convert(&self, filtered: &RawFrame, null: &NullEstimate) -> ImuSample {
+    /// FIR's pressure before its truncation, `p_pa`, too: truncating the flight's side alone
+    /// would read the altitude 0.04 m high on average, against the reference's exact mean.
+    fn convert(&self, filtered: &RawFrame, p_pa: f64, null: &NullEstimate) -> ImuSample {
         let mut sample = self.calib.convert(filtered, &null.reference);
-        if self.params.null_pressure == NullPressure::Exact
-            && let Some(p_pa) = self.fir.pressure_pa()
-        {
+        if self.params.null_pressure == NullPressure::Exact {
             sample.alt_m = altitude_m(p_pa, null.reference.p0_pa);
         }
         sample
@@ -257,8 +255,8 @@ impl ImuFrontEnd {
                 }
             }
             Phase::Running(null) => {
-                let event = match self.fir.output() {
-                    Some(filtered) => FrontEndEvent::Sample(self.convert(&filtered, &null)),
+                let event = match self.fir.filtered() {
+                    Some((frame, p_pa)) => FrontEndEvent::Sample(self.convert(&frame, p_pa, &null)),
                     // Only when calib_frames < 6: the window is not full yet.
                     None => FrontEndEvent::Calibrating {
                         frames: self.params.calib_frames,
